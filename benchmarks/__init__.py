@@ -1,0 +1,1 @@
+"""Benchmarks and evidence scripts (run as python -m benchmarks.<name>)."""

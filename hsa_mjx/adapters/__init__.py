@@ -1,0 +1,1 @@
+"""Adapters from HSAEnv to other APIs (Gymnasium)."""

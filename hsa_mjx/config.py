@@ -1,0 +1,291 @@
+"""Environment configuration: typed sections, YAML loading, presets and validation.
+
+A config is a frozen tree of dataclasses. YAML files map onto it section by section; unknown keys,
+wrong types and invalid values raise ``ValueError`` naming the key and listing the valid options,
+before anything is compiled. The defaults reproduce the original's shipped flat configuration
+(``flat_config.yaml``: hsaTerrainNoStiffModel, frame_skip 20, weights below), with the original's
+quirks fixed as listed in ``docs/environment.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+SCENES = ("flat", "terrain")
+INTEGRATORS = ("euler", "implicitfast", "rk4")
+SOLVERS = ("newton", "cg")
+CONES = ("pyramidal", "elliptic")
+GOAL_MODES = ("fixed", "random", "radial", "spiral")
+TERRAIN_TYPES = ("flat",)  # the terrain generators arrive with the terrain issue
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicsConfig:
+    """Simulator settings written into the MuJoCo model at load time."""
+
+    timestep: float = 0.001
+    integrator: str = "euler"
+    solver: str = "newton"
+    iterations: int = 100
+    ls_iterations: int = 50
+    tolerance: float = 1e-8
+    cone: str = "pyramidal"
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlConfig:
+    """Incremental position control of the eight servos."""
+
+    frame_skip: int = 20
+    max_increment: float = 0.1785
+    smooth_positions: bool = True
+    servo_target_limit: float = 3141.5  # hsaTerrainNoStiffModel ctrlrange; hsaLooseModel uses 6.28
+
+
+@dataclasses.dataclass(frozen=True)
+class RewardConfig:
+    """Weights and constants of every reward term (names match the logged components)."""
+
+    forward: float = 6.0
+    forward_rectified: bool = False  # original: max(0, v.u); rewards back-and-forth oscillation
+    lateral: float = 0.0  # subtracted as a cost (the original added it)
+    ctrl: float = 0.001
+    contact: float = 0.0005
+    contact_force_threshold: float = 50.0
+    constraint: float = 0.05
+    constraint_margin: float = 0.01
+    constraint_bonus: float = 0.025
+    acceleration: float = 1e-5
+    joint_velocity: float = 5e-4
+    distance: float = 10.0
+    stagnation: float = 0.15  # flat_config lacked the key; the class default applied
+    stagnation_window: int = 50
+    stagnation_threshold: float = 0.05
+    alive: float = 0.03
+    goal_bonus: float = 40.0
+    checkpoint: float = 200.0
+    spiral_completion: float = 100.0
+    termination: float = 100.0  # the original hard-coded 100 whatever the config said
+
+
+@dataclasses.dataclass(frozen=True)
+class TerminationConfig:
+    """Limits that end an episode early, and the episode length that truncates it."""
+
+    max_episode_steps: int = 4000
+    z_min: float = -0.5
+    z_max: float = 0.5
+    qvel_limit: float = 2000.0
+    qacc_limit: float = 15000.0
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalConfig:
+    """How each env's goal is chosen at reset and when it counts as reached."""
+
+    mode: str = "random"  # fixed | random (original rules) | radial (curriculum range) | spiral
+    position: tuple[float, float] = (1.5, 0.0)  # fixed mode
+    success_radius: float = 0.2
+    radial_range: tuple[float, float] = (1.5, 1.8)  # radial mode: distance range of new goals
+    num_checkpoints: int = 8
+    checkpoint_radius: float = 0.4
+    spiral_start_radius: float = 0.5
+    spiral_end_radius: float = 4.0
+    spiral_turns: float = 2.0
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Everything that defines one HSA environment."""
+
+    name: str = "flat"
+    scene: str = "flat"
+    terrain_type: str = "flat"
+    spawn_height: float = 0.2
+    physics: PhysicsConfig = PhysicsConfig()
+    control: ControlConfig = ControlConfig()
+    reward: RewardConfig = RewardConfig()
+    termination: TerminationConfig = TerminationConfig()
+    goal: GoalConfig = GoalConfig()
+
+    @property
+    def dt(self) -> float:
+        """Length of one environment step in seconds."""
+        return self.physics.timestep * self.control.frame_skip
+
+
+_CHOICES = {
+    ("scene",): SCENES,
+    ("terrain_type",): TERRAIN_TYPES,
+    ("physics", "integrator"): INTEGRATORS,
+    ("physics", "solver"): SOLVERS,
+    ("physics", "cone"): CONES,
+    ("goal", "mode"): GOAL_MODES,
+}
+_POSITIVE = {
+    ("physics", "timestep"), ("physics", "iterations"), ("physics", "ls_iterations"),
+    ("control", "frame_skip"), ("control", "servo_target_limit"),
+    ("termination", "max_episode_steps"), ("termination", "qvel_limit"),
+    ("termination", "qacc_limit"), ("goal", "success_radius"), ("goal", "num_checkpoints"),
+    ("goal", "checkpoint_radius"), ("reward", "stagnation_window"),
+}
+
+
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """Convert a YAML value to the annotated type or raise ValueError naming the key."""
+    origin = typing.get_origin(annotation)
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"config key '{key}' must be true or false, got {value!r}")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"config key '{key}' must be an integer, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"config key '{key}' must be a number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ValueError(f"config key '{key}' must be a string, got {value!r}")
+        return value
+    if origin is tuple:
+        args = typing.get_args(annotation)
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise ValueError(f"config key '{key}' must be a list of {len(args)} numbers, got {value!r}")
+        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+    raise TypeError(f"unsupported annotation {annotation!r} for '{key}'")  # programming error
+
+
+def _build(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
+    """Build dataclass ``cls`` from a mapping, recursing into nested sections."""
+    if not isinstance(data, Mapping):
+        raise ValueError(f"config section '{prefix or '<root>'}' must be a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        where = f"section '{prefix}'" if prefix else "the top level"
+        raise ValueError(f"unknown config key(s) {unknown} in {where}; valid keys: {sorted(fields)}")
+    kwargs = {}
+    for name, value in data.items():
+        key = f"{prefix}.{name}" if prefix else name
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            kwargs[name] = _build(hint, value, key)
+        else:
+            kwargs[name] = _coerce(value, hint, key)
+    return cls(**kwargs)
+
+
+def validate(config: EnvConfig) -> EnvConfig:
+    """Check choices and value ranges; return the config unchanged or raise ValueError."""
+    for path, choices in _CHOICES.items():
+        value = _get(config, path)
+        if value not in choices:
+            raise ValueError(f"config key '{'.'.join(path)}' = {value!r} is not valid; choose one of {list(choices)}")
+    for path in _POSITIVE:
+        if not _get(config, path) > 0:
+            raise ValueError(f"config key '{'.'.join(path)}' must be > 0, got {_get(config, path)!r}")
+    lo, hi = config.goal.radial_range
+    if not 0 <= lo <= hi:
+        raise ValueError(f"config key 'goal.radial_range' must satisfy 0 <= min <= max, got {(lo, hi)}")
+    if config.termination.z_min >= config.termination.z_max:
+        raise ValueError("config keys 'termination.z_min' must be below 'termination.z_max'")
+    if config.physics.tolerance < 0:
+        raise ValueError("config key 'physics.tolerance' must be >= 0")
+    return config
+
+
+def _get(config: Any, path: tuple[str, ...]) -> Any:
+    for part in path:
+        config = getattr(config, part)
+    return config
+
+
+def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
+    """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
+    merged = _merge(to_dict(base or EnvConfig()), dict(data or {}))
+    return validate(_build(EnvConfig, merged))
+
+
+def _merge(base: dict, update: Mapping[str, Any]) -> dict:
+    out = dict(base)
+    for key, value in update.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def to_dict(config: EnvConfig) -> dict:
+    """The config as plain nested dicts and lists (YAML-ready)."""
+    def plain(value: Any) -> Any:
+        if isinstance(value, tuple):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        return value
+    return plain(dataclasses.asdict(config))
+
+
+def with_overrides(config: EnvConfig, **overrides: Any) -> EnvConfig:
+    """Apply dotted-key overrides, e.g. ``**{"reward.forward": 3.0}`` or ``goal={"mode": "fixed"}``."""
+    nested: dict = {}
+    for dotted, value in overrides.items():
+        parts = dotted.replace("__", ".").split(".")
+        node = nested
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+    return from_dict(nested, base=config)
+
+
+def load_config(path: str | Path) -> EnvConfig:
+    """Load an environment config from a YAML file.
+
+    The file may hold the env keys at its top level or under an ``env:`` section (training
+    configs keep trainer settings beside it). Missing keys take the flat preset's values.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unknown keys, wrong types or invalid values (the message names the key).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ValueError(f"config file {path} is not valid YAML: {err}") from err
+    if isinstance(data, Mapping) and "env" in data:
+        data = data["env"]
+    return from_dict(data)
+
+
+PRESETS: dict[str, EnvConfig] = {
+    "flat": EnvConfig(),
+    "flat_fixed_goal": EnvConfig(name="flat_fixed_goal", goal=GoalConfig(mode="fixed")),
+    "flat_radial": EnvConfig(name="flat_radial", goal=GoalConfig(mode="radial")),
+}
+
+
+def get_preset(name: str) -> EnvConfig:
+    """Return a named preset or raise ValueError listing the presets."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; available presets: {sorted(PRESETS)}")
+    return PRESETS[name]
+
+
+__all__ = [
+    "EnvConfig", "PhysicsConfig", "ControlConfig", "RewardConfig", "TerminationConfig",
+    "GoalConfig", "PRESETS", "get_preset", "load_config", "from_dict", "to_dict",
+    "with_overrides", "validate",
+]

@@ -1,0 +1,198 @@
+"""HSAEnv: the HSA crawling task as pure ``reset``/``step`` functions over an MJX model (Brax ``Env``).
+
+Wiring only: control, physics, observation, reward, termination and goals live in their modules.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from brax.envs.base import Env as BraxEnv
+from mujoco import mjx
+
+from hsa_mjx import control, goals, observation, physics, reward, termination
+from hsa_mjx.config import EnvConfig
+from hsa_mjx.model import RobotModel, load_robot
+from hsa_mjx.types import EnvState, SimState, TaskState
+
+GOAL_MARKER_Z = 0.1
+
+
+class HSAEnv(BraxEnv):
+    """The HSA two-block robot crawling to per-env goals, as a jittable, vmappable Brax env.
+
+    ``reset(rng)`` and ``step(state, action)`` are pure functions of their arguments (the model
+    and config are fixed at construction); vmap them for a batch. Actions are 8 normalised
+    increments in [-1, 1] (non-finite entries become 0, counted in ``metrics["nonfinite_action"]``).
+    ``state.done`` is 1.0 when the episode terminated (``metrics["termination/<reason>"]``) or was
+    truncated at ``max_episode_steps`` (``info["truncation"]``).
+    """
+
+    def __init__(self, config: EnvConfig, asset_dir: Path | None = None):
+        self.config = config
+        self.robot: RobotModel = load_robot(config, asset_dir)
+        self.index = self.robot.index
+        self.weights = reward.RewardWeights.from_config(config.reward)
+        self._init_static_arrays()
+
+    def _init_static_arrays(self) -> None:
+        """Precompute the reset state and static addresses once."""
+        cfg, model = self.config, self.robot.mjx_model
+        data = mjx.make_data(model)
+        qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
+        self._data0 = mjx.forward(model, data.replace(qpos=qpos))
+        pyramidal = cfg.physics.cone == "pyramidal"
+        slots = self.index.foot_contacts
+        self._foot_efc = physics.foot_contact_efc(self._data0, slots, 4 if pyramidal else 3)
+        self._foot_friction = jnp.asarray(np.asarray(self._data0._impl.contact.friction)[slots][..., :2])
+        self._checkpoints = jnp.asarray(
+            goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
+        self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
+
+    # ----- Brax Env interface -------------------------------------------------------------
+    @property
+    def observation_size(self) -> int:
+        return observation.OBSERVATION_SIZE
+
+    @property
+    def action_size(self) -> int:
+        return len(self.index.servo_ids)
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    @property
+    def dt(self) -> float:
+        """Seconds per env step (timestep x frame_skip)."""
+        return self.config.dt
+
+    def reset(self, rng: jax.Array) -> EnvState:
+        """Start an episode: the robot at rest at its spawn pose and a goal drawn from ``rng``."""
+        return self.reset_with_goal_range(rng, self._radial_range)
+
+    def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array) -> EnvState:
+        """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum)."""
+        rng, goal_key = jax.random.split(rng)
+        goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints)
+        data = self._with_goal_marker(self._data0, goal_xy)
+        position = observation.robot_xy(data, self.index)
+        distance, _ = observation.goal_vector(position, goal_xy)
+        window = self.config.reward.stagnation_window
+        task = TaskState(
+            goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=jnp.zeros((), jnp.int32),
+            prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
+            com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
+            step_count=jnp.zeros((), jnp.int32), rng=rng)
+        obs = observation.observe(data, goal_xy, self.index)
+        metrics = self._metrics(
+            {name: jnp.zeros(()) for name in reward.TERM_NAMES},
+            {name: jnp.zeros((), bool) for name in termination.REASONS},
+            jnp.zeros((), bool), distance, task.checkpoint_index)
+        return EnvState(pipeline_state=SimState(data, task), obs=obs, reward=jnp.zeros(()),
+                        done=jnp.zeros(()), metrics=metrics, info={"truncation": jnp.zeros(())})
+
+    def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
+        """Replace the current goal (non-spiral modes); progress terms restart from it."""
+        sim: SimState = state.pipeline_state
+        data = self._with_goal_marker(sim.physics, goal_xy)
+        distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
+        task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
+        return state.replace(pipeline_state=SimState(data, task),
+                             obs=observation.observe(data, goal_xy, self.index))
+
+    def step(self, state: EnvState, action: jax.Array) -> EnvState:
+        """Advance one env step (``frame_skip`` physics steps) with a normalised action."""
+        cfg, idx = self.config, self.index
+        sim: SimState = state.pipeline_state
+        task, data = sim.task, sim.physics
+        action, bad_action = control.sanitize_action(jnp.asarray(action, jnp.float32))
+        start = data.ctrl[idx.servo_ids]
+        end = control.next_targets(start, action, cfg.control.max_increment, cfg.control.servo_target_limit)
+        targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
+        before = observation.robot_xy(data, idx)
+        new_data, stats = physics.simulate(self.robot.mjx_model, data, targets, idx)
+        after = observation.robot_xy(new_data, idx)
+        velocity = jnp.clip((after - before) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
+        task, collected, completed = self._update_goal(task, after)
+        new_data = self._with_goal_marker(new_data, task.goal_xy)
+        distance, direction = observation.goal_vector(after, task.goal_xy)
+        obs = observation.observe(new_data, task.goal_xy, idx)
+        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), jnp.zeros(()),
+                                              cfg.termination, idx)
+        failed = termination.any_reason(reasons)
+        success = completed if cfg.goal.mode == "spiral" else distance < cfg.goal.success_radius
+        success = success & jnp.logical_not(failed)
+        reasons["goal_reached"] = success
+        terminated = failed | success
+        task, progress, full = self._record_position(task, after)
+        inputs = reward.RewardInputs(
+            velocity=velocity, goal_direction=direction, action=action, prev_action=task.prev_action,
+            joint_pos=observation.joint_positions(new_data, idx),
+            joint_vel=observation.joint_velocities(new_data, idx), prev_joint_vel=task.prev_joint_vel,
+            foot_force=physics.foot_forces(new_data, self._foot_efc, self._foot_friction,
+                                           cfg.physics.cone == "pyramidal"),
+            distance=distance, prev_distance=task.prev_distance, stagnation_progress=progress,
+            history_full=full, checkpoint_collected=collected,
+            spiral_complete=completed & success, goal_reached=success & (cfg.goal.mode != "spiral"),
+            failed=failed, terminated=terminated, dt=cfg.dt,
+            rectified_forward=cfg.reward.forward_rectified,
+            constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())))
+        components = reward.compute_rewards(inputs, self.weights)
+        total = reward.total_reward(components)
+        steps = task.step_count + 1
+        truncated = (steps >= cfg.termination.max_episode_steps) & jnp.logical_not(terminated)
+        task = task.replace(prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance,
+                            step_count=steps)
+        new_data, obs, total = self._sanitize(data, new_data, obs, total, reasons["non_finite"])
+        metrics = self._metrics(components, reasons, bad_action, distance, task.checkpoint_index)
+        info = dict(state.info, truncation=truncated.astype(jnp.float32))
+        return state.replace(pipeline_state=SimState(new_data, task), obs=obs, reward=total,
+                             done=(terminated | truncated).astype(jnp.float32), metrics=metrics, info=info)
+
+    # ----- helpers ------------------------------------------------------------------------
+    def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array) -> mjx.Data:
+        """Place this env's goal marker (a mocap body; purely visual)."""
+        marker = jnp.concatenate([goal_xy, jnp.full((1,), GOAL_MARKER_Z)])
+        return data.replace(mocap_pos=data.mocap_pos.at[self.index.goal_mocap].set(marker))
+
+    def _update_goal(self, task: TaskState, position: jax.Array) -> tuple[TaskState, jax.Array, jax.Array]:
+        """Spiral: collect the current checkpoint and move the goal to the next one."""
+        if self.config.goal.mode != "spiral":
+            return task, jnp.zeros((), bool), jnp.zeros((), bool)
+        collected, completed, index = goals.advance_checkpoint(
+            position, task.checkpoints, task.checkpoint_index, self.config.goal.checkpoint_radius)
+        goal_xy = task.checkpoints[index]
+        # Measure progress towards the new checkpoint from here: no distance reward on a switch.
+        new_prev = jnp.where(collected, jnp.linalg.norm(goal_xy - position), task.prev_distance)
+        return task.replace(goal_xy=goal_xy, checkpoint_index=index, prev_distance=new_prev), collected, completed
+
+    @staticmethod
+    def _record_position(task: TaskState, position: jax.Array) -> tuple[TaskState, jax.Array, jax.Array]:
+        """Append to the stagnation window; return displacement over the window and whether it is full."""
+        window = task.com_history.shape[0]
+        history = task.com_history.at[task.history_count % window].set(position)
+        count = task.history_count + 1
+        oldest = history[count % window]
+        return task.replace(com_history=history, history_count=count), jnp.linalg.norm(position - oldest), count >= window
+
+    def _sanitize(self, old: mjx.Data, new: mjx.Data, obs: jax.Array, total: jax.Array,
+                  non_finite: jax.Array) -> tuple[mjx.Data, jax.Array, jax.Array]:
+        """Keep non-finite values away from learners: last finite physics, zeroed obs, finite reward."""
+        data = jax.tree.map(lambda a, b: jnp.where(non_finite, a, b), old, new)
+        obs = jnp.where(jnp.isfinite(obs), obs, 0.0)
+        total = jnp.where(jnp.isfinite(total), total, -self.weights.termination)
+        return data, obs, total
+
+    @staticmethod
+    def _metrics(components: dict, reasons: dict, bad_action: jax.Array, distance: jax.Array,
+                 checkpoint_index: jax.Array) -> dict[str, jax.Array]:
+        metrics = {f"reward/{k}": v.astype(jnp.float32) for k, v in components.items()}
+        metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in reasons.items()})
+        metrics["nonfinite_action"] = bad_action.astype(jnp.float32)
+        metrics["distance_to_goal"] = jnp.where(jnp.isfinite(distance), distance, 0.0).astype(jnp.float32)
+        metrics["checkpoint_index"] = checkpoint_index.astype(jnp.float32)
+        return metrics

@@ -1,0 +1,73 @@
+"""Goals held per env: fixed, the original's random rules, a radial range, or spiral checkpoints."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.config import EnvConfig, GoalConfig
+
+
+def spiral_checkpoints(goal: GoalConfig) -> np.ndarray:
+    """Checkpoints i = 1..N along the clockwise spiral of the original, shape (N, 2).
+
+    s = i / N, angle = pi - 2 pi turns s, radius = r0 + (r1 - r0) s.
+    """
+    s = np.arange(1, goal.num_checkpoints + 1) / goal.num_checkpoints
+    angle = np.pi - 2.0 * np.pi * goal.spiral_turns * s
+    radius = goal.spiral_start_radius + (goal.spiral_end_radius - goal.spiral_start_radius) * s
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1).astype(np.float32)
+
+
+def num_checkpoint_slots(config: EnvConfig) -> int:
+    """Static length of the per-env checkpoint array."""
+    return config.goal.num_checkpoints if config.goal.mode == "spiral" else 1
+
+
+def _random_side(rng: jax.Array, low: float, high: float) -> jax.Array:
+    k_side, k_mag = jax.random.split(rng)
+    side = jnp.where(jax.random.bernoulli(k_side), 1.0, -1.0)
+    return side * jax.random.uniform(k_mag, (), minval=low, maxval=high)
+
+
+def original_random_goal(rng: jax.Array, terrain_type: str) -> jax.Array:
+    """The original's rules: flat: x in +-[1.5, 4.5], y in [-4, 4]; else x in +-[1.5, 2.0], y = 0."""
+    k_x, k_y = jax.random.split(rng)
+    if terrain_type == "flat":
+        return jnp.stack([_random_side(k_x, 1.5, 4.5), jax.random.uniform(k_y, (), minval=-4.0, maxval=4.0)])
+    return jnp.stack([_random_side(k_x, 1.5, 2.0), jnp.zeros(())])
+
+
+def radial_goal(rng: jax.Array, radius_range: jax.Array) -> jax.Array:
+    """Distance uniform in ``radius_range`` (traced), direction uniform in [0, 2 pi)."""
+    k_r, k_a = jax.random.split(rng)
+    radius = jax.random.uniform(k_r, (), minval=radius_range[0], maxval=radius_range[1])
+    angle = jax.random.uniform(k_a, (), minval=0.0, maxval=2.0 * jnp.pi)
+    return radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+
+
+def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
+                 checkpoints: jax.Array) -> jax.Array:
+    """The goal of a new episode; the mode is static, the ranges and checkpoints are traced."""
+    mode = config.goal.mode
+    if mode == "fixed":
+        return jnp.asarray(config.goal.position, jnp.float32)
+    if mode == "random":
+        return original_random_goal(rng, config.terrain_type)
+    if mode == "radial":
+        return radial_goal(rng, radius_range)
+    return checkpoints[0]
+
+
+def advance_checkpoint(position: jax.Array, checkpoints: jax.Array, index: jax.Array,
+                       radius: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Collect the current checkpoint if within ``radius``.
+
+    Returns (collected, completed, new index); the index stops at N - 1 after the last one.
+    """
+    last = checkpoints.shape[0] - 1
+    collected = jnp.linalg.norm(position - checkpoints[index]) < radius
+    completed = collected & (index == last)
+    new_index = jnp.where(collected, jnp.minimum(index + 1, last), index)
+    return collected, completed, new_index

@@ -1,0 +1,187 @@
+"""Reward terms: one small pure function per term, each returning its signed contribution.
+
+Every term takes the :class:`RewardInputs` of one step and the traced :class:`RewardWeights`, and
+returns the amount added to the step reward (costs are negative). ``compute_rewards`` returns a
+dict of named components; the reward is their sum. Caps and clips are the original's constants.
+Quirks of the original that are fixed here are listed in ``docs/environment.md``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from hsa_mjx.config import RewardConfig
+
+VELOCITY_CLIP = 5.0  # m/s, per component
+CTRL_CAP = 20.0
+CONTACT_CAP = 30.0
+CONSTRAINT_CAP = 50.0
+ACC_CLIP, ACC_CAP = 50.0, 20.0
+JOINT_VEL_CLIP, JOINT_VEL_CAP = 50.0, 50.0
+CONSTRAINT_LIMIT = jnp.pi  # |qA - qC| must stay below pi (minus the margin)
+
+
+@struct.dataclass
+class RewardWeights:
+    """Reward weights and per-term parameters as traced float32 scalars (may differ per env)."""
+
+    forward: jax.Array
+    lateral: jax.Array
+    ctrl: jax.Array
+    contact: jax.Array
+    contact_force_threshold: jax.Array
+    constraint: jax.Array
+    constraint_margin: jax.Array
+    constraint_bonus: jax.Array
+    acceleration: jax.Array
+    joint_velocity: jax.Array
+    distance: jax.Array
+    stagnation: jax.Array
+    stagnation_threshold: jax.Array
+    alive: jax.Array
+    goal_bonus: jax.Array
+    checkpoint: jax.Array
+    spiral_completion: jax.Array
+    termination: jax.Array
+
+    @classmethod
+    def from_config(cls, config: RewardConfig) -> "RewardWeights":
+        """Take every numeric field of ``config`` that is a weight or term parameter."""
+        names = [f for f in cls.__dataclass_fields__]
+        return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
+
+
+@struct.dataclass
+class RewardInputs:
+    """Everything the reward terms read for one env step."""
+
+    velocity: jax.Array  # (2,) robot xy velocity over the step, clipped to +-5 m/s
+    goal_direction: jax.Array  # (2,) unit vector from the robot to the current goal
+    action: jax.Array  # (8,) normalised action of this step
+    prev_action: jax.Array  # (8,)
+    joint_pos: jax.Array  # (8,) actuated hinge angles
+    joint_vel: jax.Array  # (8,)
+    prev_joint_vel: jax.Array  # (8,)
+    foot_force: jax.Array  # (4,) contact force magnitude on each foot (N)
+    distance: jax.Array  # () distance to the current goal
+    prev_distance: jax.Array  # () distance at the end of the last step (to the same goal)
+    stagnation_progress: jax.Array  # () displacement over the stagnation window
+    history_full: jax.Array  # () bool, the window holds enough positions
+    checkpoint_collected: jax.Array  # () bool
+    spiral_complete: jax.Array  # () bool
+    goal_reached: jax.Array  # () bool (non-spiral success)
+    failed: jax.Array  # () bool, terminated for a reason other than success
+    terminated: jax.Array  # () bool
+    dt: float = struct.field(pytree_node=False, default=0.02)  # env step length (static)
+    rectified_forward: bool = struct.field(pytree_node=False, default=False)
+    constraint_pairs: tuple = struct.field(pytree_node=False, default=((0, 4), (1, 5), (2, 6), (3, 7)))
+
+
+def forward(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Velocity towards the goal (signed; the original rectified it with max(0, .))."""
+    speed = jnp.dot(x.velocity, x.goal_direction)
+    if x.rectified_forward:
+        speed = jnp.maximum(speed, 0.0)
+    return w.forward * speed
+
+
+def lateral_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """World-Y speed as a cost (the original added it as a reward)."""
+    return -w.lateral * jnp.abs(x.velocity[1])
+
+
+def ctrl_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Action smoothness: squared change of the normalised action, capped."""
+    return -jnp.minimum(CTRL_CAP, w.ctrl * jnp.sum(jnp.square(x.action - x.prev_action)))
+
+
+def contact_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Foot contact force above the threshold, squared and capped (the original read torques)."""
+    excess = jnp.maximum(0.0, x.foot_force - w.contact_force_threshold)
+    return -jnp.minimum(CONTACT_CAP, w.contact * jnp.sum(jnp.square(excess)))
+
+
+def _pair_differences(x: RewardInputs) -> jax.Array:
+    pairs = jnp.asarray(x.constraint_pairs)
+    return jnp.abs(x.joint_pos[pairs[:, 0]] - x.joint_pos[pairs[:, 1]])
+
+
+def constraint_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Paired hinges (kA, kC) whose angle difference reaches pi - margin: quadratic ramp to 1 each."""
+    threshold = CONSTRAINT_LIMIT - w.constraint_margin
+    over = jnp.clip((_pair_differences(x) - threshold) / w.constraint_margin, 0.0, 1.0)
+    return -jnp.minimum(CONSTRAINT_CAP, w.constraint * jnp.sum(jnp.square(over)))
+
+
+def constraint_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Bonus per pair that keeps its angle difference below pi - margin (now a config weight)."""
+    ok = _pair_differences(x) <= CONSTRAINT_LIMIT - w.constraint_margin
+    return w.constraint_bonus * jnp.sum(ok.astype(jnp.float32))
+
+
+def acceleration_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Hinge accelerations over the env step, clipped to +-50 each, squared, capped."""
+    acc = jnp.clip((x.joint_vel - x.prev_joint_vel) / x.dt, -ACC_CLIP, ACC_CLIP)
+    return -jnp.minimum(ACC_CAP, w.acceleration * jnp.sum(jnp.square(acc)))
+
+
+def joint_velocity_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Hinge velocities clipped to +-50 each, squared, capped."""
+    vel = jnp.clip(x.joint_vel, -JOINT_VEL_CLIP, JOINT_VEL_CLIP)
+    return -jnp.minimum(JOINT_VEL_CAP, w.joint_velocity * jnp.sum(jnp.square(vel)))
+
+
+def distance(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Progress towards the goal: decrease of the distance over the step."""
+    return w.distance * (x.prev_distance - x.distance)
+
+
+def stagnation_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Linear penalty when the robot moved less than the threshold over the full window."""
+    shortfall = jnp.maximum(0.0, 1.0 - x.stagnation_progress / w.stagnation_threshold)
+    return -jnp.where(x.history_full, w.stagnation * shortfall, 0.0)
+
+
+def checkpoint(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Bonus for collecting the current spiral checkpoint."""
+    return jnp.where(x.checkpoint_collected, w.checkpoint, 0.0)
+
+
+def spiral_completion(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Bonus when the last spiral checkpoint is collected (hard-coded 100 in the original)."""
+    return jnp.where(x.spiral_complete, w.spiral_completion, 0.0)
+
+
+def goal_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Bonus for reaching a non-spiral goal (hard-coded 40 in the original)."""
+    return jnp.where(x.goal_reached, w.goal_bonus, 0.0)
+
+
+def alive(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Bonus for every step that did not terminate."""
+    return jnp.where(x.terminated, 0.0, w.alive)
+
+
+def termination(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Penalty for an early termination other than success (the original ignored its weight)."""
+    return -jnp.where(x.failed, w.termination, 0.0)
+
+
+TERMS = (
+    forward, lateral_cost, ctrl_cost, contact_cost, constraint_cost, constraint_bonus,
+    acceleration_cost, joint_velocity_cost, distance, stagnation_cost, checkpoint,
+    spiral_completion, goal_bonus, alive, termination,
+)
+TERM_NAMES = tuple(term.__name__ for term in TERMS)
+
+
+def compute_rewards(x: RewardInputs, w: RewardWeights) -> dict[str, jax.Array]:
+    """All reward components by name; the step reward is their sum."""
+    return {term.__name__: term(x, w).astype(jnp.float32) for term in TERMS}
+
+
+def total_reward(components: dict[str, jax.Array]) -> jax.Array:
+    """Sum of the named components."""
+    return jnp.sum(jnp.stack(list(components.values())))

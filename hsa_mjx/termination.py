@@ -1,0 +1,64 @@
+"""Termination: named reasons evaluated on the state after a step, kept apart from truncation."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+from mujoco import mjx
+
+from hsa_mjx.config import TerminationConfig
+from hsa_mjx.model import RobotIndex
+
+FAILURE_REASONS = (
+    "non_finite", "block_a_too_high", "block_a_too_low", "block_b_too_high", "block_b_too_low",
+    "qvel_limit", "qacc_limit",
+)
+REASONS = FAILURE_REASONS + ("goal_reached",)
+
+
+@struct.dataclass
+class SubstepStats:
+    """Worst values seen over the substeps of one env step (the original looked at the last only)."""
+
+    max_abs_qvel: jax.Array
+    max_abs_qacc: jax.Array
+    non_finite: jax.Array  # bool: any NaN/Inf in qpos, qvel or qacc at any substep
+
+
+def substep_stats(data: mjx.Data) -> SubstepStats:
+    """Stats of one substep's state."""
+    finite = (jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+              & jnp.all(jnp.isfinite(data.qacc)))
+    return SubstepStats(
+        max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))),
+        max_abs_qacc=jnp.max(jnp.abs(jnp.nan_to_num(data.qacc))),
+        non_finite=jnp.logical_not(finite),
+    )
+
+
+def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
+    """Worst of two substep stats."""
+    return SubstepStats(jnp.maximum(a.max_abs_qvel, b.max_abs_qvel),
+                        jnp.maximum(a.max_abs_qacc, b.max_abs_qacc), a.non_finite | b.non_finite)
+
+
+def failure_reasons(data: mjx.Data, stats: SubstepStats, obs_finite: jax.Array,
+                    ground_height: jax.Array, config: TerminationConfig,
+                    index: RobotIndex) -> dict[str, jax.Array]:
+    """Each failure reason as a bool; block heights are measured from the ground under the robot."""
+    z = data.xpos[index.block_body, 2] - ground_height
+    return {
+        "non_finite": stats.non_finite | jnp.logical_not(obs_finite),
+        "block_a_too_high": z[0] > config.z_max,
+        "block_a_too_low": z[0] < config.z_min,
+        "block_b_too_high": z[1] > config.z_max,
+        "block_b_too_low": z[1] < config.z_min,
+        "qvel_limit": stats.max_abs_qvel > config.qvel_limit,
+        "qacc_limit": stats.max_abs_qacc > config.qacc_limit,
+    }
+
+
+def any_reason(reasons: dict[str, jax.Array]) -> jax.Array:
+    """True when any reason holds."""
+    return jnp.any(jnp.stack(list(reasons.values())))

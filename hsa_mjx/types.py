@@ -1,0 +1,42 @@
+"""State pytrees: the task state of one env, the simulator state and the Brax-compatible EnvState."""
+
+from __future__ import annotations
+
+import jax
+from brax.envs.base import State as BraxState
+from flax import struct
+from mujoco import mjx
+
+
+@struct.dataclass
+class TaskState:
+    """Per-env task bookkeeping that changes every step (all traced arrays)."""
+
+    goal_xy: jax.Array  # (2,) current goal (the current checkpoint on the spiral)
+    checkpoints: jax.Array  # (N, 2) this env's checkpoint sequence (N static; 1 when unused)
+    checkpoint_index: jax.Array  # () int32, index of the current checkpoint
+    prev_action: jax.Array  # (8,) last normalised action (zeros after reset)
+    prev_joint_vel: jax.Array  # (8,) actuated hinge velocities at the end of the last step
+    prev_distance: jax.Array  # () distance to the goal at the end of the last step
+    com_history: jax.Array  # (W, 2) ring buffer of robot positions for the stagnation term
+    history_count: jax.Array  # () int32, positions written since reset
+    step_count: jax.Array  # () int32, env steps since reset
+    rng: jax.Array  # PRNG key of this env
+
+
+@struct.dataclass
+class SimState:
+    """What Brax calls the pipeline state: the physics and the task, reset together."""
+
+    physics: mjx.Data
+    task: TaskState
+
+
+@struct.dataclass
+class EnvState(BraxState):
+    """Brax ``State`` whose ``pipeline_state`` is a :class:`SimState`.
+
+    Fields: ``pipeline_state`` (SimState), ``obs`` (24,), ``reward`` (), ``done`` () float 0/1
+    (terminated or truncated), ``metrics`` (named reward components, termination reasons,
+    counters), ``info`` (``truncation``: 1.0 when the episode hit ``max_episode_steps``).
+    """

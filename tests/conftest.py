@@ -1,0 +1,49 @@
+"""Shared fixtures: one env, its jitted reset/step compiled once per session, a small batch."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+
+CACHE = Path(os.environ.get("HSA_MJX_JAX_CACHE", Path.home() / ".cache" / "hsa_mjx_jax"))
+jax.config.update("jax_compilation_cache_dir", str(CACHE))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+BATCH = 4
+
+
+class TraceCounter:
+    """Wrap a function and count how often JAX traces it (a retracing guard)."""
+
+    def __init__(self, fn):
+        self.fn, self.traces = fn, 0
+
+    def __call__(self, *args):
+        self.traces += 1
+        return self.fn(*args)
+
+
+@pytest.fixture(scope="session")
+def env():
+    import hsa_mjx
+    return hsa_mjx.make_env("flat")
+
+
+@pytest.fixture(scope="session")
+def jit_single(env):
+    """(reset, step, step trace counter) for one env."""
+    counter = TraceCounter(env.step)
+    return jax.jit(env.reset), jax.jit(counter), counter
+
+
+@pytest.fixture(scope="session")
+def jit_batch(env):
+    """(reset, step, step trace counter) vmapped over a batch of envs."""
+    counter = TraceCounter(env.step)
+    return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(counter)), counter

@@ -1,0 +1,74 @@
+"""Config loading, presets and the errors bad input gets (no MJX needed)."""
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hsa_mjx import config as cfg
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_defaults_reproduce_original_flat_config():
+    """Weights of the original flat_config.yaml (ORIGINAL_FACTS 6.6)."""
+    c = cfg.EnvConfig()
+    r = c.reward
+    assert (r.forward, r.ctrl, r.contact, r.lateral, r.constraint) == (6.0, 0.001, 0.0005, 0.0, 0.05)
+    assert (r.acceleration, r.joint_velocity, r.distance, r.alive) == (1e-5, 5e-4, 10.0, 0.03)
+    assert r.stagnation == 0.15 and r.termination == 100.0
+    assert c.control.frame_skip == 20 and c.control.max_increment == 0.1785
+    assert c.control.smooth_positions and c.termination.max_episode_steps == 4000
+    assert c.control.servo_target_limit == 3141.5 and c.physics.timestep == 0.001
+    assert c.dt == pytest.approx(0.02)
+
+
+def test_shipped_flat_yaml_equals_preset():
+    assert cfg.load_config(ROOT / "configs" / "flat.yaml") == cfg.get_preset("flat")
+
+
+def test_yaml_under_env_section(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump({"env": {"reward": {"forward": 3.0}}, "ppo": {"lr": 1}}))
+    assert cfg.load_config(path).reward.forward == 3.0
+
+
+def test_unknown_key_names_key_and_valid_options(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("reward:\n  forwrd: 1.0\n")
+    with pytest.raises(ValueError, match=r"forwrd.*valid keys.*'forward'"):
+        cfg.load_config(path)
+
+
+def test_wrong_type_and_bad_choice_and_range():
+    with pytest.raises(ValueError, match="control.frame_skip.*integer"):
+        cfg.from_dict({"control": {"frame_skip": 2.5}})
+    with pytest.raises(ValueError, match="reward.forward.*number"):
+        cfg.from_dict({"reward": {"forward": "fast"}})
+    with pytest.raises(ValueError, match=r"physics.integrator.*\['euler', 'implicitfast', 'rk4'\]"):
+        cfg.from_dict({"physics": {"integrator": "verlet"}})
+    with pytest.raises(ValueError, match="terrain_type.*'flat'"):
+        cfg.from_dict({"terrain_type": "lava"})
+    with pytest.raises(ValueError, match="frame_skip.*> 0"):
+        cfg.from_dict({"control": {"frame_skip": 0}})
+    with pytest.raises(ValueError, match="radial_range"):
+        cfg.from_dict({"goal": {"radial_range": [3.0, 1.0]}})
+
+
+def test_missing_file_and_unknown_preset(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.yaml"):
+        cfg.load_config(tmp_path / "nope.yaml")
+    with pytest.raises(ValueError, match="available presets.*flat"):
+        cfg.get_preset("mountain")
+
+
+def test_overrides_with_dotted_keys():
+    c = cfg.with_overrides(cfg.get_preset("flat"), reward__forward=2.0, **{"goal.mode": "fixed"})
+    assert c.reward.forward == 2.0 and c.goal.mode == "fixed"
+    with pytest.raises(ValueError, match="unknown config key"):
+        cfg.with_overrides(c, reward__nope=1.0)
+
+
+def test_round_trip_to_dict():
+    c = cfg.get_preset("flat_radial")
+    assert cfg.from_dict(cfg.to_dict(c)) == c

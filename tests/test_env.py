@@ -1,0 +1,107 @@
+"""The jitted env: determinism, a finite batch, retracing, NaN handling, Brax compatibility."""
+
+import brax.envs.wrappers.training as brax_wrappers
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hsa_mjx
+from conftest import BATCH
+
+
+def _actions(key, n):
+    return jax.random.uniform(key, (n, 8), minval=-1.0, maxval=1.0)
+
+
+def test_reset_matches_the_original_start(env, jit_single):
+    reset, _, _ = jit_single
+    state = reset(jax.random.PRNGKey(0))
+    assert state.obs.shape == (24,) and state.obs.dtype == jnp.float32
+    np.testing.assert_allclose(state.obs[:21], 0.0, atol=1e-6)  # robot at rest at the origin
+    goal = np.asarray(state.pipeline_state.task.goal_xy)
+    assert 1.5 <= abs(goal[0]) <= 4.5 and abs(goal[1]) <= 4.0
+    assert float(state.obs[21]) == pytest.approx(np.linalg.norm(goal), rel=1e-5)
+
+
+def test_same_key_same_trajectory(jit_single):
+    reset, step, _ = jit_single
+    runs = []
+    for _ in range(2):
+        state = reset(jax.random.PRNGKey(7))
+        for a in _actions(jax.random.PRNGKey(3), 5):
+            state = step(state, a)
+        runs.append(np.asarray(state.obs))
+    np.testing.assert_array_equal(runs[0], runs[1])
+    other = reset(jax.random.PRNGKey(8))
+    assert not np.allclose(other.pipeline_state.task.goal_xy, reset(jax.random.PRNGKey(7)).pipeline_state.task.goal_xy)
+
+
+def test_batch_stays_finite_for_200_random_steps_without_retracing(jit_batch):
+    reset, step, counter = jit_batch
+    state = reset(jax.random.split(jax.random.PRNGKey(0), BATCH))
+    keys = jax.random.split(jax.random.PRNGKey(1), 200)
+    for key in keys:
+        state = step(state, _actions(key, BATCH))
+    assert counter.traces == 1  # one trace for 200 calls
+    assert np.all(np.isfinite(state.obs)) and np.all(np.isfinite(state.reward))
+    z = np.asarray(state.pipeline_state.physics.xpos)[:, 1, 2]
+    assert np.all((z > 0.05) & (z < 0.4))  # still on the ground
+    assert float(state.metrics["termination/non_finite"].sum()) == 0.0
+    moved = np.abs(np.asarray(state.obs[:, :8])).max()
+    assert moved > 0.1  # the servos really turned the hinges
+
+
+def test_reward_is_the_sum_of_logged_components(jit_single):
+    reset, step, _ = jit_single
+    state = step(reset(jax.random.PRNGKey(2)), jnp.full(8, 0.5))
+    parts = sum(float(v) for k, v in state.metrics.items() if k.startswith("reward/"))
+    assert float(state.reward) == pytest.approx(parts, rel=1e-5, abs=1e-6)
+
+
+def test_nan_state_terminates_and_never_reaches_the_learner(jit_single):
+    reset, step, _ = jit_single
+    state = reset(jax.random.PRNGKey(0))
+    physics = state.pipeline_state.physics
+    poisoned = physics.replace(qvel=physics.qvel.at[7].set(jnp.nan))
+    state = state.replace(pipeline_state=state.pipeline_state.replace(physics=poisoned))
+    out = step(state, jnp.zeros(8))
+    assert float(out.done) == 1.0 and float(out.metrics["termination/non_finite"]) == 1.0
+    assert np.all(np.isfinite(out.obs)) and np.isfinite(float(out.reward))
+    assert float(out.info["truncation"]) == 0.0
+
+
+def test_nonfinite_action_is_sanitised_and_counted(jit_single):
+    reset, step, _ = jit_single
+    out = step(reset(jax.random.PRNGKey(0)), jnp.array([jnp.nan, 1, 1, 1, 1, 1, 1, jnp.inf]))
+    assert float(out.metrics["nonfinite_action"]) == 1.0 and np.all(np.isfinite(out.obs))
+
+
+def test_goal_reached_and_truncation_are_separate():
+    env = hsa_mjx.make_env("flat", goal__mode="fixed", goal__position=[0.0, 0.05], termination__max_episode_steps=2,
+                           control__frame_skip=2)
+    step = jax.jit(env.step)
+    out = step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(8))
+    assert float(out.metrics["termination/goal_reached"]) == 1.0 and float(out.done) == 1.0
+    assert float(out.info["truncation"]) == 0.0 and float(out.metrics["reward/goal_bonus"]) == 40.0
+    far = env.set_goal(env.reset(jax.random.PRNGKey(0)), jnp.array([3.0, 0.0]))
+    far = step(step(far, jnp.zeros(8)), jnp.zeros(8))
+    assert float(far.info["truncation"]) == 1.0 and float(far.done) == 1.0
+    assert float(far.metrics["termination/goal_reached"]) == 0.0
+
+
+def test_1024_envs_step_on_cpu(env):
+    reset = jax.jit(jax.vmap(env.reset))
+    step = jax.jit(jax.vmap(env.step))
+    state = step(reset(jax.random.split(jax.random.PRNGKey(0), 1024)), _actions(jax.random.PRNGKey(1), 1024))
+    assert state.obs.shape == (1024, 24) and bool(jnp.all(jnp.isfinite(state.obs)))
+
+
+def test_brax_training_wrappers_run_unchanged(env):
+    wrapped = brax_wrappers.wrap(env, episode_length=3, action_repeat=1)
+    reset, step = jax.jit(wrapped.reset), jax.jit(wrapped.step)
+    state = reset(jax.random.split(jax.random.PRNGKey(0), 2))
+    for _ in range(3):
+        state = step(state, jnp.zeros((2, 8)))
+    assert state.obs.shape == (2, 24) and float(state.info["steps"][0]) == 0.0  # auto-reset after 3
+    assert "reward/forward" in state.info["episode_metrics"]

@@ -1,0 +1,72 @@
+"""The Gymnasium adapter: registration, check_env, determinism, bad input, rendering."""
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import hsa_mjx  # noqa: F401  (registers hsa_mjx/HSA-v0)
+
+
+@pytest.fixture(scope="module")
+def gym_env():
+    env = gymnasium.make("hsa_mjx/HSA-v0", render_mode="rgb_array", width=96, height=72)
+    yield env
+    env.close()
+
+
+def test_passes_check_env(gym_env):
+    check_env(gym_env.unwrapped, skip_render_check=False)
+
+
+def test_spaces_and_step_types(gym_env):
+    assert gym_env.observation_space.shape == (24,) and gym_env.action_space.shape == (8,)
+    obs, info = gym_env.reset(seed=0)
+    assert obs.dtype == np.float32 and obs in gym_env.observation_space
+    obs, reward, terminated, truncated, info = gym_env.step(gym_env.action_space.sample())
+    assert obs.dtype == np.float32 and isinstance(reward, float)
+    assert isinstance(terminated, bool) and isinstance(truncated, bool)
+    assert "reward/forward" in info and isinstance(info["termination_reasons"], list)
+
+
+def test_same_seed_same_trajectory(gym_env):
+    def rollout(seed):
+        obs, _ = gym_env.reset(seed=seed)
+        rng = np.random.default_rng(0)
+        out = [obs]
+        for _ in range(20):
+            out.append(gym_env.step(rng.uniform(-1, 1, 8).astype(np.float32))[0])
+        return np.stack(out)
+    np.testing.assert_array_equal(rollout(3), rollout(3))
+    assert not np.array_equal(rollout(3)[0], rollout(4)[0])  # a different goal
+
+
+def test_bad_actions_raise_clear_errors(gym_env):
+    gym_env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(8,\)"):
+        gym_env.step(np.zeros(7, np.float32))
+    with pytest.raises(ValueError, match="dtype int64"):
+        gym_env.step(np.zeros(8, np.int64))
+    with pytest.raises(ValueError, match="non-finite"):
+        gym_env.step(np.full(8, np.nan, np.float32))
+
+
+def test_reset_options(gym_env):
+    obs, info = gym_env.reset(seed=0, options={"goal": (2.0, 0.0)})
+    assert obs[21] == pytest.approx(2.0, abs=1e-4) and np.allclose(info["goal"], [2.0, 0.0])
+    with pytest.raises(ValueError, match="valid options"):
+        gym_env.reset(options={"terrain": "lava"})
+
+
+def test_rgb_array_render_shows_the_robot(gym_env):
+    gym_env.reset(seed=0)
+    frame = gym_env.render()
+    assert frame.shape == (72, 96, 3) and frame.dtype == np.uint8
+    assert frame.std() > 5  # not a blank image
+
+
+def test_bad_render_mode_and_preset():
+    with pytest.raises(ValueError, match="render_mode"):
+        gymnasium.make("hsa_mjx/HSA-v0", render_mode="vr")
+    with pytest.raises(ValueError, match="available presets"):
+        gymnasium.make("hsa_mjx/HSA-v0", config="nope")

@@ -1,0 +1,92 @@
+"""Control, goals and termination on synthetic inputs (no MJX compile)."""
+
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hsa_mjx import control, goals, termination
+from hsa_mjx.config import GoalConfig, TerminationConfig
+
+
+def test_targets_are_clipped_to_ctrlrange():
+    out = control.next_targets(jnp.array([6.2, -6.2]), jnp.array([1.0, -1.0]), 0.1785, 6.28)
+    np.testing.assert_allclose(out, [6.28, -6.28], rtol=1e-6)
+
+
+def test_smooth_targets_ramp_and_end_exactly():
+    ramp = control.substep_targets(jnp.zeros(8), jnp.ones(8), 20, True)
+    assert ramp.shape == (20, 8)
+    np.testing.assert_allclose(ramp[0], 0.05) and np.testing.assert_allclose(ramp[-1], 1.0)
+    hold = control.substep_targets(jnp.zeros(8), jnp.ones(8), 20, False)
+    np.testing.assert_allclose(hold, 1.0)
+
+
+def test_sanitize_action():
+    clean, bad = control.sanitize_action(jnp.array([jnp.nan, 2.0, -jnp.inf, 0.5]))
+    np.testing.assert_allclose(clean, [0.0, 1.0, 0.0, 0.5]) and bool(bad)
+    assert bool(bad)
+    assert not bool(control.sanitize_action(jnp.zeros(3))[1])
+
+
+def test_spiral_checkpoints_match_the_original():
+    pts = goals.spiral_checkpoints(GoalConfig(num_checkpoints=8))
+    expected = [(0, 0.9375), (1.375, 0), (0, -1.8125), (-2.25, 0), (0, 2.6875), (3.125, 0), (0, -3.5625), (-4, 0)]
+    np.testing.assert_allclose(pts, expected, atol=1e-5)
+
+
+def test_original_random_goal_ranges():
+    keys = jax.random.split(jax.random.PRNGKey(0), 512)
+    flat = jax.vmap(lambda k: goals.original_random_goal(k, "flat"))(keys)
+    assert np.all((np.abs(flat[:, 0]) >= 1.5) & (np.abs(flat[:, 0]) <= 4.5)) and np.all(np.abs(flat[:, 1]) <= 4)
+    assert (flat[:, 0] > 0).mean() == pytest.approx(0.5, abs=0.1)
+    other = jax.vmap(lambda k: goals.original_random_goal(k, "corridor"))(keys)
+    assert np.all((np.abs(other[:, 0]) >= 1.5) & (np.abs(other[:, 0]) <= 2.0)) and np.all(other[:, 1] == 0)
+
+
+def test_radial_goal_range_is_traced():
+    keys = jax.random.split(jax.random.PRNGKey(1), 256)
+    sample = jax.jit(jax.vmap(goals.radial_goal, in_axes=(0, None)))
+    for lo, hi in ((1.5, 1.8), (2.0, 4.5)):
+        r = np.linalg.norm(sample(keys, jnp.array([lo, hi])), axis=1)
+        assert r.min() >= lo - 1e-5 and r.max() <= hi + 1e-5
+
+
+def test_checkpoint_advance():
+    pts = jnp.array([[1.0, 0.0], [2.0, 0.0]])
+    got, done, idx = goals.advance_checkpoint(jnp.array([0.7, 0.0]), pts, jnp.array(0), 0.4)
+    assert bool(got) and not bool(done) and int(idx) == 1
+    got, done, idx = goals.advance_checkpoint(jnp.array([0.0, 0.0]), pts, jnp.array(1), 0.4)
+    assert not bool(got) and int(idx) == 1
+    got, done, idx = goals.advance_checkpoint(jnp.array([2.1, 0.0]), pts, jnp.array(1), 0.4)
+    assert bool(got) and bool(done) and int(idx) == 1
+
+
+def _stats(qvel=0.0, qacc=0.0, bad=False):
+    return termination.SubstepStats(jnp.array(qvel), jnp.array(qacc), jnp.array(bad))
+
+
+def _reasons(z, stats, obs_finite=True, ground=0.0):
+    data = SimpleNamespace(xpos=jnp.zeros((3, 3)).at[1, 2].set(z[0]).at[2, 2].set(z[1]))
+    index = SimpleNamespace(block_body=np.array([1, 2]))
+    r = termination.failure_reasons(data, stats, jnp.array(obs_finite), jnp.array(ground), TerminationConfig(), index)
+    return {k: bool(v) for k, v in r.items() if bool(v)}
+
+
+def test_termination_reasons_are_named():
+    assert _reasons((0.14, 0.14), _stats()) == {}
+    assert _reasons((0.6, 0.14), _stats()) == {"block_a_too_high": True}
+    assert _reasons((0.14, -0.6), _stats()) == {"block_b_too_low": True}
+    assert _reasons((0.9, 0.9), _stats(), ground=0.5) == {}  # heights count from the ground
+    assert _reasons((0.14, 0.14), _stats(qvel=2001.0)) == {"qvel_limit": True}
+    assert _reasons((0.14, 0.14), _stats(qacc=2e4)) == {"qacc_limit": True}
+    assert _reasons((0.14, 0.14), _stats(bad=True)) == {"non_finite": True}
+    assert _reasons((0.14, 0.14), _stats(), obs_finite=False) == {"non_finite": True}
+
+
+def test_substep_stats_keep_the_worst():
+    a, b = _stats(1.0, 5.0, False), _stats(3.0, 2.0, True)
+    m = termination.merge_stats(a, b)
+    assert float(m.max_abs_qvel) == 3.0 and float(m.max_abs_qacc) == 5.0 and bool(m.non_finite)
