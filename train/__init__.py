@@ -1,0 +1,1 @@
+"""Training with Brax PPO (arrives with the training issue)."""
