@@ -16,7 +16,7 @@ def gym_env():
 
 
 def test_passes_check_env(gym_env):
-    check_env(gym_env.unwrapped, skip_render_check=False)
+    check_env(gym_env.unwrapped)  # includes the render check of every render mode
 
 
 def test_spaces_and_step_types(gym_env):

@@ -66,6 +66,7 @@ class HSAGymEnv(gymnasium.Env):
         self._width, self._height, self._camera = width, height, camera
         self._renderer: mujoco.Renderer | None = None
         self._viewer = None
+        self._warned_no_display = False
         self._render_data = mujoco.MjData(self.env.robot.mj_model)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -149,7 +150,11 @@ class HSAGymEnv(gymnasium.Env):
 
     def _render_human(self, data: mujoco.MjData) -> None:
         if not _has_display():
-            raise RuntimeError("render_mode='human' needs a display (DISPLAY is unset); use 'rgb_array'")
+            if not self._warned_no_display:
+                gymnasium.logger.warn("render_mode='human' needs a display (DISPLAY is unset): "
+                                      "nothing is shown; use render_mode='rgb_array' for frames")
+                self._warned_no_display = True
+            return None
         if self._viewer is None:
             import mujoco.viewer
             self._viewer = mujoco.viewer.launch_passive(self.env.robot.mj_model, data)
