@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from hsa_mjx.cpu_linalg import use_xla_linalg_on_cpu
 from hsa_mjx.config import PRESETS, EnvConfig, get_preset, load_config, with_overrides
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.types import EnvState, SimState, TaskState
@@ -55,6 +56,7 @@ def _register_gymnasium() -> None:
 
 
 _register_gymnasium()
+use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
 
 __all__ = ["make_env", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",
            "PRESETS", "__version__"]

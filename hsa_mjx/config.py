@@ -16,12 +16,17 @@ from typing import Any, Mapping
 
 import yaml
 
+from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
+from hsa_mjx.terrain.params import TerrainConfig, validate_terrain
+from hsa_mjx.terrain.presets import TERRAIN_PRESETS
+
 SCENES = ("flat", "terrain")
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
-TERRAIN_TYPES = ("flat",)  # the terrain generators arrive with the terrain issue
+MIXED = "mixed"  # terrain_type of a batch drawing from several types (terrain.types)
+TERRAIN_TYPES = GENERATOR_TYPES + (MIXED,)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +117,7 @@ class EnvConfig:
     reward: RewardConfig = RewardConfig()
     termination: TerminationConfig = TerminationConfig()
     goal: GoalConfig = GoalConfig()
+    terrain: TerrainConfig = TerrainConfig()
 
     @property
     def dt(self) -> float:
@@ -157,6 +163,10 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
         return value
     if origin is tuple:
         args = typing.get_args(annotation)
+        if len(args) == 2 and args[1] is Ellipsis:  # tuple[T, ...]: any length >= 1
+            if not isinstance(value, (list, tuple)) or not value:
+                raise ValueError(f"config key '{key}' must be a non-empty list, got {value!r}")
+            return tuple(_coerce(v, args[0], key) for v in value)
         if not isinstance(value, (list, tuple)) or len(value) != len(args):
             raise ValueError(f"config key '{key}' must be a list of {len(args)} numbers, got {value!r}")
         return tuple(_coerce(v, a, key) for v, a in zip(value, args))
@@ -184,6 +194,11 @@ def _build(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
     return cls(**kwargs)
 
 
+def build_section(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
+    """Build any config dataclass from a mapping with this module's key and type checks."""
+    return _build(cls, data, prefix)
+
+
 def validate(config: EnvConfig) -> EnvConfig:
     """Check choices and value ranges; return the config unchanged or raise ValueError."""
     for path, choices in _CHOICES.items():
@@ -200,7 +215,32 @@ def validate(config: EnvConfig) -> EnvConfig:
         raise ValueError("config keys 'termination.z_min' must be below 'termination.z_max'")
     if config.physics.tolerance < 0:
         raise ValueError("config key 'physics.tolerance' must be >= 0")
+    _validate_terrain(config)
     return config
+
+
+def _validate_terrain(config: EnvConfig) -> None:
+    """The terrain section, and how it fits the scene, ``terrain_type`` and the goal mode."""
+    terrain = validate_terrain(config.terrain)
+    types = terrain.types
+    expected = types[0] if len(types) == 1 else MIXED
+    if config.terrain_type != expected:
+        raise ValueError(f"config key 'terrain_type' = {config.terrain_type!r} does not match 'terrain.types' = "
+                         f"{list(types)}; set one of the two ('{MIXED}' means several types)")
+    if config.scene == "flat" and types != ("flat",):
+        raise ValueError(f"terrain types {list(types)} need a heightfield: set 'scene: terrain' "
+                         "(scene 'flat' is a plane)")
+    if "spiral" in types:
+        goal, spiral = config.goal, terrain.spiral
+        if goal.mode != "spiral":
+            raise ValueError("the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', "
+                             f"got {goal.mode!r}")
+        track = (spiral.start_radius, spiral.end_radius, spiral.turns)
+        path = (goal.spiral_start_radius, goal.spiral_end_radius, goal.spiral_turns)
+        if track != path:
+            raise ValueError(f"'terrain.spiral' start_radius / end_radius / turns {track} must equal "
+                             f"'goal' spiral_start_radius / spiral_end_radius / spiral_turns {path}, "
+                             "so the checkpoints lie on the track")
 
 
 def _get(config: Any, path: tuple[str, ...]) -> Any:
@@ -211,8 +251,28 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
     """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
-    merged = _merge(to_dict(base or EnvConfig()), dict(data or {}))
+    merged = _merge(to_dict(base or EnvConfig()), _sync_terrain_keys(dict(data or {})))
     return validate(_build(EnvConfig, merged))
+
+
+def _sync_terrain_keys(data: dict) -> dict:
+    """Keep ``terrain_type`` and ``terrain.types`` in step when only one of them is given.
+
+    ``terrain_type: X`` alone means ``terrain.types: [X]``; ``terrain.types`` alone sets
+    ``terrain_type`` to its single type or to ``mixed``; ``proportions`` default to uniform.
+    """
+    section = data.get("terrain")
+    section = dict(section) if isinstance(section, Mapping) else None
+    has_types = section is not None and "types" in section
+    if "terrain_type" in data and not has_types and data["terrain_type"] != MIXED:
+        section = dict(section or {}, types=[data["terrain_type"]], proportions=[1.0])
+    elif has_types and isinstance(section["types"], (list, tuple)) and section["types"]:
+        types = list(section["types"])
+        data.setdefault("terrain_type", types[0] if len(types) == 1 else MIXED)
+        section.setdefault("proportions", [1.0 / len(types)] * len(types))
+    if section is not None:
+        data["terrain"] = section
+    return data
 
 
 def _merge(base: dict, update: Mapping[str, Any]) -> dict:
@@ -275,6 +335,7 @@ PRESETS: dict[str, EnvConfig] = {
     "flat_fixed_goal": EnvConfig(name="flat_fixed_goal", goal=GoalConfig(mode="fixed")),
     "flat_radial": EnvConfig(name="flat_radial", goal=GoalConfig(mode="radial")),
 }
+PRESETS.update({name: from_dict(data) for name, data in TERRAIN_PRESETS.items()})
 
 
 def get_preset(name: str) -> EnvConfig:
@@ -286,6 +347,6 @@ def get_preset(name: str) -> EnvConfig:
 
 __all__ = [
     "EnvConfig", "PhysicsConfig", "ControlConfig", "RewardConfig", "TerminationConfig",
-    "GoalConfig", "PRESETS", "get_preset", "load_config", "from_dict", "to_dict",
+    "GoalConfig", "TerrainConfig", "PRESETS", "get_preset", "load_config", "from_dict", "to_dict",
     "with_overrides", "validate",
 ]

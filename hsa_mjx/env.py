@@ -5,6 +5,7 @@ Wiring only: control, physics, observation, reward, termination and goals live i
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -15,7 +16,8 @@ from mujoco import mjx
 
 from hsa_mjx import control, goals, observation, physics, reward, termination
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import RobotModel, load_robot
+from hsa_mjx.model import RobotModel, compiled_forward, load_robot
+from hsa_mjx.terrain.world import TerrainWorld
 from hsa_mjx.types import EnvState, SimState, TaskState
 
 GOAL_MARKER_Z = 0.1
@@ -29,12 +31,18 @@ class HSAEnv(BraxEnv):
     increments in [-1, 1] (non-finite entries become 0, counted in ``metrics["nonfinite_action"]``).
     ``state.done`` is 1.0 when the episode terminated (``metrics["termination/<reason>"]``) or was
     truncated at ``max_episode_steps`` (``info["truncation"]``).
+
+    On the terrain scene each env draws its own terrain at every reset (``config.terrain``:
+    types, proportions, generator parameters; ``per_env: false`` shares one), spawns resting on
+    it, and measures block heights from the ground under each block (see ``docs/terrain.md``).
     """
 
     def __init__(self, config: EnvConfig, asset_dir: Path | None = None):
         self.config = config
         self.robot: RobotModel = load_robot(config, asset_dir)
         self.index = self.robot.index
+        self.world = TerrainWorld(config.scene, config.terrain, self.robot.mj_model, self.index.block_body)
+        self.robot = dataclasses.replace(self.robot, mjx_model=self.world.bake(self.robot.mjx_model))
         self.weights = reward.RewardWeights.from_config(config.reward)
         self._init_static_arrays()
 
@@ -43,7 +51,7 @@ class HSAEnv(BraxEnv):
         cfg, model = self.config, self.robot.mjx_model
         data = mjx.make_data(model)
         qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
-        self._data0 = mjx.forward(model, data.replace(qpos=qpos))
+        self._data0 = compiled_forward(model, data.replace(qpos=qpos))
         pyramidal = cfg.physics.cone == "pyramidal"
         slots = self.index.foot_contacts
         self._foot_efc = physics.foot_contact_efc(self._data0, slots, 4 if pyramidal else 3)
@@ -77,8 +85,13 @@ class HSAEnv(BraxEnv):
     def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array) -> EnvState:
         """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum)."""
         rng, goal_key = jax.random.split(rng)
-        goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints)
-        data = self._with_goal_marker(self._data0, goal_xy)
+        terrain_key = None
+        if self.world.per_env:  # only then: plane scenes keep their key stream
+            rng, terrain_key = jax.random.split(rng)
+        terrain, terrain_id = self.world.draw(terrain_key)
+        goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
+        goal_xy = self.world.place_goal(goal_xy, terrain_id)
+        data = self._with_goal_marker(self._spawn(terrain), goal_xy, terrain)
         position = observation.robot_xy(data, self.index)
         distance, _ = observation.goal_vector(position, goal_xy)
         window = self.config.reward.stagnation_window
@@ -86,7 +99,7 @@ class HSAEnv(BraxEnv):
             goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=jnp.zeros((), jnp.int32),
             prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
-            step_count=jnp.zeros((), jnp.int32), rng=rng)
+            step_count=jnp.zeros((), jnp.int32), rng=rng, terrain=terrain, terrain_id=terrain_id)
         obs = observation.observe(data, goal_xy, self.index)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
@@ -98,7 +111,7 @@ class HSAEnv(BraxEnv):
     def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
         """Replace the current goal (non-spiral modes); progress terms restart from it."""
         sim: SimState = state.pipeline_state
-        data = self._with_goal_marker(sim.physics, goal_xy)
+        data = self._with_goal_marker(sim.physics, goal_xy, sim.task.terrain)
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
         return state.replace(pipeline_state=SimState(data, task),
@@ -114,15 +127,18 @@ class HSAEnv(BraxEnv):
         end = control.next_targets(start, action, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
         before = observation.robot_xy(data, idx)
-        new_data, stats = physics.simulate(self.robot.mjx_model, data, targets, idx)
+        model = self.world.model_for(self.robot.mjx_model, task.terrain)  # this env's own heightfield
+        new_data, stats = physics.simulate(model, data, targets, idx)
         after = observation.robot_xy(new_data, idx)
         velocity = jnp.clip((after - before) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
         task, collected, completed = self._update_goal(task, after)
-        new_data = self._with_goal_marker(new_data, task.goal_xy)
+        new_data = self._with_goal_marker(new_data, task.goal_xy, task.terrain)
         distance, direction = observation.goal_vector(after, task.goal_xy)
         obs = observation.observe(new_data, task.goal_xy, idx)
-        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), jnp.zeros(()),
+        ground = self.world.ground(task.terrain, new_data.xpos[idx.block_body, :2])
+        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
                                               cfg.termination, idx)
+        reasons["out_of_bounds"] = self.world.out_of_bounds(after)
         failed = termination.any_reason(reasons)
         success = completed if cfg.goal.mode == "spiral" else distance < cfg.goal.success_radius
         success = success & jnp.logical_not(failed)
@@ -154,9 +170,18 @@ class HSAEnv(BraxEnv):
                              done=(terminated | truncated).astype(jnp.float32), metrics=metrics, info=info)
 
     # ----- helpers ------------------------------------------------------------------------
-    def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array) -> mjx.Data:
-        """Place this env's goal marker (a mocap body; purely visual)."""
-        marker = jnp.concatenate([goal_xy, jnp.full((1,), GOAL_MARKER_Z)])
+    def _spawn(self, terrain: jax.Array) -> mjx.Data:
+        """The reset state: on terrain both blocks are lifted to rest on this env's surface."""
+        if not self.world.enabled:
+            return self._data0
+        z = self.world.spawn_height(terrain)
+        qpos = self._data0.qpos.at[self.index.block_qpos + 2].set(z)
+        return mjx.kinematics(self.robot.mjx_model, self._data0.replace(qpos=qpos))
+
+    def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array, terrain: jax.Array) -> mjx.Data:
+        """Place this env's goal marker above the ground at the goal (a mocap body; purely visual)."""
+        z = self.world.ground(terrain, goal_xy) + GOAL_MARKER_Z
+        marker = jnp.concatenate([goal_xy, z[None]])
         return data.replace(mocap_pos=data.mocap_pos.at[self.index.goal_mocap].set(marker))
 
     def _update_goal(self, task: TaskState, position: jax.Array) -> tuple[TaskState, jax.Array, jax.Array]:

@@ -7,6 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from hsa_mjx.config import EnvConfig, GoalConfig
+from hsa_mjx.terrain.params import TERRAIN_TYPES
+
+FLAT_ID = TERRAIN_TYPES.index("flat")
 
 
 def spiral_checkpoints(goal: GoalConfig) -> np.ndarray:
@@ -39,6 +42,21 @@ def original_random_goal(rng: jax.Array, terrain_type: str) -> jax.Array:
     return jnp.stack([_random_side(k_x, 1.5, 2.0), jnp.zeros(())])
 
 
+def random_goal(rng: jax.Array, types: tuple[str, ...], terrain_id: jax.Array | None) -> jax.Array:
+    """The original's rules per env: the flat rule where the env's terrain is flat, the other elsewhere.
+
+    ``terrain_id`` (traced, an index into ``TERRAIN_TYPES``) is needed only when ``types`` mixes
+    flat with other terrain.
+    """
+    if all(t == "flat" for t in types):
+        return original_random_goal(rng, "flat")
+    if "flat" not in types:
+        return original_random_goal(rng, types[0])
+    if terrain_id is None:
+        raise ValueError("a batch mixing flat and other terrain needs each env's terrain_id for its goal rule")
+    return jnp.where(terrain_id == FLAT_ID, original_random_goal(rng, "flat"), original_random_goal(rng, "other"))
+
+
 def radial_goal(rng: jax.Array, radius_range: jax.Array) -> jax.Array:
     """Distance uniform in ``radius_range`` (traced), direction uniform in [0, 2 pi)."""
     k_r, k_a = jax.random.split(rng)
@@ -48,13 +66,13 @@ def radial_goal(rng: jax.Array, radius_range: jax.Array) -> jax.Array:
 
 
 def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
-                 checkpoints: jax.Array) -> jax.Array:
-    """The goal of a new episode; the mode is static, the ranges and checkpoints are traced."""
+                 checkpoints: jax.Array, terrain_id: jax.Array | None = None) -> jax.Array:
+    """The goal of a new episode; the mode is static, the ranges, checkpoints and terrain id traced."""
     mode = config.goal.mode
     if mode == "fixed":
         return jnp.asarray(config.goal.position, jnp.float32)
     if mode == "random":
-        return original_random_goal(rng, config.terrain_type)
+        return random_goal(rng, config.terrain.types, terrain_id)
     if mode == "radial":
         return radial_goal(rng, radius_range)
     return checkpoints[0]

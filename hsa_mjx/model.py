@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import jax
 import mujoco
 import numpy as np
 from mujoco import mjx
@@ -40,6 +41,10 @@ _INTEGRATORS = {
 }
 _SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
 _CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
+
+# mjx.forward compiled once per model layout and shared by the index and the env's reset state
+# (eager op-by-op dispatch takes minutes on a CPU for the heightfield scene).
+compiled_forward = jax.jit(mjx.forward)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +103,7 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> 
 
 def _foot_contact_slots(model: mujoco.MjModel, mjx_model: mjx.Model) -> np.ndarray:
     """MJX allocates contacts statically: find the slots that belong to each foot pair."""
-    data = mjx.forward(mjx_model, mjx.make_data(mjx_model))
+    data = compiled_forward(mjx_model, mjx.make_data(mjx_model))
     geoms = np.asarray(data._impl.contact.geom)
     foot_ids = _ids(model, mujoco.mjtObj.mjOBJ_GEOM, FOOT_GEOMS)
     slots = [np.flatnonzero((geoms == g).any(axis=1)) for g in foot_ids]

@@ -12,7 +12,7 @@ from hsa_mjx.model import RobotIndex
 
 FAILURE_REASONS = (
     "non_finite", "block_a_too_high", "block_a_too_low", "block_b_too_high", "block_b_too_low",
-    "qvel_limit", "qacc_limit",
+    "qvel_limit", "qacc_limit", "out_of_bounds",
 )
 REASONS = FAILURE_REASONS + ("goal_reached",)
 
@@ -46,7 +46,11 @@ def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
 def failure_reasons(data: mjx.Data, stats: SubstepStats, obs_finite: jax.Array,
                     ground_height: jax.Array, config: TerminationConfig,
                     index: RobotIndex) -> dict[str, jax.Array]:
-    """Each failure reason as a bool; block heights are measured from the ground under the robot."""
+    """Each failure reason but ``out_of_bounds`` (the env adds it) as a bool.
+
+    Block heights are measured from ``ground_height``: the surface under each block, shape (2,),
+    or a scalar (0 on a plane).
+    """
     z = data.xpos[index.block_body, 2] - ground_height
     return {
         "non_finite": stats.non_finite | jnp.logical_not(obs_finite),

@@ -47,3 +47,22 @@ def jit_batch(env):
     """(reset, step, step trace counter) vmapped over a batch of envs."""
     counter = TraceCounter(env.step)
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(counter)), counter
+
+
+TERRAIN_BATCH = 12
+# Every generator but the spiral (a checkpoint track that needs goal.mode spiral), equal shares.
+MIXED_TYPES = ("flat", "wavy", "perlin", "stairs", "incline", "craters", "poles", "flat_with_incline",
+               "flat_with_ramp", "corridor")
+
+
+@pytest.fixture(scope="session")
+def terrain_env():
+    import hsa_mjx
+    return hsa_mjx.make_env("mixed", terrain__types=list(MIXED_TYPES))
+
+
+@pytest.fixture(scope="session")
+def terrain_batch(terrain_env):
+    """(reset, step, step trace counter) of the mixed-terrain env, vmapped over a batch."""
+    counter = TraceCounter(terrain_env.step)
+    return jax.jit(jax.vmap(terrain_env.reset)), jax.jit(jax.vmap(counter)), counter

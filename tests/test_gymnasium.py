@@ -29,6 +29,21 @@ def test_spaces_and_step_types(gym_env):
     assert "reward/forward" in info and isinstance(info["termination_reasons"], list)
 
 
+def test_thousand_random_steps(gym_env):
+    """1000 random steps (resetting after each episode end) stay finite and inside the spaces."""
+    obs, _ = gym_env.reset(seed=11)
+    gym_env.action_space.seed(11)
+    ends = 0
+    for _ in range(1000):
+        obs, reward, terminated, truncated, info = gym_env.step(gym_env.action_space.sample())
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        if terminated or truncated:
+            ends += 1
+            obs, _ = gym_env.reset()
+    assert obs in gym_env.observation_space
+    assert ends < 1000  # episodes last (the flat preset truncates at 4000 steps)
+
+
 def test_same_seed_same_trajectory(gym_env):
     def rollout(seed):
         obs, _ = gym_env.reset(seed=seed)

@@ -21,6 +21,7 @@ from gymnasium import spaces
 
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.terrain.grid import HFIELD_NAME
 from hsa_mjx.termination import REASONS
 from hsa_mjx.types import EnvState
 
@@ -68,6 +69,7 @@ class HSAGymEnv(gymnasium.Env):
         self._viewer = None
         self._warned_no_display = False
         self._render_data = mujoco.MjData(self.env.robot.mj_model)
+        self._hfield_stale = False  # the C model's heightfield lags this env's terrain
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode; the same ``seed`` gives the same episode."""
@@ -130,8 +132,43 @@ class HSAGymEnv(gymnasium.Env):
         data.qpos[:] = physics.qpos
         data.qvel[:] = physics.qvel
         data.mocap_pos[:] = physics.mocap_pos
+        self._sync_terrain()
         mujoco.mj_forward(self.env.robot.mj_model, data)
         return data
+
+    def _sync_terrain(self) -> None:
+        """Copy this episode's own terrain (per-env terrain lives in the state) into the C model."""
+        if not self.env.world.per_env:
+            return
+        model = self.env.robot.mj_model
+        terrain = np.asarray(jax.device_get(self._state.pipeline_state.task.terrain), np.float32)
+        adr = model.hfield_adr[self._hfield_id()]
+        if np.array_equal(model.hfield_data[adr:adr + terrain.size], terrain):
+            return
+        model.hfield_data[adr:adr + terrain.size] = terrain
+        self._hfield_stale = True
+
+    def _hfield_id(self) -> int:
+        """Id of the terrain heightfield in the C model."""
+        return self.env.robot.mj_model.hfield(HFIELD_NAME).id
+
+    def _upload_terrain(self) -> None:
+        """Send a changed heightfield to the GPU copies held by the renderer and the viewer."""
+        if not self._hfield_stale:
+            return
+        if self._renderer is not None:
+            context = getattr(self._renderer, "_mjr_context", None)
+            if context is None:  # a renderer without an accessible context: rebuild it
+                self._renderer.close()
+                self._renderer = None
+            else:
+                gl_context = getattr(self._renderer, "_gl_context", None)
+                if gl_context is not None:
+                    gl_context.make_current()
+                mujoco.mjr_uploadHField(self.env.robot.mj_model, context, self._hfield_id())
+        if self._viewer is not None:
+            self._viewer.update_hfield(self._hfield_id())
+        self._hfield_stale = False
 
     def render(self):
         """``rgb_array``: an (H, W, 3) uint8 frame; ``human``: update the viewer window."""
@@ -142,7 +179,8 @@ class HSAGymEnv(gymnasium.Env):
             raise RuntimeError("call reset() before render()")
         data = self._sync_render_data()
         if self.render_mode == "rgb_array":
-            if self._renderer is None:
+            self._upload_terrain()
+            if self._renderer is None:  # a new renderer uploads the current heightfield itself
                 self._renderer = mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
             self._renderer.update_scene(data, camera=self._camera)
             return self._renderer.render()
@@ -158,6 +196,8 @@ class HSAGymEnv(gymnasium.Env):
         if self._viewer is None:
             import mujoco.viewer
             self._viewer = mujoco.viewer.launch_passive(self.env.robot.mj_model, data)
+            self._hfield_stale = False
+        self._upload_terrain()
         self._viewer.sync()
         return None
 

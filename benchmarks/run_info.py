@@ -1,0 +1,80 @@
+"""Provenance recorded with every benchmark result: date, machine, device, versions, command."""
+
+from __future__ import annotations
+
+import datetime
+import importlib.metadata
+import os
+import platform
+import shlex
+import subprocess
+import sys
+from typing import Any
+
+import jax
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def cpu_name() -> str:
+    """The CPU model from /proc/cpuinfo (Linux), else platform.processor()."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def versions() -> dict[str, str | None]:
+    """Versions of the packages the numbers depend on."""
+    return {name: _version(name) for name in ("jax", "jaxlib", "mujoco", "mujoco-mjx", "brax", "numpy")}
+
+
+def device_kind() -> str:
+    """What JAX runs on, e.g. 'NVIDIA H200' or 'cpu'."""
+    return str(jax.devices()[0].device_kind)
+
+
+def git_state() -> dict[str, Any]:
+    """Commit of the checkout and whether it had local changes (None outside a git checkout)."""
+    def git(*args: str) -> str | None:
+        try:
+            out = subprocess.run(["git", *args], capture_output=True, text=True, timeout=10, check=True)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return out.stdout.strip()
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain") if commit else None
+    return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}
+
+
+def run_info() -> dict[str, Any]:
+    """Date (UTC), host, CPU, JAX backend and device, versions and the command line."""
+    return {
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "host": platform.node(),
+        "cpu": cpu_name(),
+        "cpu_count": os.cpu_count(),
+        "backend": jax.default_backend(),
+        "device": device_kind(),
+        "device_count": jax.device_count(),
+        "versions": versions(),
+        "python": platform.python_version(),
+        "command": "python -m " + _module_name() + " " + shlex.join(sys.argv[1:]),
+        **git_state(),
+    }
+
+
+def _module_name() -> str:
+    """Dotted module name of the running script (``benchmarks.fidelity``), or its path."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")

@@ -1,0 +1,356 @@
+"""Throughput harness: the full env step against the bare physics loop, over batch sizes and terrains.
+
+For every (terrain, physics setting, batch) it measures, in one process:
+
+- **env**: K env steps per call of the training batch step (``hsa_mjx.training_env.AutoResetEnv``
+  with the goal curriculum: physics, observation, reward, termination, auto-reset, curriculum)
+  under ``lax.scan`` in one jitted call, random actions drawn on the device. If that module is
+  missing or its API differs, ``jit(vmap(env.step))`` is timed instead and the row says
+  ``full_step: false``.
+- **ceiling**: the bare ``mjx.step`` loop of the same model and settings (``frame_skip`` substeps
+  over interpolated position targets in ``lax.scan``, vmapped), nothing else.
+- compile time of each (AOT ``lower().compile()``), memory (state bytes per env, XLA's compiled
+  buffer sizes per env, the device's peak bytes in use where JAX reports it), NaN terminations
+  per million env steps and whether any observation was non-finite.
+- once per (terrain, setting): single-env C MuJoCo env-steps/s on the host CPU (the baseline).
+
+Timing: one warm-up call, then ``--repeats`` calls each ended by ``block_until_ready``; the
+median is reported. Results go to ``--out-dir`` as JSON (rewritten after every row, so a killed
+run keeps what it measured), a markdown table and a log-log plot.
+
+    python -m benchmarks.throughput [--batches 1024,4096,16384,65536] [--terrains flat,heightfield]
+        [--settings NAME ...] [--steps K] [--repeats R] [--out-dir benchmarks/results] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+import hsa_mjx
+from benchmarks import throughput_report as report
+from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+from benchmarks.run_info import run_info
+from hsa_mjx import control
+
+TERRAINS: dict[str, dict[str, Any]] = {"flat": {"scene": "flat"}, "heightfield": {"scene": "terrain"}}
+DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
+ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200
+QUICK = {"batches": (8,), "steps": 2, "repeats": 2, "baseline_s": 0.5}
+
+
+@dataclasses.dataclass(frozen=True)
+class Timed:
+    """A compiled batched loop and what was measured on it."""
+
+    seconds: list[float]  # wall time of each timed call
+    compile_s: float
+    compiled_bytes: int | None  # arguments + outputs + temporaries - aliased, from XLA
+    counters: dict[str, float]  # summed over the timed calls
+    last: dict[str, float]  # the last timed call's counters
+
+
+def bench_env(terrain: str, setting: str) -> hsa_mjx.HSAEnv:
+    """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics."""
+    return hsa_mjx.make_env("flat", **{"goal.mode": "radial", **TERRAINS[terrain], **SETTINGS[setting]})
+
+
+def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
+    """``AutoResetEnv`` with the default curriculum, or None and why not."""
+    try:
+        from hsa_mjx import curriculum, training_env
+        return training_env.AutoResetEnv(env, curriculum.CurriculumConfig()), "AutoResetEnv + curriculum"
+    except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
+        return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
+
+
+def _env_state(state: Any) -> Any:
+    """The per-env EnvState inside a wrapper's batch state (or the state itself)."""
+    return getattr(state, "env", state)
+
+
+def env_loop(env: hsa_mjx.HSAEnv, wrapper: Any | None, steps: int) -> tuple[Callable, Callable]:
+    """(reset(keys), run(state, key)): run takes ``steps`` random-action batch steps in a scan."""
+    reset = wrapper.reset if wrapper is not None else jax.vmap(env.reset)
+    step = wrapper.step if wrapper is not None else jax.vmap(env.step)
+
+    def run(state: Any, key: jax.Array) -> tuple[Any, dict[str, jax.Array]]:
+        batch = _env_state(state).obs.shape[0]
+
+        def body(state, k):
+            state = step(state, jax.random.uniform(k, (batch, env.action_size), minval=-1.0, maxval=1.0))
+            inner = _env_state(state)
+            reasons = {name: jnp.sum(value) for name, value in inner.metrics.items()
+                       if name.startswith("termination/")}
+            return state, {**reasons, "obs_non_finite": jnp.sum(~jnp.isfinite(inner.obs)).astype(jnp.float32),
+                           "done": jnp.sum(inner.done)}
+
+        state, counts = jax.lax.scan(body, state, jax.random.split(key, steps))
+        return state, jax.tree.map(jnp.sum, counts)
+
+    return reset, run
+
+
+def physics_model_fn(env: hsa_mjx.HSAEnv) -> Callable[[jax.Array], mjx.Model]:
+    """terrain -> the MJX model an env steps with (its own heightfield when terrain is per env)."""
+    world, model = getattr(env, "world", None), env.robot.mjx_model
+    if world is None:
+        return lambda terrain: model
+    return lambda terrain: world.model_for(model, terrain)
+
+
+def ceiling_start(env: hsa_mjx.HSAEnv, keys: jax.Array) -> tuple[mjx.Data, jax.Array]:
+    """Physics state and terrain field of freshly reset envs (the env's own reset pose)."""
+    sim = jax.jit(jax.vmap(env.reset))(keys).pipeline_state
+    terrain = getattr(sim.task, "terrain", None)
+    return sim.physics, (terrain if terrain is not None else jnp.zeros((keys.shape[0], 1)))
+
+
+def ceiling_loop(env: hsa_mjx.HSAEnv, steps: int) -> Callable:
+    """run((data, terrain), key): ``steps`` env steps of bare ``mjx.step`` substeps per env, vmapped."""
+    model_for, servos, ctl = physics_model_fn(env), env.index.servo_ids, env.config.control
+
+    def one_env(data: mjx.Data, terrain: jax.Array, key: jax.Array) -> mjx.Data:
+        model = model_for(terrain)
+
+        def env_step(data, k):
+            start = data.ctrl[servos]
+            action = jax.random.uniform(k, (len(servos),), minval=-1.0, maxval=1.0)
+            end = control.next_targets(start, action, ctl.max_increment, ctl.servo_target_limit)
+
+            def substep(d, target):
+                return mjx.step(model, d.replace(ctrl=d.ctrl.at[servos].set(target))), None
+
+            targets = control.substep_targets(start, end, ctl.frame_skip, ctl.smooth_positions)
+            data, _ = jax.lax.scan(substep, data, targets)
+            return data, None
+
+        data, _ = jax.lax.scan(env_step, data, jax.random.split(key, steps))
+        return data
+
+    def run(carry: tuple[mjx.Data, jax.Array], key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
+        data, terrain = carry
+        data = jax.vmap(one_env)(data, terrain, jax.random.split(key, terrain.shape[0]))
+        bad = ~jnp.all(jnp.isfinite(data.qpos), axis=-1)
+        return (data, terrain), {"non_finite_envs": jnp.sum(bad).astype(jnp.float32)}
+
+    return run
+
+
+def _compiled_bytes(compiled: Any) -> int | None:
+    """Bytes XLA reserves for one call: arguments + outputs + temporaries - aliased."""
+    try:
+        mem = compiled.memory_analysis()
+        return int(mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes
+                   - mem.alias_size_in_bytes)
+    except (AttributeError, NotImplementedError, TypeError):
+        return None
+
+
+def time_loop(run: Callable, state: Any, key: jax.Array, repeats: int, donate: bool) -> tuple[Timed, Any]:
+    """Compile ``run`` ahead of time, warm up once, then time ``repeats`` calls (median later)."""
+    jitted = jax.jit(run, donate_argnums=(0,) if donate else ())
+    tic = time.perf_counter()
+    compiled = jitted.lower(state, key).compile()
+    compile_s = time.perf_counter() - tic
+    keys = jax.random.split(key, repeats + 1)
+    state, _ = jax.block_until_ready(compiled(state, keys[0]))
+    seconds, totals, last = [], {}, {}
+    for k in keys[1:]:
+        tic = time.perf_counter()
+        state, counts = jax.block_until_ready(compiled(state, k))
+        seconds.append(time.perf_counter() - tic)
+        last = {name: float(value) for name, value in counts.items()}
+        totals = {name: totals.get(name, 0.0) + value for name, value in last.items()}
+    return Timed(seconds, compile_s, _compiled_bytes(compiled), totals, last), state
+
+
+def tree_bytes(tree: Any) -> int:
+    """Total bytes of the arrays in a pytree."""
+    return int(sum(x.nbytes if hasattr(x, "nbytes") else np.asarray(x).nbytes for x in jax.tree.leaves(tree)))
+
+
+def device_bytes(stat: str = "peak_bytes_in_use") -> int | None:
+    """A memory statistic of device 0 (None where JAX reports none, e.g. on CPU).
+
+    ``peak_bytes_in_use`` is the high-water mark since the process started; ``bytes_in_use`` now.
+    """
+    stats = jax.devices()[0].memory_stats()
+    return int(stats[stat]) if stats and stat in stats else None
+
+
+def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str, float]:
+    """Single-env C MuJoCo on the host CPU, same model and settings, random increments."""
+    model, servos, ctl = env.robot.mj_model, env.index.servo_ids, env.config.control
+    data = mujoco.MjData(model)
+    data.qpos[env.index.block_qpos + 2] = env.config.spawn_height
+    mujoco.mj_forward(model, data)
+    rng, steps, tic = np.random.default_rng(seed), 0, time.perf_counter()
+    ramp = np.arange(1, ctl.frame_skip + 1)[:, None] / ctl.frame_skip
+    ramp = ramp if ctl.smooth_positions else np.ones_like(ramp)  # the env's control law
+    while steps < 10 or time.perf_counter() - tic < seconds:
+        start = data.ctrl[servos].copy()
+        end = np.clip(start + ctl.max_increment * rng.uniform(-1, 1, len(servos)),
+                      -ctl.servo_target_limit, ctl.servo_target_limit)
+        for target in start + ramp * (end - start):
+            data.ctrl[servos] = target
+            mujoco.mj_step(model, data)
+        steps += 1
+    rate = steps / (time.perf_counter() - tic)
+    return {"cpu_mujoco_env_steps_per_s": round(rate, 1),
+            "cpu_mujoco_physics_steps_per_s": round(rate * ctl.frame_skip, 1)}
+
+
+def measure(env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, repeats: int,
+            seed: int = 0) -> dict[str, Any]:
+    """Env loop and physics ceiling at one batch size: rates, compile times, memory, NaN counts."""
+    key = jax.random.PRNGKey(seed)
+    donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)
+    reset, run = env_loop(env, wrapper, steps)
+    before = device_bytes("bytes_in_use")
+    state = jax.jit(reset)(jax.random.split(key, batch))
+    state_bytes = tree_bytes(state)
+    env_t, state = time_loop(run, state, key, repeats, donate)
+    after = device_bytes("bytes_in_use")
+    live = None if before is None or after is None else after - before
+    del state
+    start = ceiling_start(env, jax.random.split(key, batch))
+    ceil_t, start = time_loop(ceiling_loop(env, steps), start, key, repeats, donate)
+    del start
+    env_s, ceil_s = statistics.median(env_t.seconds), statistics.median(ceil_t.seconds)
+    measured = batch * steps * repeats
+    per_env = lambda b: None if b is None else round(b / batch)  # noqa: E731
+    return {
+        "batch": batch, "steps_per_call": steps, "repeats": repeats,
+        "env_steps_per_s": round(batch * steps / env_s, 1),
+        "physics_ceiling_env_steps_per_s": round(batch * steps / ceil_s, 1),
+        "physics_ceiling_physics_steps_per_s": round(batch * steps * env.config.control.frame_skip / ceil_s, 1),
+        "env_over_ceiling": round(ceil_s / env_s, 4),
+        "env_call_s": [round(s, 5) for s in env_t.seconds], "ceiling_call_s": [round(s, 5) for s in ceil_t.seconds],
+        "compile_s_env": round(env_t.compile_s, 2), "compile_s_ceiling": round(ceil_t.compile_s, 2),
+        "state_bytes_per_env": per_env(state_bytes),
+        "env_compiled_bytes_per_env": per_env(env_t.compiled_bytes),
+        "ceiling_compiled_bytes_per_env": per_env(ceil_t.compiled_bytes),
+        "device_live_bytes_per_env": per_env(live),  # env state + executables, after the timed calls
+        "device_peak_bytes_in_use": device_bytes("peak_bytes_in_use"),  # process high-water mark
+        "env_steps_measured": measured,
+        "nan_terminations": int(env_t.counters.get("termination/non_finite", 0)),
+        "nan_terminations_per_million_env_steps": round(
+            1e6 * env_t.counters.get("termination/non_finite", 0) / measured, 3),
+        "terminations_per_million_env_steps": {
+            name.split("/", 1)[1]: round(1e6 * value / measured, 1)
+            for name, value in env_t.counters.items() if name.startswith("termination/") and value},
+        "obs_non_finite_seen": bool(env_t.counters.get("obs_non_finite", 0) > 0),
+        "episodes_ended": int(env_t.counters.get("done", 0)),
+        "ceiling_non_finite_envs_at_end": int(ceil_t.last.get("non_finite_envs", 0)),
+        # an env stays NaN once it is (no reset): envs lost per million env steps run, warm-up included
+        "ceiling_non_finite_per_million_env_steps": round(
+            1e6 * ceil_t.last.get("non_finite_envs", 0) / (batch * steps * (repeats + 1)), 3),
+    }
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Command-line options; ``--quick`` shrinks everything for a CPU pipeline check."""
+    ints = lambda s: tuple(int(v) for v in s.split(","))  # noqa: E731
+    names = lambda s: tuple(v for v in s.split(",") if v)  # noqa: E731
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--batches", type=ints, default=None, help=f"comma list (default {DEFAULT_BATCHES})")
+    p.add_argument("--terrains", type=names, default=tuple(TERRAINS), help=f"comma list of {sorted(TERRAINS)}")
+    p.add_argument("--settings", nargs="+", default=None,
+                   help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
+                        f"default per scene {SHIPPED_BY_SCENE}")
+    p.add_argument("--steps", type=int, default=None,
+                   help=f"env steps per timed call (lax.scan length); default {ENV_STEPS_PER_CALL} / batch in [2, 20]")
+    p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
+    p.add_argument("--baseline-seconds", type=float, default=None, help="C MuJoCo baseline duration (default 2)")
+    p.add_argument("--budget-s", type=float, default=480.0, help="start no new measurement after this many s")
+    p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results"))
+    p.add_argument("--append", action="store_true", help="merge into an existing results file")
+    p.add_argument("--tag", default="", help="suffix of the output file names (e.g. stability)")
+    p.add_argument("--compile-cache", type=Path, default=None, help="JAX persistent compilation cache dir")
+    p.add_argument("--quick", action="store_true", help=f"pipeline check: {QUICK}")
+    args = p.parse_args(argv)
+    quick = QUICK if args.quick else {"batches": DEFAULT_BATCHES, "steps": None, "repeats": 3, "baseline_s": 2.0}
+    args.batches = args.batches or quick["batches"]
+    args.steps, args.repeats = args.steps or quick["steps"], args.repeats or quick["repeats"]
+    args.baseline_seconds = args.baseline_seconds or quick["baseline_s"]
+    if args.settings is not None:
+        args.settings = [name for arg in args.settings for name in arg.split(",") if name]
+    bad = sorted(set(args.terrains) - set(TERRAINS)) + sorted(set(args.settings or ()) - set(SETTINGS))
+    if bad:
+        p.error(f"unknown terrain/setting {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}")
+    return args
+
+
+def settings_for(terrain: str, settings: Sequence[str] | None) -> list[str]:
+    """The settings to measure on ``terrain``: as given, or the shipped one of its scene."""
+    return list(settings) if settings else [SHIPPED_BY_SCENE[TERRAINS[terrain]["scene"]]]
+
+
+def steps_for(batch: int, steps: int | None) -> int:
+    """Env steps per timed call: as given, or enough for about ENV_STEPS_PER_CALL env steps."""
+    return steps if steps else max(2, min(20, ENV_STEPS_PER_CALL // batch))
+
+
+def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
+    """The provenance fields every row carries."""
+    return {"gpu": info["device"], "device_count": info["device_count"], "backend": info["backend"],
+            "versions": info["versions"], "date": info["date"], "command": info["command"],
+            "git_commit": info.get("git_commit"), "git_dirty": info.get("git_dirty")}
+
+
+def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
+    """Measure every (terrain, setting, batch) until the time budget runs out; write after each row."""
+    rows = report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
+    start = time.perf_counter()
+    for terrain in args.terrains:
+        for setting in settings_for(terrain, args.settings):
+            env = bench_env(terrain, setting)
+            wrapper, note = batch_wrapper(env)
+            baseline = cpu_baseline(env, args.baseline_seconds)
+            for batch in args.batches:
+                if time.perf_counter() - start > args.budget_s:
+                    print(f"skipped {terrain}/{setting}/{batch}: past --budget-s {args.budget_s}", flush=True)
+                    continue
+                measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
+                row = {"terrain": terrain, "settings": setting, "overrides": SETTINGS[setting],
+                       "full_step": wrapper is not None, "full_step_note": note,
+                       **measured, **baseline, **_row_meta(info)}
+                rows = report.upsert(rows, row)
+                out(rows)
+                print(f"{terrain:11s} {setting} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
+                      f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
+                      f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
+                      f"NaN/M {row['nan_terminations_per_million_env_steps']}", flush=True)
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.compile_cache:
+        jax.config.update("jax_compilation_cache_dir", str(args.compile_cache))
+    info = run_info()
+    tag = "_".join(t for t in (args.tag, "quick" if args.quick else "") if t)
+    args.stem = f"throughput_{report.slug(info['device'])}" + (f"_{report.slug(tag)}" if tag else "")
+    meta = {**info, "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
+            "repeats": args.repeats,
+            "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
+            "terrains": {t: TERRAINS[t] for t in args.terrains}}
+    rows = run_matrix(args, info, lambda rows: report.write_all(args.out_dir, args.stem, rows, meta))
+    paths = report.write_all(args.out_dir, args.stem, rows, meta)
+    print(report.markdown(rows, meta))
+    print("wrote " + ", ".join(str(p) for p in paths))
+
+
+if __name__ == "__main__":
+    main()

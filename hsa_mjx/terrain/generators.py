@@ -1,0 +1,233 @@
+"""The eleven terrain generators of the original as pure JAX functions of world coordinates.
+
+Every generator has the signature ``fn(key, params, grid, x, y) -> heights`` where ``x``, ``y``
+are world coordinates (metres) of any common shape, ``params`` its frozen parameter dataclass
+(static) and ``grid`` the static :class:`~hsa_mjx.terrain.grid.Grid` (vertex spacing, field size);
+the result has the shape of ``x`` and holds world heights in metres above the generator's
+reference level 0 (negative values are allowed; :func:`~hsa_mjx.terrain.grid.to_hfield_data`
+lifts them). Random draws depend on the key only, never on the shape of ``x``, so evaluating a
+generator on the vertex mesh or at a single point gives the same terrain.
+
+Sharp edges (stairs, corridor and spiral walls) are drawn as a linear ramp one vertex spacing
+wide centred on the requested position, so the edge sits where it was asked for at half height
+whatever the grid alignment (the original snapped them to the 0.2 m cell it assumed).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.terrain import noise
+from hsa_mjx.terrain.grid import Grid
+from hsa_mjx.terrain.params import (
+    CorridorParams, CratersParams, FlatWithInclineParams, FlatWithRampParams, InclineParams,
+    PerlinParams, PolesParams, SpiralParams, StairsParams, WavyParams,
+)
+
+Generator = Callable[[jax.Array, Any, Grid, jax.Array, jax.Array], jax.Array]
+
+
+def soft_edge(distance: jax.Array, edge: float, ramp: float) -> jax.Array:
+    """0 below ``edge - ramp / 2``, 1 above ``edge + ramp / 2``, linear in between."""
+    return jnp.clip((distance - edge) / ramp + 0.5, 0.0, 1.0)
+
+
+def _slope_coordinate(x: jax.Array, y: jax.Array, direction: str) -> jax.Array:
+    """Distance along an incline direction: x, y, or the (x + y) / sqrt(2) diagonal."""
+    if direction == "x":
+        return x
+    if direction == "y":
+        return y
+    return (x + y) / math.sqrt(2.0)
+
+
+def _random_vertices(key: jax.Array, count: int, grid: Grid) -> tuple[jax.Array, jax.Array]:
+    """World (x, y) of ``count`` uniformly drawn vertices (the original drew integer cells)."""
+    k_col, k_row = jax.random.split(key)
+    col = jax.random.randint(k_col, (count,), 0, grid.ncol)
+    row = jax.random.randint(k_row, (count,), 0, grid.nrow)
+    return -grid.half_x + col * grid.spacing_x, -grid.half_y + row * grid.spacing_y
+
+
+def _pairwise_distance(x: jax.Array, y: jax.Array, cx: jax.Array, cy: jax.Array) -> jax.Array:
+    """Distance from every point (shape S) to every centre (K,), shape S + (K,)."""
+    return jnp.hypot(x[..., None] - cx, y[..., None] - cy)
+
+
+def wavy(key: jax.Array, p: WavyParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """amplitude * sin(scale x) * cos(scale y): 0 at the spawn point."""
+    return p.amplitude * jnp.sin(p.scale * x) * jnp.cos(p.scale * y)
+
+
+def perlin(key: jax.Array, p: PerlinParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Fractal Perlin noise scaled by ``amplitude``; a new field for every key, 0 at the origin."""
+    extent = max(grid.half_x, grid.half_y)
+    field = noise.fractal_noise(key, x, y, p.scale, p.octaves, p.persistence, p.lacunarity, extent)
+    return p.amplitude * field
+
+
+def stairs(key: jax.Array, p: StairsParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Steps of ``step_height`` every ``step_length`` along +x; step 0 covers |x| < step_length / 2."""
+    s = x / p.step_length + 0.5  # step boundaries at integer s
+    ramp = min(grid.spacing_x / p.step_length, 1.0)
+    nearest = jnp.round(s)
+    return p.step_height * (nearest - 1.0 + soft_edge(s - nearest, 0.0, ramp))
+
+
+def flat(key: jax.Array, p: Any, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Level ground."""
+    return jnp.zeros(jnp.broadcast_shapes(jnp.shape(x), jnp.shape(y)), jnp.float32)
+
+
+def incline(key: jax.Array, p: InclineParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """A plane through the spawn point rising at ``angle`` degrees along ``direction``."""
+    return math.tan(math.radians(p.angle)) * _slope_coordinate(x, y, p.direction)
+
+
+def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """``num`` Gaussian dips at random vertices, each cut off at its radius; overlaps add up."""
+    if p.num == 0:
+        return flat(key, p, grid, x, y)
+    k_pos, k_radius, k_depth = jax.random.split(key, 3)
+    cx, cy = _random_vertices(k_pos, p.num, grid)
+    radius = jax.random.uniform(k_radius, (p.num,), minval=p.radius[0], maxval=p.radius[1])
+    depth = jax.random.uniform(k_depth, (p.num,), minval=p.depth[0], maxval=p.depth[1])
+    d = _pairwise_distance(x, y, cx, cy)
+    dip = depth * jnp.exp(-(d ** 2) / (2.0 * (radius / 3.0) ** 2))
+    return -jnp.sum(jnp.where(d < radius, dip, 0.0), axis=-1)
+
+
+def _spacing_offsets(grid: Grid, spacing: float) -> list[tuple[int, int]]:
+    """Static (row, col) offsets of the vertices closer than ``spacing`` to a vertex (itself excluded)."""
+    reach_r, reach_c = int(spacing / grid.spacing_y) + 1, int(spacing / grid.spacing_x) + 1
+    return [(dr, dc) for dr in range(-reach_r, reach_r + 1) for dc in range(-reach_c, reach_c + 1)
+            if (dr, dc) != (0, 0) and math.hypot(dr * grid.spacing_y, dc * grid.spacing_x) < spacing]
+
+
+def pole_centres(key: jax.Array, p: PolesParams, grid: Grid) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Up to ``num`` vertices, none closer than ``min_spacing`` to another: (x, y, present) of shape (num,).
+
+    A parallel form of the original's sequential rejection sampling: every vertex far enough from
+    the edge gets a random priority, a vertex is kept when it beats every vertex within
+    ``min_spacing``, and the ``num`` kept vertices of highest priority become poles.
+    """
+    x, y = (jnp.asarray(a) for a in grid.mesh())
+    r_max = p.radius[1]
+    valid = (jnp.abs(x) <= grid.half_x - r_max) & (jnp.abs(y) <= grid.half_y - r_max)
+    priority = jnp.where(valid, jax.random.uniform(key, (grid.nrow, grid.ncol)), -1.0)
+    offsets = _spacing_offsets(grid, p.min_spacing)
+    pad_r = max([abs(dr) for dr, _ in offsets], default=0)
+    pad_c = max([abs(dc) for _, dc in offsets], default=0)
+    padded = jnp.pad(priority, ((pad_r, pad_r), (pad_c, pad_c)), constant_values=-1.0)
+    rival = jnp.full_like(priority, -1.0)
+    for dr, dc in offsets:  # static neighbourhood, unrolled at trace time
+        rival = jnp.maximum(rival, padded[pad_r + dr:pad_r + dr + grid.nrow, pad_c + dc:pad_c + dc + grid.ncol])
+    score = jnp.where(valid & (priority > rival), priority, -1.0).reshape(-1)
+    top, index = jax.lax.top_k(score, min(p.num, grid.size))
+    return x.reshape(-1)[index], y.reshape(-1)[index], top >= 0.0
+
+
+def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Poles of random radius and height: full height up to ``radius - edge``, linear to 0 at ``radius``.
+
+    ``edge`` is one vertex spacing (or the radius if smaller), so the default 0.2 m poles are the
+    original's single-vertex spikes. Poles taller than the heightfield's z scale are clipped by
+    :func:`~hsa_mjx.terrain.grid.to_hfield_data`.
+    """
+    if p.num == 0:
+        return flat(key, p, grid, x, y)
+    k_pos, k_radius, k_height = jax.random.split(key, 3)
+    cx, cy, present = pole_centres(k_pos, p, grid)
+    count = cx.shape[0]
+    radius = jax.random.uniform(k_radius, (count,), minval=p.radius[0], maxval=p.radius[1])
+    height = jax.random.uniform(k_height, (count,), minval=p.height[0], maxval=p.height[1])
+    edge = jnp.minimum(radius, min(grid.spacing_x, grid.spacing_y))
+    d = _pairwise_distance(x, y, cx, cy)
+    profile = jnp.where(present, height * jnp.clip((radius - d) / edge, 0.0, 1.0), 0.0)
+    return jnp.max(profile, axis=-1)
+
+
+def flat_with_incline(key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: jax.Array,
+                      y: jax.Array) -> jax.Array:
+    """Flat ground; inside the rectangle a slope rising from 0 at its start edge, then a drop."""
+    x0, x1 = (grid.fraction_to_x(f) for f in p.x_range)
+    y0, y1 = (grid.fraction_to_y(f) for f in p.y_range)
+    inside = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+    rise = math.tan(math.radians(p.angle)) * _slope_coordinate(x - x0, y - y0, p.direction)
+    return jnp.where(inside, rise, 0.0)
+
+
+def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Flat ground with a ramp from 0 to ``height`` over ``length``, optionally faded at its sides."""
+    dx, dy = x - grid.fraction_to_x(p.center[0]), y - grid.fraction_to_y(p.center[1])
+    along_x = p.direction.endswith("x")
+    extent_along = 2.0 * (grid.half_x if along_x else grid.half_y)
+    extent_across = 2.0 * (grid.half_y if along_x else grid.half_x)
+    along, across = (dx, dy) if along_x else (dy, dx)
+    along = -along if p.direction.startswith("-") else along
+    length, half_width = p.length * extent_along, 0.5 * p.width * extent_across
+    inside = (jnp.abs(along) < 0.5 * length) & (jnp.abs(across) < half_width)
+    rise = p.height * (along + 0.5 * length) / length
+    if p.smooth_edges:
+        q = jnp.abs(across) / half_width
+        rise = rise * jnp.where(q > 0.7, jnp.maximum(0.0, 1.0 - (q - 0.7) / 0.3), 1.0)
+    return jnp.where(inside, rise, 0.0)
+
+
+def corridor(key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Walls of ``wall_height`` on both sides of a floor running along ``axis``."""
+    if p.axis == "x":
+        lateral, ramp = y - grid.fraction_to_y(p.center), grid.spacing_y
+    else:
+        lateral, ramp = x - grid.fraction_to_x(p.center), grid.spacing_x
+    return p.wall_height * soft_edge(jnp.abs(lateral), 0.5 * p.corridor_width, ramp)
+
+
+def spiral_track_distance(p: SpiralParams, x: jax.Array, y: jax.Array, extension: float) -> jax.Array:
+    """Radial distance to the spiral centre line r(u) = r0 + (r1 - r0) u / (2 pi turns), at angle pi - u.
+
+    ``u`` runs from 0 (angle pi, radius r0) clockwise to 2 pi turns (radius r1); the line is
+    extended by ``extension`` radians at both ends so neither the first nor the last checkpoint
+    sits against the track's end wall.
+    """
+    total = 2.0 * math.pi * p.turns
+    r = jnp.hypot(x, y)
+    u0 = jnp.mod(math.pi - jnp.arctan2(y, x), 2.0 * math.pi)
+    laps = jnp.arange(-1, int((total + extension) // (2.0 * math.pi)) + 1, dtype=jnp.float32)
+    u = u0[..., None] + 2.0 * math.pi * laps
+    centre = jnp.maximum(p.start_radius + (p.end_radius - p.start_radius) * u / total, 0.0)
+    on_track = (u >= -extension) & (u <= total + extension)
+    return jnp.min(jnp.where(on_track, jnp.abs(r[..., None] - centre), jnp.inf), axis=-1)
+
+
+def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+    """Walls everywhere except the spiral track (the checkpoint path) and a start disc of radius r0."""
+    ramp = max(grid.spacing_x, grid.spacing_y)
+    extension = p.track_width / max(p.end_radius, p.track_width)
+    track = soft_edge(spiral_track_distance(p, x, y, extension), 0.5 * p.track_width, ramp)
+    start = soft_edge(jnp.hypot(x, y), p.start_radius, ramp)
+    return p.wall_height * jnp.minimum(track, start)
+
+
+GENERATORS: dict[str, Generator] = {
+    "wavy": wavy, "perlin": perlin, "stairs": stairs, "flat": flat, "incline": incline,
+    "craters": craters, "poles": poles, "flat_with_incline": flat_with_incline,
+    "flat_with_ramp": flat_with_ramp, "corridor": corridor, "spiral": spiral,
+}
+
+
+def vertex_mesh(grid: Grid) -> tuple[jax.Array, jax.Array]:
+    """World (x, y) of the vertices as float32 constants, shape (nrow, ncol) each."""
+    x, y = grid.mesh()
+    return jnp.asarray(x, jnp.float32), jnp.asarray(y, jnp.float32)
+
+
+def point_height(fn: Generator, params: Any, grid: Grid, x: float, y: float) -> float:
+    """Height of a deterministic generator at one world point, as a Python float (static)."""
+    value = fn(jax.random.PRNGKey(0), params, grid, np.full((1,), x, np.float32), np.full((1,), y, np.float32))
+    return float(np.asarray(value)[0])

@@ -1,0 +1,97 @@
+"""The dispatcher, the flat spawn zone, and per-env terrain drawing for a configured mixture of types."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.terrain.generators import GENERATORS, point_height, vertex_mesh
+from hsa_mjx.terrain.grid import Grid, to_hfield_data
+from hsa_mjx.terrain.params import (
+    RANDOM_TYPES, TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig, check_type,
+)
+
+SPAWN_BLEND = 1.2  # the zone blends back into the terrain between radius and 1.2 x radius
+
+
+def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid = Grid()) -> jax.Array:
+    """World heights (nrow, ncol) of one terrain of ``terrain_type``, relative to its level 0.
+
+    Args:
+        terrain_type: one of ``TERRAIN_TYPES``.
+        key: PRNG key (only perlin, craters and poles use it).
+        params: the type's parameter dataclass; ``None`` takes the defaults.
+        grid: the heightfield's static grid (default: the asset's 50 x 50 over 10 x 10 m).
+
+    Raises:
+        ValueError: unknown ``terrain_type`` (the message lists the valid types).
+    """
+    check_type(terrain_type)
+    params = TerrainConfig().params(terrain_type) if params is None else params
+    x, y = vertex_mesh(grid)
+    return GENERATORS[terrain_type](key, params, grid, x, y).astype(jnp.float32)
+
+
+def spawn_level(terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig) -> float:
+    """Height the spawn zone is levelled to: the terrain's own height at the zone centre for the
+    deterministic types (an incline or ramp under the spawn becomes a landing, not a pit), the
+    base level 0 for the random ones (their obstacles are removed, as the original did)."""
+    if terrain_type in RANDOM_TYPES:
+        return 0.0
+    cx, cy = grid.fraction_to_x(spawn.center[0]), grid.fraction_to_y(spawn.center[1])
+    return point_height(GENERATORS[terrain_type], params, grid, cx, cy)
+
+
+def apply_flat_spawn(heights: jax.Array, grid: Grid, spawn: FlatSpawnConfig, level: jax.Array) -> jax.Array:
+    """Level a disc of ``spawn.radius`` (fraction of the field width) at ``level``, blending back
+    into the terrain linearly out to 1.2 x the radius."""
+    radius = spawn.radius * 2.0 * grid.half_x
+    if not spawn.enabled or radius <= 0.0:
+        return heights
+    x, y = vertex_mesh(grid)
+    d = jnp.hypot(x - grid.fraction_to_x(spawn.center[0]), y - grid.fraction_to_y(spawn.center[1]))
+    blend = jnp.clip((d - radius) / ((SPAWN_BLEND - 1.0) * radius), 0.0, 1.0)
+    return jnp.where(blend < 1.0, level + (heights - level) * blend, heights)
+
+
+class TerrainSampler:
+    """Draws one env's terrain from a key: its type (from the configured proportions), heights,
+    flat spawn zone and the [0, 1] heightfield data. Everything static comes from the config.
+
+    ``sample(key) -> (data (nrow * ncol,) float32, type_id () int32)``; ``type_id`` indexes
+    ``TERRAIN_TYPES``. With several types the generators are selected with ``lax.switch`` (under
+    ``vmap`` every configured generator runs and the result is selected per env).
+    """
+
+    def __init__(self, config: TerrainConfig, grid: Grid):
+        self.config, self.grid = config, grid
+        self.types = tuple(config.types)
+        self.type_ids = jnp.asarray([TERRAIN_TYPES.index(t) for t in self.types], jnp.int32)
+        self.log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
+        self.levels = jnp.asarray(
+            [spawn_level(t, config.params(t), grid, config.flat_spawn) for t in self.types], jnp.float32)
+        self._branches = [self._branch(t) for t in self.types]
+
+    def _branch(self, terrain_type: str):
+        """The generator of one type as a function of the key alone (a lax.switch branch)."""
+        params = self.config.params(terrain_type)
+        return lambda key: generate(terrain_type, key, params, self.grid)
+
+    def heights(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """World heights (nrow, ncol) with the spawn zone applied, and the local type index."""
+        k_type, k_gen = jax.random.split(key)
+        if len(self.types) == 1:
+            index = jnp.zeros((), jnp.int32)
+            heights = self._branches[0](k_gen)
+        else:
+            index = jax.random.categorical(k_type, self.log_p).astype(jnp.int32)
+            heights = jax.lax.switch(index, self._branches, k_gen)
+        return apply_flat_spawn(heights, self.grid, self.config.flat_spawn, self.levels[index]), index
+
+    def sample(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Heightfield data (nrow * ncol,) in [0, 1] and the type id (index into ``TERRAIN_TYPES``)."""
+        heights, index = self.heights(key)
+        return to_hfield_data(heights, self.grid), self.type_ids[index]

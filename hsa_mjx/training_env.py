@@ -1,0 +1,170 @@
+"""A batch of envs for training: per-env auto-reset with fresh goals, the curriculum, episode statistics.
+
+Brax's ``AutoResetWrapper`` restores each env's cached first state, so every episode of an env
+would replay the same goal (and terrain). Here a finished env is reset from its own PRNG key with a
+goal drawn from the curriculum's current range: every episode differs. The batch-level wrapper
+also owns the curriculum state (one copy, updated from all envs, gathered across devices under
+``pmap``) and sums episode statistics on the device until the host drains them.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from hsa_mjx import curriculum as cur
+from hsa_mjx import reward, termination
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.types import EnvState
+
+TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
+              "nonfinite_action", "nonfinite_state")
+
+
+@struct.dataclass
+class EpisodeAccumulator:
+    """Running sums of the current episode of every env, shape (B,) each."""
+
+    ret: jax.Array
+    length: jax.Array
+    terms: dict[str, jax.Array]
+
+
+@struct.dataclass
+class BatchState:
+    """State of a batch of training envs (``env`` fields have a leading batch axis)."""
+
+    env: EnvState
+    curriculum: cur.CurriculumState
+    episode: EpisodeAccumulator
+    totals: dict[str, jax.Array]  # scalar sums over episodes finished since the last drain
+
+    @property
+    def obs(self) -> jax.Array:
+        return self.env.obs
+
+
+def _zero_totals() -> dict[str, jax.Array]:
+    names = TOTAL_KEYS + tuple(f"reward/{k}" for k in reward.TERM_NAMES) + tuple(
+        f"termination/{k}" for k in termination.REASONS)
+    return {name: jnp.zeros((), jnp.float32) for name in names}
+
+
+class AutoResetEnv:
+    """Batched ``reset(keys)`` / ``step(state, actions)`` over an :class:`HSAEnv` with curriculum.
+
+    Args:
+        env: the single-env :class:`HSAEnv`.
+        curriculum: curriculum settings; when enabled the env must use ``goal.mode: radial``.
+        axis_name: the ``pmap`` axis to gather episode outcomes over (None on one device).
+    """
+
+    def __init__(self, env: HSAEnv, curriculum: cur.CurriculumConfig | None = None,
+                 axis_name: str | None = None):
+        self.env = env
+        self.curriculum = curriculum or cur.CurriculumConfig(enabled=False)
+        if self.curriculum.enabled and env.config.goal.mode != "radial":
+            raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
+        self.axis_name = axis_name
+
+    @property
+    def observation_size(self) -> int:
+        return self.env.observation_size
+
+    @property
+    def action_size(self) -> int:
+        return self.env.action_size
+
+    def _goal_range(self, state: cur.CurriculumState) -> jax.Array:
+        if self.curriculum.enabled:
+            return cur.goal_range(state, self.curriculum)
+        return jnp.asarray(self.env.config.goal.radial_range, jnp.float32)
+
+    def reset(self, keys: jax.Array, curriculum_state: cur.CurriculumState | None = None) -> BatchState:
+        """Reset a batch (one key per env); a given curriculum state is kept (resume)."""
+        cstate = curriculum_state if curriculum_state is not None else cur.init(self.curriculum)
+        goal_range = self._goal_range(cstate)
+        env_state = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, goal_range)
+        batch = keys.shape[0]
+        zeros = jnp.zeros((batch,), jnp.float32)
+        episode = EpisodeAccumulator(ret=zeros, length=zeros, terms={k: zeros for k in reward.TERM_NAMES})
+        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=_zero_totals())
+
+    def step(self, state: BatchState, actions: jax.Array) -> BatchState:
+        """Step every env; reset the finished ones with fresh goals; update curriculum and totals."""
+        nxt = jax.vmap(self.env.step)(state.env, actions)
+        done = nxt.done > 0
+        episode = EpisodeAccumulator(
+            ret=state.episode.ret + nxt.reward, length=state.episode.length + 1.0,
+            terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
+        totals = self._add_totals(state.totals, nxt, episode, done)
+        cstate = self._update_curriculum(state.curriculum, nxt.metrics["termination/goal_reached"] > 0, done)
+        env_state = self._reset_done(nxt, done, cstate)
+        keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
+        episode = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
+                                     terms={k: keep(v) for k, v in episode.terms.items()})
+        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=totals)
+
+    def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
+                           done: jax.Array) -> cur.CurriculumState:
+        """Feed this step's episode ends (from every device) to the curriculum."""
+        if not self.curriculum.enabled:
+            return cstate
+        if self.axis_name is not None:
+            success = jax.lax.all_gather(success, self.axis_name)
+            done = jax.lax.all_gather(done, self.axis_name)
+        return cur.update(cstate, success, done, self.curriculum)
+
+    def _reset_done(self, nxt: EnvState, done: jax.Array, cstate: cur.CurriculumState) -> EnvState:
+        """Replace finished envs by fresh episodes drawn from their own keys (skipped if none ended)."""
+        def fresh(state: EnvState) -> EnvState:
+            keys = jax.vmap(lambda k: jax.random.split(k)[1])(state.pipeline_state.task.rng)
+            new = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, self._goal_range(cstate))
+            pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            return state.replace(pipeline_state=jax.tree.map(pick, new.pipeline_state, state.pipeline_state),
+                                 obs=pick(new.obs, state.obs))
+        return jax.lax.cond(jnp.any(done), fresh, lambda s: s, nxt)
+
+    @staticmethod
+    def _add_totals(totals: dict, nxt: EnvState, episode: EpisodeAccumulator, done: jax.Array) -> dict:
+        """Add the finished episodes (and per-step counters) to the running totals."""
+        d = done.astype(jnp.float32)
+        m = nxt.metrics
+        add = {
+            "episodes": jnp.sum(d), "return": jnp.sum(d * episode.ret), "length": jnp.sum(d * episode.length),
+            "success": jnp.sum(d * m["termination/goal_reached"]),
+            "final_distance": jnp.sum(d * m["distance_to_goal"]),
+            "env_steps": jnp.asarray(done.shape[0], jnp.float32),
+            "nonfinite_action": jnp.sum(m["nonfinite_action"]),
+            "nonfinite_state": jnp.sum(m["termination/non_finite"]),
+        }
+        add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
+        add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
+        return {k: totals[k] + add[k] for k in totals}
+
+    @staticmethod
+    def drain(state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
+        """Return the totals and the state with them zeroed (call between jitted chunks)."""
+        return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), state.totals
+
+
+def summarize(totals: dict[str, float]) -> dict[str, float]:
+    """Turn drained totals (host floats, summed over devices) into per-episode means and rates.
+
+    Per-episode keys are left out when no episode ended in the period (rather than logged as 0).
+    """
+    out = {"episodes": totals["episodes"], "env_steps": totals["env_steps"],
+           "nonfinite/actions": totals["nonfinite_action"], "nonfinite/states": totals["nonfinite_state"]}
+    episodes = totals["episodes"]
+    if episodes <= 0:
+        return out
+    out.update({"episode/return": totals["return"] / episodes, "episode/length": totals["length"] / episodes,
+                "episode/success_rate": totals["success"] / episodes,
+                "episode/final_distance": totals["final_distance"] / episodes})
+    for key, value in totals.items():
+        if key.startswith("reward/"):
+            out[f"episode/{key}"] = value / episodes
+        elif key.startswith("termination/"):
+            out[key] = value / episodes
+    return out

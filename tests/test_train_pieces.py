@@ -1,0 +1,121 @@
+"""Trainer pieces without MJX: config checks, checkpoints, the JAX compatibility shim."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train import checkpoint, compat
+from train import config as tcfg
+
+
+def test_default_and_shipped_configs_validate():
+    assert tcfg.from_dict({}).run.num_envs == 1024
+    for name in ("train_quickstart_cpu", "train_flat"):
+        config = tcfg.load(f"configs/{name}.yaml")
+        assert config.curriculum.enabled and config.env.goal.mode == "radial"
+        assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
+
+
+@pytest.mark.parametrize("data, match", [
+    ({"trainer": {}}, "unknown config section"),
+    ({"ppo": {"learning_rat": 1e-3}}, r"unknown config key.*learning_rate"),
+    ({"ppo": {"activation": "gelu"}}, "activation"),
+    ({"run": {"num_envs": "many"}}, "run.num_envs"),
+    ({"run": {"num_envs": 3}}, "multiple of run.num_envs"),
+    ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
+    ({"env": {"preset": "nope"}}, "unknown preset"),
+    ({"curriculum": {"window_size": 0}}, "window_size"),
+])
+def test_bad_config_is_named(data, match):
+    with pytest.raises(ValueError, match=match):
+        tcfg.from_dict(data)
+
+
+def test_device_split_checked():
+    config = tcfg.from_dict({"run": {"num_envs": 1024}, "ppo": {"batch_size": 256}})
+    with pytest.raises(ValueError, match="divisible by the 3 devices"):
+        tcfg.validate(config, device_count=3)
+    assert tcfg.validate(config, device_count=2) is config
+
+
+def test_set_overrides():
+    data = tcfg.apply_overrides({"ppo": {"learning_rate": 1.0}},
+                                ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"])
+    config = tcfg.from_dict(data)
+    assert config.ppo.learning_rate == pytest.approx(2e-4)
+    assert config.env.reward.forward == 3.0 and config.run.seed == 7
+    with pytest.raises(ValueError, match="section.key=value"):
+        tcfg.apply_overrides({}, ["ppo.learning_rate"])
+    with pytest.raises(ValueError, match="must start with one of"):
+        tcfg.apply_overrides({}, ["learning_rate=1"])
+    with pytest.raises(ValueError, match="unknown config key"):
+        tcfg.from_dict(tcfg.apply_overrides({}, ["run.epochs=3"]))
+
+
+def test_missing_config_file():
+    with pytest.raises(FileNotFoundError, match="training config not found"):
+        tcfg.load("configs/does_not_exist.yaml")
+
+
+def _payload(scale: float = 1.0):
+    return {"w": jnp.arange(6.0).reshape(2, 3) * scale, "inner": {"n": jnp.asarray(3, jnp.int32)},
+            "rng": jax.random.PRNGKey(5)}
+
+
+def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
+    for step in (10, 20, 30, 40):
+        checkpoint.save(tmp_path, step, _payload(step), {"env": {"a": 1}}, keep=2)
+    names = [p.name for p in checkpoint.list_checkpoints(tmp_path)]
+    assert names == ["step_000000000030", "step_000000000040"]
+    assert not [p for p in checkpoint.checkpoint_dir(tmp_path).iterdir() if p.name.startswith(".tmp")]
+    latest = checkpoint.latest(tmp_path)
+    restored = checkpoint.load(latest, _payload())
+    np.testing.assert_allclose(restored["w"], np.arange(6.0).reshape(2, 3) * 40)
+    assert int(restored["inner"]["n"]) == 3
+    assert checkpoint.read_meta(latest)["step"] == 40
+
+
+def test_corrupt_and_missing_checkpoints_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no checkpoint found"):
+        checkpoint.latest(tmp_path)
+    path = checkpoint.save(tmp_path, 1, _payload(), {"env": {}})
+    (path / checkpoint.STATE_FILE).write_bytes(b"\x00garbage\xff" * 10)
+    with pytest.raises(ValueError, match="corrupt"):
+        checkpoint.load(path, _payload())
+    (path / checkpoint.META_FILE).write_text("{not json")
+    with pytest.raises(ValueError, match="corrupt"):
+        checkpoint.read_meta(path)
+
+
+def test_checkpoint_of_other_shape_refused(tmp_path):
+    path = checkpoint.save(tmp_path, 1, _payload(), {"env": {}})
+    other = dict(_payload(), w=jnp.zeros((3, 3)))
+    with pytest.raises(ValueError, match="does not match"):
+        checkpoint.load(path, other)
+
+
+def test_incompatibilities():
+    saved = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({}))))
+    same = tcfg.to_dict(tcfg.from_dict({"run": {"num_timesteps": 5}, "ppo": {"learning_rate": 1e-5}}))
+    assert checkpoint.incompatibilities(saved, json.loads(json.dumps(same))) == []
+    other = tcfg.to_dict(tcfg.from_dict({"env": {"reward": {"forward": 1.0}},
+                                         "ppo": {"policy_hidden_sizes": [8]}}))
+    assert checkpoint.incompatibilities(saved, json.loads(json.dumps(other))) == [
+        "env.reward.forward", "ppo.policy_hidden_sizes"]
+
+
+def test_compat_shim_replicates_onto_devices(monkeypatch):
+    monkeypatch.delattr(jax, "device_put_replicated", raising=False)
+    assert compat.install() is True
+    devices = jax.local_devices()
+    out = jax.device_put_replicated({"a": jnp.ones((2, 3)), "b": jnp.asarray(4)}, devices)
+    assert out["a"].shape == (len(devices), 2, 3) and out["b"].shape == (len(devices),)
+    assert set(out["a"].devices()) == set(devices)
+    assert compat.install() is False  # already present: nothing replaced
+    summed = jax.pmap(lambda t: t["a"].sum() + t["b"])(out)
+    np.testing.assert_allclose(summed, [10.0] * len(devices))

@@ -1,0 +1,128 @@
+"""End to end on CPU: a tiny PPO run with the curriculum, checkpoints, resume, refusal, evaluation."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from train import checkpoint
+from train import config as tcfg
+
+TINY = {
+    "env": {"preset": "flat", "goal": {"mode": "radial"}, "physics": {"iterations": 4, "ls_iterations": 8},
+            "termination": {"max_episode_steps": 15}},
+    # success_threshold 0: every full window widens the range, so the wiring is visible in 80 steps
+    "curriculum": {"enabled": True, "window_size": 4, "min_episodes": 4, "success_threshold": 0.0,
+                   "failure_threshold": 0.0},
+    "ppo": {"unroll_length": 5, "batch_size": 4, "num_minibatches": 2, "num_updates_per_batch": 1,
+            "policy_hidden_sizes": [8], "value_hidden_sizes": [8]},
+    "run": {"num_timesteps": 80, "num_envs": 4, "checkpoint_every": 40, "seed": 1},
+}
+
+
+def tiny(**run) -> tcfg.TrainConfig:
+    data = json.loads(json.dumps(TINY))
+    data["run"].update(run)
+    return tcfg.from_dict(data)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    from train.trainer import train
+    path = tmp_path_factory.mktemp("run")
+    summary = train(tiny(), path, quiet=True)
+    assert summary["env_steps"] == 80
+    return path
+
+
+def records(path):
+    from train.logger import read_jsonl
+    return read_jsonl(path / "metrics.jsonl")
+
+
+def test_run_leaves_checkpoints_logs_and_plots(run_dir):
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == ["step_000000000040", "step_000000000080"]
+    assert (run_dir / "config.yaml").is_file() and (run_dir / "learning_curve.png").stat().st_size > 10_000
+    assert list((run_dir / "tensorboard").iterdir())
+    recs = records(run_dir)
+    assert [r["step"] for r in recs] == [40, 80]
+    last = recs[-1]
+    for key in ("loss/total_loss", "loss/policy_loss", "curriculum/max_distance", "curriculum/success_rate",
+                "training/env_steps_per_s", "nonfinite/states"):
+        assert np.isfinite(last[key]), key
+    with_episodes = [r for r in recs if r["episodes"] > 0]
+    assert with_episodes and "episode/reward/forward" in with_episodes[0]
+    assert "termination/goal_reached" in with_episodes[0]
+
+
+def test_curriculum_updates_inside_training(run_dir):
+    last = records(run_dir)[-1]
+    assert last["curriculum/episode_count"] == 4  # 80 env steps = 20 per env: one 15-step episode each
+    assert last["curriculum/max_distance"] > 1.8 + 1e-6  # widened from the initial range
+
+
+def test_resume_continues_step_and_curriculum(run_dir):
+    from train.trainer import train
+    before = records(run_dir)[-1]
+    summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
+    assert summary["env_steps"] == 160
+    after = records(run_dir)[-1]
+    assert after["step"] == 160
+    assert after["curriculum/episode_count"] > before["curriculum/episode_count"]
+    assert after["curriculum/max_distance"] >= before["curriculum/max_distance"]
+
+
+def test_resume_refuses_other_config_and_overwrite(run_dir):
+    from train.trainer import train
+    other = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"]))
+    with pytest.raises(ValueError, match="env.reward.forward"):
+        train(other, run_dir, resume=True, quiet=True)
+    with pytest.raises(ValueError, match="--resume"):
+        train(tiny(), run_dir, quiet=True)
+
+
+def test_cli_errors_before_compile(run_dir, capsys):
+    from train.cli import main
+    assert main(["--config", "configs/nope.yaml"]) == 2
+    assert main(["--config", "configs/train_quickstart_cpu.yaml", "--set", "ppo.nope=1"]) == 2
+    assert main(["--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "not found" in err and "unknown config key" in err and "--run-dir" in err
+
+
+def test_evaluate_writes_summary_and_plots(run_dir):
+    from train.evaluate import main
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0
+    result = json.loads((run_dir / "eval" / "eval.json").read_text())
+    assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0
+    assert result["mean_final_distance"] > 0
+    for name in ("actions.png", "joints.png", "constraint.png", "trajectories.png"):
+        assert (run_dir / "eval" / name).stat().st_size > 5_000
+    assert main([str(run_dir / "missing")]) == 2
+
+
+def test_auto_reset_draws_fresh_goals_from_curriculum():
+    from hsa_mjx import curriculum as cur
+    from hsa_mjx.env import HSAEnv
+    from hsa_mjx.training_env import AutoResetEnv
+    config = tiny()
+    env = HSAEnv(tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)),
+                                                     ["env.termination.max_episode_steps=3"])).env)
+    batch = AutoResetEnv(env, config.curriculum)
+    state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    step = jax.jit(batch.step)
+    goals = []
+    for _ in range(7):
+        state = step(state, jnp.zeros((2, 8)))
+        goals.append(np.asarray(state.env.pipeline_state.task.goal_xy))
+    goals = np.stack(goals)  # (7, 2 envs, 2)
+    distinct = {tuple(np.round(g, 5)) for g in goals[:, 0]}
+    assert len(distinct) >= 3  # three episodes of env 0, three different goals
+    lo, hi = np.asarray(cur.goal_range(state.curriculum, config.curriculum))
+    radius = np.linalg.norm(goals, axis=-1)
+    assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
+    assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes

@@ -1,0 +1,73 @@
+"""Command line: ``python -m train --config configs/<task>.yaml [--set key=value ...] [--run-dir DIR] [--resume]``.
+
+Every problem with the config, the run directory or the checkpoint to resume is reported before
+anything is compiled. Ctrl-C (or SIGTERM) finishes the current epoch, writes a checkpoint and
+exits; a second Ctrl-C stops at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from train import config as tcfg
+
+CPU_CONFIG = "configs/train_quickstart_cpu.yaml"
+GPU_CONFIG = "configs/train_flat.yaml"
+DEFAULT_CONFIG = "auto"
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parse the training command line."""
+    parser = argparse.ArgumentParser(prog="python -m train", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=DEFAULT_CONFIG,
+                        help=f"training YAML (default: {GPU_CONFIG} on a GPU, {CPU_CONFIG} otherwise)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help="override a config value, e.g. --set ppo.learning_rate=1e-4 (repeatable)")
+    parser.add_argument("--run-dir", default=None, help="output directory (default runs/<config name>-<time>)")
+    parser.add_argument("--resume", action="store_true", help="continue from the run dir's latest checkpoint")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    return parser.parse_args(argv)
+
+
+def default_config() -> str:
+    """The full-size GPU config when JAX sees a GPU, else the CPU quickstart."""
+    import jax
+    return GPU_CONFIG if jax.default_backend() == "gpu" else CPU_CONFIG
+
+
+def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
+    """The validated config and run dir (a resumed run reads its own saved config by default)."""
+    if args.resume and args.run_dir is None:
+        raise ValueError("--resume needs --run-dir (the run to continue)")
+    config_path = Path(args.config)
+    if args.config == DEFAULT_CONFIG:
+        config_path = Path(default_config())
+        if args.resume and (Path(args.run_dir) / "config.yaml").is_file():
+            config_path = Path(args.run_dir) / "config.yaml"  # a resumed run keeps its own config
+    config = tcfg.load(config_path, args.overrides)
+    run_dir = Path(args.run_dir) if args.run_dir else Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    return config, run_dir
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m train`` and the ``hsa-train`` console script."""
+    args = parse_args(argv)
+    try:
+        config, run_dir = resolve(args)
+        from train.trainer import train  # imports JAX; config errors above come first
+        summary = train(config, run_dir, resume=args.resume, quiet=args.quiet)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(f"\nrun dir: {run_dir}")
+    for key, value in summary.items():
+        print(f"  {key}: {value:.4g}" if isinstance(value, float) else f"  {key}: {value}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""Training configuration: the env, the curriculum, PPO hyperparameters and the run, from one YAML file.
+
+A training YAML has four sections, each optional (missing keys take the defaults below)::
+
+    env: {...}          # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
+    curriculum: {...}   # hsa_mjx.curriculum.CurriculumConfig
+    ppo: {...}          # PPOConfig
+    run: {...}          # RunConfig
+
+Unknown keys, wrong types and incompatible values raise ``ValueError`` naming the key, before any
+compilation. ``--set section.key=value`` overrides use the same checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from hsa_mjx import config as env_config
+from hsa_mjx import curriculum as cur
+from hsa_mjx.config import EnvConfig, build_section
+
+ACTIVATIONS = ("swish", "tanh", "relu", "elu")
+SECTIONS = ("env", "curriculum", "ppo", "run")
+DEFAULT_ENV_PRESET = "flat_radial"
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyperparameters (Brax names) and network sizes."""
+
+    learning_rate: float = 3e-4
+    entropy_cost: float = 1e-3
+    discounting: float = 0.99
+    gae_lambda: float = 0.95
+    clipping_epsilon: float = 0.2
+    unroll_length: int = 20
+    batch_size: int = 256  # unrolls per minibatch
+    num_minibatches: int = 8
+    num_updates_per_batch: int = 4
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    normalize_advantage: bool = True
+    max_grad_norm: float = 1.0
+    vf_loss_coefficient: float = 0.5
+    policy_hidden_sizes: tuple[int, ...] = (128, 128, 128)
+    value_hidden_sizes: tuple[int, ...] = (256, 256, 256)
+    activation: str = "swish"
+    init_noise_std: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """Run length, batch, seed and the cadence of logs and checkpoints."""
+
+    num_timesteps: int = 1_000_000
+    num_envs: int = 1024
+    seed: int = 0
+    epochs_per_log: int = 1  # training epochs between host logs
+    steps_per_epoch: int = 0  # env steps per jitted epoch; 0 = one PPO iteration per epoch
+    checkpoint_every: int = 1_000_000  # env steps between checkpoints
+    keep_checkpoints: int = 3
+    num_devices: int = 0  # local devices to use; 0 = all
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Everything one training run needs."""
+
+    env: EnvConfig = env_config.PRESETS["flat_radial"]
+    curriculum: cur.CurriculumConfig = cur.CurriculumConfig()
+    ppo: PPOConfig = PPOConfig()
+    run: RunConfig = RunConfig()
+
+    @property
+    def env_steps_per_iteration(self) -> int:
+        """Env steps collected by one PPO iteration (all devices)."""
+        return self.ppo.batch_size * self.ppo.num_minibatches * self.ppo.unroll_length
+
+
+def _env_from(data: Any) -> EnvConfig:
+    """Env section: keys over ``preset: NAME`` (default ``flat_radial``: curriculum goals)."""
+    if data is None:
+        return env_config.PRESETS[DEFAULT_ENV_PRESET]
+    if not isinstance(data, Mapping):
+        raise ValueError(f"config section 'env' must be a mapping, got {data!r}")
+    data = dict(data)
+    base = env_config.get_preset(data.pop("preset", DEFAULT_ENV_PRESET))
+    return env_config.from_dict(data, base=base)
+
+
+def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
+    """Build and validate a TrainConfig from nested mappings."""
+    data = dict(data or {})
+    unknown = sorted(set(data) - set(SECTIONS))
+    if unknown:
+        raise ValueError(f"unknown config section(s) {unknown}; valid sections: {list(SECTIONS)}")
+    config = TrainConfig(
+        env=_env_from(data.get("env")),
+        curriculum=build_section(cur.CurriculumConfig, data.get("curriculum") or {}, "curriculum"),
+        ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
+        run=build_section(RunConfig, data.get("run") or {}, "run"))
+    return validate(config)
+
+
+def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfig:
+    """Check the config's internal consistency (and the device split when ``device_count`` is given)."""
+    cur.validate(config.curriculum)
+    ppo, run = config.ppo, config.run
+    if ppo.activation not in ACTIVATIONS:
+        raise ValueError(f"config key 'ppo.activation' = {ppo.activation!r}; choose one of {list(ACTIVATIONS)}")
+    for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
+        if getattr(ppo, key) < 1:
+            raise ValueError(f"config key 'ppo.{key}' must be >= 1, got {getattr(ppo, key)}")
+    for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
+        if getattr(run, key) < 1:
+            raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if config.curriculum.enabled and config.env.goal.mode != "radial":
+        raise ValueError("curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum "
+                         f"range), got {config.env.goal.mode!r}; set curriculum.enabled: false or env.goal.mode: radial")
+    if (ppo.batch_size * ppo.num_minibatches) % run.num_envs:
+        raise ValueError(f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
+                         f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)")
+    if run.steps_per_epoch and run.steps_per_epoch % config.env_steps_per_iteration:
+        raise ValueError(f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
+                         f"PPO iteration ({config.env_steps_per_iteration})")
+    if device_count is not None:
+        _validate_devices(config, device_count)
+    return config
+
+
+def _validate_devices(config: TrainConfig, devices: int) -> None:
+    """num_envs and minibatches must split evenly over ``devices``."""
+    if config.run.num_envs % devices:
+        raise ValueError(f"run.num_envs = {config.run.num_envs} must be divisible by the {devices} devices in use")
+    if config.ppo.batch_size % devices:
+        raise ValueError(f"ppo.batch_size = {config.ppo.batch_size} must be divisible by the {devices} devices in use")
+
+
+def apply_overrides(data: dict, assignments: list[str]) -> dict:
+    """Apply ``section.key=value`` strings (values parsed as YAML) to nested config data."""
+    data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in data.items()}
+    for item in assignments:
+        if "=" not in item:
+            raise ValueError(f"--set expects section.key=value, got {item!r}")
+        dotted, raw = item.split("=", 1)
+        parts = dotted.strip().split(".")
+        if len(parts) < 2 or parts[0] not in SECTIONS:
+            raise ValueError(f"--set key {dotted!r} must start with one of {list(SECTIONS)}, e.g. ppo.learning_rate=1e-4")
+        node = data.setdefault(parts[0], {})
+        for part in parts[1:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = _parse_value(raw)
+    return data
+
+
+def _parse_value(raw: str) -> Any:
+    """A --set value as YAML, with numbers like ``2e-4`` (YAML 1.1 reads them as strings) as floats."""
+    value = yaml.safe_load(raw)
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+def read_yaml(path: str | Path) -> dict:
+    """Read a training YAML file into nested dicts (FileNotFoundError / ValueError on problems)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"training config not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ValueError(f"training config {path} is not valid YAML: {err}") from err
+    if not isinstance(data, Mapping):
+        raise ValueError(f"training config {path} must be a mapping of sections {list(SECTIONS)}")
+    return dict(data)
+
+
+def load(path: str | Path, overrides: list[str] | None = None) -> TrainConfig:
+    """Load a training config file and apply ``--set`` overrides."""
+    return from_dict(apply_overrides(read_yaml(path), overrides or []))
+
+
+def to_dict(config: TrainConfig) -> dict:
+    """Plain nested dicts (YAML/JSON-ready); ``from_dict(to_dict(c)) == c``."""
+    plain = env_config.to_dict(config)  # handles nested dataclasses and tuples
+    return plain

@@ -1,0 +1,123 @@
+"""Evaluation plots (the original's diagnostics plus trajectories) and an offscreen-rendered GIF."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+SERVO_LABELS = ("1A", "2A", "3A", "4A", "1C", "2C", "3C", "4C")
+
+
+def _episode(traces: dict, key: str, episode: int = 0) -> np.ndarray:
+    """The live part of one episode's trace."""
+    alive = traces["alive"][episode].astype(bool)
+    return traces[key][episode][alive]
+
+
+def plot_actions(traces: dict, path: Path) -> Path:
+    """Action distribution per servo (all episodes) and action smoothness (|delta a| per step)."""
+    alive = traces["alive"].astype(bool)
+    actions = traces["action"][alive]
+    delta = np.abs(np.diff(traces["action"], axis=1))[alive[:, 1:]]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
+    axes[0].violinplot([actions[:, i] for i in range(actions.shape[1])], showmeans=True)
+    axes[0].set_xticks(range(1, actions.shape[1] + 1), SERVO_LABELS[:actions.shape[1]])
+    axes[0].set_title("action distribution per servo")
+    axes[1].boxplot([delta[:, i] for i in range(delta.shape[1])], showfliers=False)
+    axes[1].set_xticks(range(1, delta.shape[1] + 1), SERVO_LABELS[:delta.shape[1]])
+    axes[1].set_title(f"action smoothness |a_t - a_t-1| (mean {delta.mean():.3f})")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_joints(traces: dict, dt: float, path: Path) -> Path:
+    """Actuated joint positions and velocities over time (first episode)."""
+    pos, vel = _episode(traces, "joint_pos"), _episode(traces, "joint_vel")
+    t = np.arange(len(pos)) * dt
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True, constrained_layout=True)
+    for i in range(pos.shape[1]):
+        axes[0].plot(t, pos[:, i], label=SERVO_LABELS[i], lw=0.9)
+        axes[1].plot(t, vel[:, i], lw=0.9)
+    axes[0].set_ylabel("position (rad)")
+    axes[1].set_ylabel("velocity (rad/s)")
+    axes[1].set_xlabel("time (s)")
+    axes[0].legend(ncol=8, fontsize=7)
+    axes[0].set_title("actuated joints, episode 0")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_constraint(traces: dict, pairs: np.ndarray, dt: float, path: Path) -> Path:
+    """Paired-joint (A, C) angle differences against the pi limit (first episode)."""
+    pos = _episode(traces, "joint_pos")
+    t = np.arange(len(pos)) * dt
+    fig, ax = plt.subplots(figsize=(11, 3.5), constrained_layout=True)
+    for unit, (a, c) in enumerate(pairs):
+        ax.plot(t, np.abs(pos[:, a] - pos[:, c]), label=f"unit {unit + 1}", lw=0.9)
+    ax.axhline(np.pi, color="k", ls="--", lw=0.8, label="pi")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("|q_A - q_C| (rad)")
+    ax.legend(ncol=5, fontsize=8)
+    ax.set_title("paired-joint constraint difference, episode 0")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def plot_trajectories(traces: dict, path: Path) -> Path:
+    """XY paths of every episode with start and goal (success in green, failure in red)."""
+    fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
+    for e in range(traces["xy"].shape[0]):
+        xy, goal = _episode(traces, "xy", e), _episode(traces, "goal", e)
+        if len(xy) == 0:
+            continue
+        ok = _episode(traces, "success", e)[-1] > 0.5
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:green" if ok else "tab:red", lw=1)
+        ax.plot(*goal[-1], marker="*", color="tab:orange", ms=10)
+    ax.plot(0, 0, "ko", ms=5)
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_title("robot paths (green: reached goal) and goals (stars)")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480)) -> Path:
+    """Render episode 0 offscreen (``track`` camera) to an animated GIF."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+    from PIL import Image
+    model = env.robot.mj_model
+    data = mujoco.MjData(model)
+    qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")
+    frames = []
+    with mujoco.Renderer(model, *size) as renderer:
+        for t in range(0, len(qpos), every):
+            data.qpos[:] = qpos[t]
+            data.mocap_pos[env.index.goal_mocap, :2] = goal[t]
+            mujoco.mj_forward(model, data)
+            renderer.update_scene(data, camera="track")
+            frames.append(Image.fromarray(renderer.render()))
+    duration_ms = int(1000 * env.dt * every)
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=duration_ms, loop=0)
+    return path
+
+
+def write_all(traces: dict, env, out: Path, video: bool = False) -> list[Path]:
+    """Every diagnostic plot (and the GIF when ``video``) into ``out``."""
+    pairs = np.asarray(env.index.constraint_pairs)
+    written = [plot_actions(traces, out / "actions.png"), plot_joints(traces, env.dt, out / "joints.png"),
+               plot_constraint(traces, pairs, env.dt, out / "constraint.png"),
+               plot_trajectories(traces, out / "trajectories.png")]
+    if video:
+        written.append(render_gif(traces, env, out / "episode.gif"))
+    return written

@@ -1,0 +1,133 @@
+"""Evaluate a trained run: ``python -m train.evaluate RUN_DIR [--episodes N] [--video]``.
+
+Loads the run's config and latest checkpoint, runs N episodes at once on the device with the
+deterministic policy (each env plays exactly one episode), prints success rate, mean final
+distance and mean speed, and writes the diagnostic plots (and optionally a GIF/MP4) into
+``RUN_DIR/eval/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx import curriculum as cur
+from hsa_mjx import observation
+from hsa_mjx.env import HSAEnv
+from train import checkpoint
+from train import config as tcfg
+
+
+def load_policy(run_dir: Path, checkpoint_path: Path | None = None):
+    """(config, env, deterministic policy fn, checkpoint path, step) of a run."""
+    from train.ppo import init_training_state, make_networks
+    from brax.training.agents.ppo import networks as ppo_networks
+    path = checkpoint_path or checkpoint.latest(run_dir)
+    meta = checkpoint.read_meta(path)
+    config = tcfg.from_dict(meta["config"])
+    env = HSAEnv(config.env)
+    networks = make_networks(config, env.observation_size, env.action_size)
+    template_ts = init_training_state(config, networks, jax.random.PRNGKey(0), env.observation_size)
+    template = {"training_state": template_ts, "curriculum": cur.init(config.curriculum),
+                "rng": jax.random.PRNGKey(0)}
+    restored = checkpoint.load(path, template)
+    ts = jax.tree.map(jnp.asarray, restored["training_state"])
+    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
+    return config, env, policy, path, int(meta["step"])
+
+
+def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int) -> dict[str, jax.Array]:
+    """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...)."""
+    idx = env.index
+
+    def one(key):
+        state = env.reset_with_goal_range(key, goal_range)
+
+        def step(carry, _):
+            s, alive = carry
+            action, _ = policy(s.obs, jax.random.PRNGKey(0))
+            ns = env.step(s, action)
+            ns = jax.tree.map(lambda new, old: jnp.where(alive, new, old), ns, s)
+            data = ns.pipeline_state.physics
+            trace = {"action": action, "alive": alive, "xy": observation.robot_xy(data, idx),
+                     "joint_pos": observation.joint_positions(data, idx),
+                     "joint_vel": observation.joint_velocities(data, idx), "qpos": data.qpos,
+                     "goal": ns.pipeline_state.task.goal_xy, "distance": ns.metrics["distance_to_goal"],
+                     "success": ns.metrics["termination/goal_reached"], "done": ns.done}
+            return (ns, alive & (ns.done < 0.5)), trace
+
+        (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), None, length=steps)
+        traces["start_xy"] = observation.robot_xy(state.pipeline_state.physics, idx)
+        return traces
+
+    return jax.jit(jax.vmap(one))(keys)
+
+
+def summarize(traces: dict[str, np.ndarray], dt: float) -> dict[str, float]:
+    """Success rate, mean final distance and mean speed over the evaluated episodes."""
+    alive = traces["alive"].astype(bool)
+    length = alive.sum(axis=1)
+    last = np.maximum(length - 1, 0)
+    rows = np.arange(alive.shape[0])
+    final_xy, final_distance = traces["xy"][rows, last], traces["distance"][rows, last]
+    success = traces["success"][rows, last] > 0.5
+    displacement = np.linalg.norm(final_xy - traces["start_xy"], axis=-1)
+    speed = displacement / np.maximum(length * dt, dt)
+    return {"episodes": int(alive.shape[0]), "success_rate": float(success.mean()),
+            "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
+            "mean_episode_steps": float(length.mean())}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m train.evaluate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dir", help="a run directory written by python -m train")
+    parser.add_argument("--episodes", type=int, default=16)
+    parser.add_argument("--steps", type=int, default=0, help="max steps per episode (0: the env's max_episode_steps)")
+    parser.add_argument("--goal-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
+                        help="radial goal distance range (default: the curriculum's target range)")
+    parser.add_argument("--video", action="store_true", help="render the first episode to eval/episode.gif")
+    parser.add_argument("--seed", type=int, default=1)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m train.evaluate``."""
+    args = parse_args(argv)
+    try:
+        if args.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        run_dir = Path(args.run_dir)
+        if not run_dir.is_dir():
+            raise FileNotFoundError(f"run directory not found: {run_dir}")
+        config, env, policy, path, step = load_policy(run_dir)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    goal_range = args.goal_range or config.curriculum.target_range
+    steps = args.steps or config.env.termination.max_episode_steps
+    keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
+    traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
+    traces = {k: np.asarray(v) for k, v in traces.items()}
+    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range), **summarize(traces, env.dt)}
+    out = run_dir / "eval"
+    out.mkdir(exist_ok=True)
+    from train import diagnostics
+    written = diagnostics.write_all(traces, env, out, video=args.video)
+    result["files"] = [str(p) for p in written]
+    (out / "eval.json").write_text(json.dumps(result, indent=1))
+    for key, value in result.items():
+        if key != "files":
+            print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
+    print(f"wrote {len(written)} files to {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

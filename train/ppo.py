@@ -1,0 +1,193 @@
+"""PPO on the batched hsa_mjx env, built from Brax's PPO networks, loss and gradient update.
+
+Brax's ``ppo.train`` owns its training state and env state inside one function, so a checkpoint
+there holds neither the optimiser state nor the step count, and the env state (where our
+curriculum lives) never reaches a callback. This module keeps Brax's PPO pieces
+(``ppo.networks``, ``ppo.losses.compute_ppo_loss``, ``gradients.gradient_update_fn``, running
+observation statistics) and exposes one jitted, ``pmap``-ed training epoch whose whole state is a
+pytree the caller can save and restore. Multi-device: the batch of envs is split over local
+devices; gradients, observation statistics and curriculum outcomes are reduced over them.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.training import gradients, types
+from brax.training.acme import running_statistics
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from flax import linen, struct
+
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.training_env import AutoResetEnv, BatchState
+from train import compat
+from train.config import TrainConfig
+
+AXIS = "devices"
+ACTIVATIONS: dict[str, Callable] = {"swish": linen.swish, "tanh": linen.tanh, "relu": linen.relu,
+                                    "elu": linen.elu}
+
+
+@struct.dataclass
+class TrainingState:
+    """Learner state: network parameters, optimiser state, observation statistics."""
+
+    params: ppo_losses.PPONetworkParams
+    optimizer_state: optax.OptState
+    normalizer: running_statistics.RunningStatisticsState
+
+
+def make_networks(config: TrainConfig, observation_size: int, action_size: int) -> ppo_networks.PPONetworks:
+    """Brax PPO actor and critic MLPs with the configured sizes."""
+    ppo = config.ppo
+    normalize = running_statistics.normalize if ppo.normalize_observations else types.identity_observation_preprocessor
+    return ppo_networks.make_ppo_networks(
+        observation_size, action_size, preprocess_observations_fn=normalize,
+        policy_hidden_layer_sizes=ppo.policy_hidden_sizes, value_hidden_layer_sizes=ppo.value_hidden_sizes,
+        activation=ACTIVATIONS[ppo.activation], init_noise_std=ppo.init_noise_std)
+
+
+def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
+    """Adam with global-norm gradient clipping."""
+    return optax.chain(optax.clip_by_global_norm(config.ppo.max_grad_norm), optax.adam(config.ppo.learning_rate))
+
+
+def init_training_state(config: TrainConfig, networks: ppo_networks.PPONetworks, key: jax.Array,
+                        observation_size: int) -> TrainingState:
+    """Fresh parameters, optimiser and normaliser state (unreplicated)."""
+    k_policy, k_value = jax.random.split(key)
+    params = ppo_losses.PPONetworkParams(policy=networks.policy_network.init(k_policy),
+                                         value=networks.value_network.init(k_value))
+    normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((observation_size,), jnp.float32))
+    return TrainingState(params=params, optimizer_state=make_optimizer(config).init(params), normalizer=normalizer)
+
+
+class PPOLearner:
+    """Builds the pmapped reset and training-epoch functions for one config.
+
+    Args:
+        config: the training config.
+        env: the single-env :class:`HSAEnv` built from ``config.env``.
+        num_devices: local devices to split the envs over.
+    """
+
+    def __init__(self, config: TrainConfig, env: HSAEnv, num_devices: int):
+        self.config, self.env, self.num_devices = config, env, num_devices
+        self.batch_env = AutoResetEnv(env, config.curriculum, axis_name=AXIS)
+        self.networks = make_networks(config, env.observation_size, env.action_size)
+        self.make_policy = ppo_networks.make_inference_fn(self.networks)
+        self.optimizer = make_optimizer(config)
+        ppo = config.ppo
+        self.envs_per_device = config.run.num_envs // num_devices
+        self.unrolls_per_iteration = ppo.batch_size * ppo.num_minibatches // config.run.num_envs
+        self.iterations_per_epoch = max(1, config.run.steps_per_epoch // config.env_steps_per_iteration)
+        self.loss_fn = functools.partial(
+            ppo_losses.compute_ppo_loss, ppo_network=self.networks, entropy_cost=ppo.entropy_cost,
+            discounting=ppo.discounting, reward_scaling=ppo.reward_scaling, gae_lambda=ppo.gae_lambda,
+            clipping_epsilon=ppo.clipping_epsilon, normalize_advantage=ppo.normalize_advantage,
+            vf_coefficient=ppo.vf_loss_coefficient)
+        self.update_fn = gradients.gradient_update_fn(self.loss_fn, self.optimizer, pmap_axis_name=AXIS,
+                                                      has_aux=True)
+        self.reset = jax.pmap(self.batch_env.reset, axis_name=AXIS)
+        self.epoch = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
+
+    @property
+    def env_steps_per_epoch(self) -> int:
+        """Env steps (all devices) one call of ``epoch`` advances."""
+        return self.iterations_per_epoch * self.config.env_steps_per_iteration
+
+    # ----- rollout ------------------------------------------------------------------------
+    def _unroll(self, ts: TrainingState, state: BatchState, key: jax.Array) -> tuple[BatchState, types.Transition]:
+        """``unroll_length`` steps of every env under the current stochastic policy."""
+        policy = self.make_policy((ts.normalizer, ts.params.policy))
+
+        def step(carry, _):
+            s, k = carry
+            k, k_act = jax.random.split(k)
+            actions, extras = policy(s.obs, k_act)
+            ns = self.batch_env.step(s, actions)
+            transition = types.Transition(
+                observation=s.obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
+                next_observation=ns.env.obs,
+                extras={"policy_extras": extras, "state_extras": {"truncation": ns.env.info["truncation"]}})
+            return (ns, k), transition
+
+        (state, _), data = jax.lax.scan(step, (state, key), None, length=self.config.ppo.unroll_length)
+        return state, data
+
+    def _collect(self, ts: TrainingState, state: BatchState, key: jax.Array) -> tuple[BatchState, types.Transition]:
+        """Several unrolls, reshaped to (sequences, unroll_length, ...)."""
+        def one(carry, _):
+            s, k = carry
+            k, k_unroll = jax.random.split(k)
+            s, data = self._unroll(ts, s, k_unroll)
+            return (s, k), data
+
+        (state, _), data = jax.lax.scan(one, (state, key), None, length=self.unrolls_per_iteration)
+        # (unrolls, T, B, ...) -> (unrolls * B, T, ...)
+        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+        return state, jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), data)
+
+    # ----- learning -----------------------------------------------------------------------
+    def _minibatch_step(self, carry, minibatch: types.Transition):
+        """One gradient step; a non-finite loss leaves parameters and optimiser untouched."""
+        params, opt_state, normalizer, key, skipped = carry
+        key, k_loss = jax.random.split(key)
+        (loss, metrics), new_params, new_opt = self.update_fn(params, normalizer, minibatch, k_loss,
+                                                              optimizer_state=opt_state)
+        bad = jax.lax.psum(jnp.logical_not(jnp.isfinite(loss)).astype(jnp.int32), AXIS) > 0
+        keep = lambda old, new: jax.tree.map(lambda a, b: jnp.where(bad, a, b), old, new)  # noqa: E731
+        return (keep(params, new_params), keep(opt_state, new_opt), normalizer, key,
+                skipped + bad.astype(jnp.float32)), metrics
+
+    def _sgd_pass(self, carry, _, data: types.Transition):
+        """One pass over the collected data in shuffled minibatches."""
+        params, opt_state, normalizer, key, skipped = carry
+        key, k_perm = jax.random.split(key)
+        n_mb = self.config.ppo.num_minibatches
+        perm = jax.random.permutation(k_perm, data.reward.shape[0])
+        shuffled = jax.tree.map(lambda x: x[perm].reshape((n_mb, -1) + x.shape[1:]), data)
+        carry, metrics = jax.lax.scan(self._minibatch_step, (params, opt_state, normalizer, key, skipped), shuffled)
+        return carry, metrics
+
+    def _iteration(self, carry, _):
+        """Collect, update observation statistics, then ``num_updates_per_batch`` SGD passes."""
+        ts, state, key = carry
+        key, k_collect, k_sgd = jax.random.split(key, 3)
+        state, data = self._collect(ts, state, k_collect)
+        obs = data.observation.reshape((-1, data.observation.shape[-1]))
+        finite = jnp.all(jnp.isfinite(obs), axis=-1)
+        normalizer = ts.normalizer
+        if self.config.ppo.normalize_observations:
+            normalizer = running_statistics.update(normalizer, jnp.where(finite[:, None], obs, 0.0),
+                                                   weights=finite.astype(jnp.float32), pmap_axis_name=AXIS)
+        carry = (ts.params, ts.optimizer_state, normalizer, k_sgd, jnp.zeros(()))
+        (params, opt_state, _, _, skipped), metrics = jax.lax.scan(
+            functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch)
+        metrics = jax.tree.map(jnp.mean, metrics)
+        metrics["skipped_updates"] = skipped
+        return (TrainingState(params, opt_state, normalizer), state, key), metrics
+
+    def _epoch(self, ts: TrainingState, state: BatchState, key: jax.Array):
+        """``iterations_per_epoch`` PPO iterations; returns the drained episode totals and losses."""
+        (ts, state, _), metrics = jax.lax.scan(self._iteration, (ts, state, key), None,
+                                               length=self.iterations_per_epoch)
+        state, totals = AutoResetEnv.drain(state)
+        totals = jax.lax.psum(totals, AXIS)
+        metrics = jax.tree.map(jnp.mean, metrics)
+        return ts, state, {"totals": totals, "losses": metrics}
+
+
+def replicate(tree: Any, devices: list) -> Any:
+    """Copy a pytree onto each device along a new leading axis (for pmapped functions)."""
+    return compat.device_put_replicated(tree, devices)
+
+
+def unreplicate(tree: Any) -> Any:
+    """Take the first device's copy of a replicated pytree."""
+    return jax.tree.map(lambda x: x[0], tree)

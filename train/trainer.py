@@ -1,0 +1,163 @@
+"""The training run: set-up, resume, the host loop over jitted epochs, logging and checkpoints."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import yaml
+
+from hsa_mjx import curriculum as cur
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.training_env import summarize
+from train import checkpoint, plots
+from train import config as tcfg
+from train.logger import HEADLINE, MetricsLogger, ProgressBar
+from train.ppo import PPOLearner, TrainingState, init_training_state, replicate, unreplicate
+
+
+class _StopFlag:
+    """Turns Ctrl-C / SIGTERM into a flag checked between epochs, so state is never half-donated."""
+
+    def __init__(self):
+        self.raised, self._old = False, {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[sig] = signal.signal(sig, self._handle)
+            except ValueError:  # not the main thread: no handler, stop only by finishing
+                pass
+        return self
+
+    def _handle(self, signum, frame):
+        if self.raised:  # second Ctrl-C: stop hard
+            raise KeyboardInterrupt
+        self.raised = True
+        print(f"\nsignal {signum}: finishing this epoch, writing a checkpoint, then stopping", flush=True)
+
+    def __exit__(self, *exc):
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def select_devices(config: tcfg.TrainConfig) -> list:
+    """The local devices to use (validated against num_envs and the minibatch size)."""
+    devices = jax.local_devices()
+    if config.run.num_devices:
+        if config.run.num_devices > len(devices):
+            raise ValueError(f"run.num_devices = {config.run.num_devices} but only {len(devices)} local devices exist")
+        devices = devices[:config.run.num_devices]
+    tcfg.validate(config, device_count=len(devices))
+    return devices
+
+
+def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array) -> dict[str, Any]:
+    return {"training_state": ts, "curriculum": cstate, "rng": key}
+
+
+def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | None:
+    """Create the run dir, refuse to overwrite, and read the checkpoint to resume (before any compile)."""
+    existing = checkpoint.list_checkpoints(run_dir)
+    if existing and not resume:
+        raise ValueError(f"{run_dir} already holds checkpoints ({existing[-1].name}); pass --resume to continue "
+                         f"it or choose another --run-dir")
+    if resume:
+        path = checkpoint.latest(run_dir)
+        meta = checkpoint.read_meta(path)
+        now = json.loads(json.dumps(config_dict))
+        bad = checkpoint.incompatibilities(meta["config"], now)
+        if bad:
+            raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
+                             f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
+        meta["path"] = path
+        run_dir.mkdir(parents=True, exist_ok=True)
+        return meta
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
+    return None
+
+
+def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False) -> dict:
+    """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary."""
+    run_dir = Path(run_dir)
+    config_dict = tcfg.to_dict(config)
+    devices = select_devices(config)
+    meta = prepare_run_dir(run_dir, config_dict, resume)
+    env = HSAEnv(config.env)
+    learner = PPOLearner(config, env, len(devices))
+    key = jax.random.PRNGKey(config.run.seed)
+    key, k_init = jax.random.split(key)
+    ts = init_training_state(config, learner.networks, k_init, env.observation_size)
+    cstate, step = cur.init(config.curriculum), 0
+    if meta is not None:
+        restored = checkpoint.load(meta["path"], _payload(ts, cstate, key))
+        ts, cstate = jax.tree.map(jnp.asarray, (restored["training_state"], restored["curriculum"]))
+        key, step = jnp.asarray(restored["rng"], jnp.uint32), int(meta["step"])
+        print(f"resumed from {meta['path']} at step {step:,}", flush=True)
+    key, k_env = jax.random.split(key)
+    env_keys = jax.random.split(k_env, config.run.num_envs).reshape((len(devices), learner.envs_per_device, -1))
+    ts_r = replicate(ts, devices)
+    state = learner.reset(jax.device_put(env_keys), replicate(cstate, devices))
+    return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet)
+
+
+def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, quiet) -> dict:
+    """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
+    logger, bar = MetricsLogger(run_dir), ProgressBar(config.run.num_timesteps, start=step)
+    t_start, last_ckpt, epoch, record = time.perf_counter(), step, 0, {}
+    first_epoch_s = None
+    totals_acc: dict[str, float] = {}
+    with _StopFlag() as stop:
+        while step < config.run.num_timesteps and not stop.raised:
+            key, k_epoch = jax.random.split(key)
+            t0 = time.perf_counter()
+            ts, state, out = learner.epoch(ts, state, jax.random.split(k_epoch, len(devices)))
+            out = jax.device_get(out)
+            dt = time.perf_counter() - t0
+            first_epoch_s = dt if first_epoch_s is None else first_epoch_s
+            step, epoch = step + learner.env_steps_per_epoch, epoch + 1
+            for k, v in out["totals"].items():
+                totals_acc[k] = totals_acc.get(k, 0.0) + float(np.asarray(v)[0])
+            if epoch % config.run.epochs_per_log == 0 or step >= config.run.num_timesteps:
+                record = _record(out, totals_acc, state, config, learner.env_steps_per_epoch / dt, t_start)
+                logger.log(step, record)
+                totals_acc = {}
+                if not quiet:
+                    bar.update(step, {k: record[k] for k in HEADLINE if k in record})
+            if step - last_ckpt >= config.run.checkpoint_every:
+                _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
+                last_ckpt = step
+        if step != last_ckpt or not checkpoint.list_checkpoints(run_dir):
+            _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
+    bar.close()
+    logger.close()
+    wall = time.perf_counter() - t_start
+    plots.learning_curves(run_dir / "metrics.jsonl", run_dir / "learning_curve.png")
+    summary = {"env_steps": step, "wall_s": wall, "first_epoch_s": first_epoch_s, "interrupted": stop.raised,
+               "checkpoint": str(checkpoint.latest(run_dir)), **{k: record.get(k) for k in HEADLINE}}
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) -> dict:
+    """One log record: episode statistics, losses, curriculum and throughput."""
+    record = summarize(totals)
+    record.update({f"loss/{k}": float(np.mean(v)) for k, v in out["losses"].items()})
+    cstate = jax.device_get(unreplicate(state.curriculum))
+    record.update({k: float(v) for k, v in cur.metrics(cstate, config.curriculum).items()})
+    record["training/env_steps_per_s"] = sps
+    record["training/walltime"] = time.perf_counter() - t_start
+    return record
+
+
+def _save(run_dir: Path, step: int, ts, state, key, config_dict: dict, keep: int) -> None:
+    """Checkpoint the learner (first device's copy), curriculum and rng."""
+    payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key)
+    checkpoint.save(run_dir, step, payload, config_dict, keep=keep)
