@@ -1,19 +1,15 @@
 """Mixed terrain at scale: a batch resets onto per-env terrains, steps, and every robot settles on its own.
 
-    python -m benchmarks.terrain --envs 1024 --steps 10 --iterations 4 --ls-iterations 8
-    python -m benchmarks.terrain --envs 1024 --shared          # one shared terrain, for comparison
+    python -m benchmarks.terrain --envs 1024 --steps 15        # ten types, the original's solver
+    python -m benchmarks.terrain --envs 16384 --types craters            # per-env cost against ...
+    python -m benchmarks.terrain --envs 16384 --types craters --shared   # ... one shared terrain
 
 Prints timings (compile and run, reset and step), the height of each block above the surface
 under it per terrain type after the steps (flat-ground rest: 0.138-0.140 m), terminations and
 non-finite values. ``--shared`` sets ``terrain.per_env: false`` (one terrain baked into the model)
 so the cost of per-env heightfields can be compared on the same machine. Actions are zero (the
-servos hold: a settling test) unless ``--random-actions``.
-
-On a CPU the step runs in chunks of ``--chunk`` envs (``lax.map`` with ``batch_size``; the default
-32 on CPU, plain ``vmap`` elsewhere): jaxlib's batched LAPACK kernels split a batch across the
-intra-op thread pool once it holds more than 2e5 FLOP (44 or more of MJX's 24 x 24 Cholesky
-factorizations) and wait for the pieces on that same pool; with two cores two such kernels running
-at once take both threads and the step never returns.
+servos hold: a settling test) unless ``--random-actions``. Compare per-env and shared terrain with
+a single type (with several, ``--shared`` draws one type for the whole batch).
 """
 
 from __future__ import annotations
@@ -50,25 +46,6 @@ def build(args: argparse.Namespace) -> hsa_mjx.HSAEnv:
     return hsa_mjx.make_env(args.config, **overrides)
 
 
-def batched_step(env: hsa_mjx.HSAEnv, chunk: int):
-    """The jitted batched step: one vmap, or a ``lax.map`` over chunks of ``chunk`` envs (chunk > 0;
-    the batch must be a multiple of it)."""
-    vstep = jax.vmap(env.step)
-    if chunk <= 0:
-        return jax.jit(vstep)
-
-    def chunked(state, action):
-        """vmap within a chunk, lax.map across chunks."""
-        envs = action.shape[0]
-        if envs % chunk:
-            raise ValueError(f"--envs {envs} is not a multiple of --chunk {chunk}")
-        split = lambda x: x.reshape((envs // chunk, chunk) + x.shape[1:])  # explicit: zero-size leaves too
-        out = jax.lax.map(lambda sa: vstep(*sa), jax.tree.map(split, (state, action)))
-        return jax.tree.map(lambda x: x.reshape((envs,) + x.shape[2:]), out)
-
-    return jax.jit(chunked)
-
-
 def heights_over_ground(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     """Block-origin height above the surface under each block, shape (envs, 2)."""
     xpos = state.pipeline_state.physics.xpos[:, env.index.block_body]
@@ -101,19 +78,16 @@ def main() -> None:
     parser.add_argument("--ls-iterations", type=int, default=0, help="line-search iterations (0: the config's)")
     parser.add_argument("--solver", default="", help="newton | cg ('': the config's)")
     parser.add_argument("--shared", action="store_true", help="one terrain shared by every env")
-    parser.add_argument("--chunk", type=int, default=-1,
-                        help="envs per vmapped chunk of the step (0: one vmap; default 32 on CPU, 0 elsewhere)")
     parser.add_argument("--random-actions", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
     start = time.perf_counter()
     env = build(args)
-    chunk = args.chunk if args.chunk >= 0 else (32 if jax.default_backend() == "cpu" else 0)
-    print(f"backend {jax.default_backend()}, {args.envs} envs, per_env {not args.shared}, step chunk {chunk}, "
+    print(f"backend {jax.default_backend()}, {args.envs} envs, per_env {not args.shared}, "
           f"solver {env.config.physics.solver} {env.config.physics.iterations}/{env.config.physics.ls_iterations}, "
           f"env built in {time.perf_counter() - start:.1f} s")
-    reset, step = jax.jit(jax.vmap(env.reset)), batched_step(env, chunk)
+    reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
     key, act_key = jax.random.split(jax.random.PRNGKey(args.seed))
     keys = jax.random.split(key, args.envs)
     state, first = _timed(reset, keys)

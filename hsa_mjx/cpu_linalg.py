@@ -3,7 +3,8 @@
 On the CPU, JAX lowers ``cholesky`` and ``triangular_solve`` to LAPACK custom calls that split a
 batch over XLA's intra-op thread pool and block until the pieces finish. When two such calls run
 at once and the pool is small (the 2-core CI machine), both wait for work that no free thread can
-pick up: a vmapped MJX step over a large batch (>= about 128 envs with the Newton solver) hangs
+pick up: a vmapped MJX step over a large batch (44 or more envs: jaxlib splits a batch once it exceeds
+2e5 FLOP, i.e. 44 of the 24 x 24 Cholesky factorizations) hangs
 forever at 0 % CPU (seen with gdb: two threads in ``jax::ParallelBatchMap`` ->
 ``BlockingCounter::Wait`` under ``lapack_spotrf_ffi``; jaxlib 0.10.2). MJX calls Cholesky for the
 mass matrix and in the Newton solver of every step.
@@ -24,7 +25,7 @@ import os
 import math
 
 _installed = False
-LAPACK_MAX_BATCH = 32  # batch 32 never hung in our runs; 128 did
+LAPACK_MAX_BATCH = 32  # below the 44-matrix split point of jaxlib's LAPACK kernels
 
 
 def _by_batch(lapack_rule, xla_rule):
