@@ -70,6 +70,7 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "newton16_ls8_tol1e-6": {"physics.iterations": 16, "physics.ls_iterations": 8, "physics.tolerance": 1e-6},
     "newton4_ls8_elliptic": {**_FAST, "physics.cone": "elliptic"},
     "implicitfast_dt1ms_newton4_ls8": {**_IMPLICIT, **_FAST},
+    "implicitfast_dt1ms_newton8_ls8": {**_IMPLICIT, "physics.iterations": 8, "physics.ls_iterations": 8},
     "implicitfast_dt1ms_newton4_ls4": {**_IMPLICIT, "physics.iterations": 4, "physics.ls_iterations": 4},
     "implicitfast_dt1.25ms_newton4_ls4": {**_IMPLICIT, "physics.timestep": 0.00125, "control.frame_skip": 16,
                                           "physics.iterations": 4, "physics.ls_iterations": 4},
@@ -79,11 +80,12 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "implicitfast_dt4ms_newton4_ls8": {**_IMPLICIT, **_DT4, **_FAST},
     "euler_dt2ms_newton4_ls8": {**_DT2, **_FAST},
 }
-# The settings the throughput harness defaults to, per scene. On the plane: the cheapest solver that
-# passed every gait (benchmarks/results/fidelity_cpu.json; every larger timestep failed), guarded
-# by tests/test_fidelity.py. On the heightfield 4 iterations trip qacc_limit under random actions
-# (docs/speed.md), so 8.
-SHIPPED_BY_SCENE = {"flat": "newton4_ls4", "terrain": "newton8_ls8"}
+# The settings the training configs use and the throughput harness defaults to, per scene:
+# implicitfast at the original 1 ms (explicit Euler blows up under trained gaits:
+# benchmarks/policy_stability.py, docs/training.md) with the fewest Newton iterations that pass
+# every gait (benchmarks/results/fidelity_cpu.json, fidelity_terrain_cpu.json; every larger
+# timestep failed); the plane's is guarded by tests/test_fidelity.py.
+SHIPPED_BY_SCENE = {"flat": "implicitfast_dt1ms_newton4_ls8", "terrain": "implicitfast_dt1ms_newton8_ls8"}
 SHIPPED = SHIPPED_BY_SCENE["flat"]
 # Diagnostics, not candidates: C MuJoCo (float64, full solver) with another integrator or timestep,
 # to tell integrator/timestep effects apart from MJX's float32 and short solver.

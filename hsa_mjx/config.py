@@ -87,6 +87,10 @@ class TerminationConfig:
     z_max: float = 0.5
     qvel_limit: float = 2000.0
     qacc_limit: float = 15000.0
+    # |qacc| is checked at the last substep of an env step, as the original did; true checks every
+    # substep (also catches transient impacts of the light hinges, which are not blow-ups: qvel and
+    # finiteness are always checked at every substep). See docs/training.md.
+    qacc_every_substep: bool = False
 
 
 @dataclasses.dataclass(frozen=True)

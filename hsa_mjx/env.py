@@ -16,7 +16,7 @@ from mujoco import mjx
 
 from hsa_mjx import control, goals, observation, physics, reward, termination
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import RobotModel, compiled_forward, load_robot
+from hsa_mjx.model import RobotModel, compiled_forward, load_robot, local_device
 from hsa_mjx.terrain.world import TerrainWorld
 from hsa_mjx.types import EnvState, SimState, TaskState
 
@@ -49,7 +49,7 @@ class HSAEnv(BraxEnv):
     def _init_static_arrays(self) -> None:
         """Precompute the reset state and static addresses once."""
         cfg, model = self.config, self.robot.mjx_model
-        data = mjx.make_data(model)
+        data = mjx.make_data(model, device=local_device())
         qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
         self._data0 = compiled_forward(model, data.replace(qpos=qpos))
         pyramidal = cfg.physics.cone == "pyramidal"

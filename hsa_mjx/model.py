@@ -103,7 +103,7 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> 
 
 def _foot_contact_slots(model: mujoco.MjModel, mjx_model: mjx.Model) -> np.ndarray:
     """MJX allocates contacts statically: find the slots that belong to each foot pair."""
-    data = compiled_forward(mjx_model, mjx.make_data(mjx_model))
+    data = compiled_forward(mjx_model, mjx.make_data(mjx_model, device=local_device()))
     geoms = np.asarray(data._impl.contact.geom)
     foot_ids = _ids(model, mujoco.mjtObj.mjOBJ_GEOM, FOOT_GEOMS)
     slots = [np.flatnonzero((geoms == g).any(axis=1)) for g in foot_ids]
@@ -144,8 +144,13 @@ class RobotModel:
     index: RobotIndex
 
 
+def local_device() -> jax.Device:
+    """This process's first device: MJX's default (``jax.devices()[0]``) belongs to process 0 on several hosts."""
+    return jax.local_devices()[0]
+
+
 def load_robot(config: EnvConfig, asset_dir: Path | None = None) -> RobotModel:
     """Load the asset for ``config`` once and resolve every name."""
     mj_model = load_mj_model(config, asset_dir)
-    mjx_model = mjx.put_model(mj_model)
+    mjx_model = mjx.put_model(mj_model, device=local_device())
     return RobotModel(mj_model, mjx_model, build_index(mj_model, mjx_model))

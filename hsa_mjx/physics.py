@@ -22,7 +22,7 @@ def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array,
         data = mjx.step(model, data.replace(ctrl=data.ctrl.at[index.servo_ids].set(servo_target)))
         return (data, merge_stats(stats, substep_stats(data))), None
 
-    start = SubstepStats(jnp.zeros(()), jnp.zeros(()), jnp.zeros((), bool))
+    start = SubstepStats(jnp.zeros(()), jnp.zeros(()), jnp.zeros((), bool), jnp.zeros(()))
     (data, stats), _ = jax.lax.scan(substep, (data, start), targets)
     return data, stats
 

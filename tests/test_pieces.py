@@ -64,14 +64,15 @@ def test_checkpoint_advance():
     assert bool(got) and bool(done) and int(idx) == 1
 
 
-def _stats(qvel=0.0, qacc=0.0, bad=False):
-    return termination.SubstepStats(jnp.array(qvel), jnp.array(qacc), jnp.array(bad))
+def _stats(qvel=0.0, qacc=0.0, bad=False, final_qacc=None):
+    final = qacc if final_qacc is None else final_qacc
+    return termination.SubstepStats(jnp.array(qvel), jnp.array(qacc), jnp.array(bad), jnp.array(final))
 
 
-def _reasons(z, stats, obs_finite=True, ground=0.0):
+def _reasons(z, stats, obs_finite=True, ground=0.0, config=TerminationConfig()):
     data = SimpleNamespace(xpos=jnp.zeros((3, 3)).at[1, 2].set(z[0]).at[2, 2].set(z[1]))
     index = SimpleNamespace(block_body=np.array([1, 2]))
-    r = termination.failure_reasons(data, stats, jnp.array(obs_finite), jnp.array(ground), TerminationConfig(), index)
+    r = termination.failure_reasons(data, stats, jnp.array(obs_finite), jnp.array(ground), config, index)
     return {k: bool(v) for k, v in r.items() if bool(v)}
 
 
@@ -90,3 +91,12 @@ def test_substep_stats_keep_the_worst():
     a, b = _stats(1.0, 5.0, False), _stats(3.0, 2.0, True)
     m = termination.merge_stats(a, b)
     assert float(m.max_abs_qvel) == 3.0 and float(m.max_abs_qacc) == 5.0 and bool(m.non_finite)
+    assert float(m.final_abs_qacc) == 2.0  # the later substep's, not the worst
+
+
+def test_qacc_limit_checks_the_last_substep_unless_asked_for_every_one():
+    transient = _stats(qacc=5e4, final_qacc=100.0)  # a spike inside the step, gone at its end
+    assert _reasons((0.14, 0.14), transient) == {}
+    every = TerminationConfig(qacc_every_substep=True)
+    assert _reasons((0.14, 0.14), transient, config=every) == {"qacc_limit": True}
+    assert _reasons((0.14, 0.14), _stats(qacc=5e4, final_qacc=2e4)) == {"qacc_limit": True}

@@ -19,6 +19,20 @@ def test_default_and_shipped_configs_validate():
         config = tcfg.load(f"configs/{name}.yaml")
         assert config.curriculum.enabled and config.env.goal.mode == "radial"
         assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
+    for name, goal_mode in (("train_corridor", "random"), ("train_spiral", "spiral")):
+        config = tcfg.validate(tcfg.load(f"configs/{name}.yaml"))
+        assert config.env.scene == "terrain" and config.env.goal.mode == goal_mode
+        assert not config.curriculum.enabled  # the curriculum needs radial goals
+        assert (config.env.physics.integrator, config.env.physics.iterations) == ("implicitfast", 8)
+
+
+def test_training_configs_use_the_guarded_physics():
+    """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
+    from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+    for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_spiral"):
+        physics = tcfg.load(f"configs/{name}.yaml").env.physics
+        shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
+        assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name
 
 
 @pytest.mark.parametrize("data, match", [

@@ -3,6 +3,10 @@
 Every problem with the config, the run directory or the checkpoint to resume is reported before
 anything is compiled. Ctrl-C (or SIGTERM) finishes the current epoch, writes a checkpoint and
 exits; a second Ctrl-C stops at once.
+
+Several hosts: start one process per host with ``--coordinator HOST:PORT --num-processes N
+--process-id I`` (or the ``HSA_COORDINATOR``, ``HSA_NUM_PROCESSES``, ``HSA_PROCESS_ID`` environment
+variables); see docs/scaling.md.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import time
 from pathlib import Path
 
 from train import config as tcfg
+from train import distributed
 
 CPU_CONFIG = "configs/train_quickstart_cpu.yaml"
 GPU_CONFIG = "configs/train_flat.yaml"
@@ -30,6 +35,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--run-dir", default=None, help="output directory (default runs/<config name>-<time>)")
     parser.add_argument("--resume", action="store_true", help="continue from the run dir's latest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    group = parser.add_argument_group("several hosts (jax.distributed; docs/scaling.md)")
+    group.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                       help=f"process 0's address (env {distributed.ENV_VARS['coordinator']})")
+    group.add_argument("--num-processes", type=int, default=None, metavar="N",
+                       help=f"processes (hosts) taking part (env {distributed.ENV_VARS['num_processes']})")
+    group.add_argument("--process-id", type=int, default=None, metavar="I",
+                       help=f"this process, 0..N-1; 0 writes the run dir (env {distributed.ENV_VARS['process_id']})")
     return parser.parse_args(argv)
 
 
@@ -57,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m train`` and the ``hsa-train`` console script."""
     args = parse_args(argv)
     try:
+        spec = distributed.resolve_spec(args.coordinator, args.num_processes, args.process_id)
+        distributed.initialize(spec)  # before anything asks JAX for its devices
         config, run_dir = resolve(args)
         from train.trainer import train  # imports JAX; config errors above come first
         summary = train(config, run_dir, resume=args.resume, quiet=args.quiet)

@@ -1,4 +1,8 @@
-"""The training run: set-up, resume, the host loop over jitted epochs, logging and checkpoints."""
+"""The training run: set-up, resume, the host loop over jitted epochs, logging and checkpoints.
+
+Several processes (``train.distributed``): every process runs the same loop on its local devices;
+only process 0 writes the run dir.
+"""
 
 from __future__ import annotations
 
@@ -16,10 +20,10 @@ import yaml
 from hsa_mjx import curriculum as cur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.training_env import summarize
-from train import checkpoint, plots
+from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar
-from train.ppo import PPOLearner, TrainingState, init_training_state, replicate, unreplicate
+from train.ppo import AXIS, PPOLearner, TrainingState, init_training_state, replicate, unreplicate
 
 
 class _StopFlag:
@@ -47,15 +51,35 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
+class _NoLogger:
+    """Stands in for the metrics logger on processes other than 0 (they write nothing)."""
+
+    def log(self, step: int, metrics: dict) -> None:
+        """Drop the record."""
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
 def select_devices(config: tcfg.TrainConfig) -> list:
-    """The local devices to use (validated against num_envs and the minibatch size)."""
+    """This process's devices to use (num_envs and the minibatch size validated against all processes' devices)."""
     devices = jax.local_devices()
     if config.run.num_devices:
         if config.run.num_devices > len(devices):
             raise ValueError(f"run.num_devices = {config.run.num_devices} but only {len(devices)} local devices exist")
         devices = devices[:config.run.num_devices]
-    tcfg.validate(config, device_count=len(devices))
+    tcfg.validate(config, device_count=distributed.global_device_count(devices))
     return devices
+
+
+def replicate_for_pmap(tree: Any, devices: list) -> Any:
+    """Copies of ``tree`` on ``devices``, laid out as the pmapped epoch returns its outputs.
+
+    ``replicate`` places the copies on a mesh axis of its own name; the epoch's outputs live on the
+    ``devices`` axis, so feeding the former to the first epoch and the latter to the second made
+    ``pmap`` compile the epoch twice. A pmapped identity puts the copies on the epoch's axis.
+    """
+    return jax.pmap(lambda x: x, axis_name=AXIS)(replicate(tree, devices))
 
 
 def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array) -> dict[str, Any]:
@@ -63,7 +87,7 @@ def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array) -> 
 
 
 def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | None:
-    """Create the run dir, refuse to overwrite, and read the checkpoint to resume (before any compile)."""
+    """Create the run dir (process 0), refuse to overwrite, and read the checkpoint to resume (before any compile)."""
     existing = checkpoint.list_checkpoints(run_dir)
     if existing and not resume:
         raise ValueError(f"{run_dir} already holds checkpoints ({existing[-1].name}); pass --resume to continue "
@@ -77,10 +101,10 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | No
             raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
                              f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
         meta["path"] = path
-        run_dir.mkdir(parents=True, exist_ok=True)
         return meta
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
+    if distributed.is_main():
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
     return None
 
 
@@ -91,7 +115,7 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     devices = select_devices(config)
     meta = prepare_run_dir(run_dir, config_dict, resume)
     env = HSAEnv(config.env)
-    learner = PPOLearner(config, env, len(devices))
+    learner = PPOLearner(config, env, distributed.global_device_count(devices))
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
     ts = init_training_state(config, learner.networks, k_init, env.observation_size)
@@ -102,23 +126,25 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
         key, step = jnp.asarray(restored["rng"], jnp.uint32), int(meta["step"])
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
     key, k_env = jax.random.split(key)
-    env_keys = jax.random.split(k_env, config.run.num_envs).reshape((len(devices), learner.envs_per_device, -1))
-    ts_r = replicate(ts, devices)
+    env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
+    ts_r = replicate_for_pmap(ts, devices)
     state = learner.reset(jax.device_put(env_keys), replicate(cstate, devices))
     return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet)
 
 
 def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, quiet) -> dict:
     """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
-    logger, bar = MetricsLogger(run_dir), ProgressBar(config.run.num_timesteps, start=step)
+    main = distributed.is_main()
+    logger = MetricsLogger(run_dir) if main else _NoLogger()
+    bar = ProgressBar(config.run.num_timesteps, start=step)
     t_start, last_ckpt, epoch, record = time.perf_counter(), step, 0, {}
-    first_epoch_s = None
+    first_epoch_s, stopped = None, False
     totals_acc: dict[str, float] = {}
     with _StopFlag() as stop:
-        while step < config.run.num_timesteps and not stop.raised:
+        while step < config.run.num_timesteps and not (stopped := distributed.any_process(stop.raised)):
             key, k_epoch = jax.random.split(key)
             t0 = time.perf_counter()
-            ts, state, out = learner.epoch(ts, state, jax.random.split(k_epoch, len(devices)))
+            ts, state, out = learner.epoch(ts, state, distributed.epoch_keys(k_epoch, devices))
             out = jax.device_get(out)
             dt = time.perf_counter() - t0
             first_epoch_s = dt if first_epoch_s is None else first_epoch_s
@@ -129,7 +155,7 @@ def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, 
                 record = _record(out, totals_acc, state, config, learner.env_steps_per_epoch / dt, t_start)
                 logger.log(step, record)
                 totals_acc = {}
-                if not quiet:
+                if main and not quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
             if step - last_ckpt >= config.run.checkpoint_every:
                 _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
@@ -138,10 +164,15 @@ def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, 
             _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
     bar.close()
     logger.close()
-    wall = time.perf_counter() - t_start
+    summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s,
+               "interrupted": stopped, "checkpoint": None, **{k: record.get(k) for k in HEADLINE}}
+    return _finish(run_dir, summary) if main else summary
+
+
+def _finish(run_dir: Path, summary: dict) -> dict:
+    """Process 0: learning curves and ``summary.json`` (with the latest checkpoint) into the run dir."""
     plots.learning_curves(run_dir / "metrics.jsonl", run_dir / "learning_curve.png")
-    summary = {"env_steps": step, "wall_s": wall, "first_epoch_s": first_epoch_s, "interrupted": stop.raised,
-               "checkpoint": str(checkpoint.latest(run_dir)), **{k: record.get(k) for k in HEADLINE}}
+    summary = {**summary, "checkpoint": str(checkpoint.latest(run_dir))}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
@@ -149,7 +180,8 @@ def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, 
 def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) -> dict:
     """One log record: episode statistics, losses, curriculum and throughput."""
     record = summarize(totals)
-    record.update({f"loss/{k}": float(np.mean(v)) for k, v in out["losses"].items()})
+    losses = distributed.all_devices(out["losses"])  # every process's devices, not only this one's
+    record.update({f"loss/{k}": float(np.mean(v)) for k, v in losses.items()})
     cstate = jax.device_get(unreplicate(state.curriculum))
     record.update({k: float(v) for k, v in cur.metrics(cstate, config.curriculum).items()})
     record["training/env_steps_per_s"] = sps
@@ -158,6 +190,8 @@ def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) 
 
 
 def _save(run_dir: Path, step: int, ts, state, key, config_dict: dict, keep: int) -> None:
-    """Checkpoint the learner (first device's copy), curriculum and rng."""
+    """Checkpoint the learner (first device's copy), curriculum and rng; process 0 only."""
+    if not distributed.is_main():
+        return
     payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key)
     checkpoint.save(run_dir, step, payload, config_dict, keep=keep)

@@ -1,0 +1,389 @@
+"""Several devices on the CPU: training, resume, the curriculum and envs over devices, two processes, scaling.
+
+XLA's fake host devices (``--xla_force_host_platform_device_count``) exist only when the flag is
+set before JAX starts, so the multi-device work runs this file as a script in fresh interpreters
+(``python tests/test_multi_device.py SCENARIO ...``) that print one JSON line of facts; the tests
+assert on those facts. Compiles go through the persistent cache configured in tests/conftest.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from test_train_run import TINY
+
+ROOT = Path(__file__).resolve().parents[1]
+FAKE_DEVICES = 2
+SUBPROCESS_TIMEOUT_S = 1200  # cold compiles on a 2-core CPU take minutes
+FACTS = "FACTS "
+# 8 envs over 2 devices, one PPO iteration (80 env steps) per epoch: 160 steps = one 15-step episode per env.
+TWO_DEVICE_CONFIG = {**TINY, "ppo": {**TINY["ppo"], "batch_size": 8},
+                     "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1}}
+COMPARED_METRICS = ("episode/return", "episode/final_distance", "loss/total_loss", "loss/policy_loss",
+                    "curriculum/max_distance", "curriculum/episode_count")
+
+
+# ----- run in the subprocess --------------------------------------------------------------------
+def _compile_counter() -> list:
+    """A list that gains one entry per XLA compile request from now on (cache hits included)."""
+    import jax
+    events: list = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda name, secs, **_: events.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
+    return events
+
+
+def _record_saves() -> list[int]:
+    """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
+    from train import checkpoint
+    saved, save = [], checkpoint.save
+    checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
+    return saved
+
+
+def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
+    """Messages of the configs refused on 2 devices, and whether anything compiled or was written first."""
+    from train import config as tcfg
+    from train.trainer import train
+    before, messages = len(compiles), {}
+    bad = {"indivisible": ["run.num_envs=3", "ppo.batch_size=3"], "too_many": ["run.num_devices=3"]}
+    for name, override in bad.items():
+        try:
+            train(tcfg.load(config_path, override), tmp / name, quiet=True)
+        except ValueError as err:
+            messages[name] = str(err)
+    made = [name for name in messages if (tmp / name).exists()]
+    return {"refusals": messages, "refusal_compiles": len(compiles) - before, "refusal_dirs": made}
+
+
+def _learner_facts(config_path: str, compiles: list) -> dict:
+    """Goals per device after the trainer's reset; recompiles at the second epoch; replicas after it."""
+    import jax
+    from hsa_mjx import curriculum as cur
+    from hsa_mjx.env import HSAEnv
+    from train import config as tcfg
+    from train import distributed
+    from train.ppo import PPOLearner, init_training_state, replicate
+    from train.trainer import replicate_for_pmap
+    config = tcfg.load(config_path)
+    devices = jax.local_devices()
+    env = HSAEnv(config.env)
+    learner = PPOLearner(config, env, len(devices))
+    key = jax.random.PRNGKey(3)
+    state = learner.reset(distributed.env_keys(key, config.run.num_envs, devices),
+                          replicate(cur.init(config.curriculum), devices))
+    goals = np.asarray(state.env.pipeline_state.task.goal_xy)
+    ts = replicate_for_pmap(init_training_state(config, learner.networks, key, env.observation_size), devices)
+    ts, state, _ = learner.epoch(ts, state, distributed.epoch_keys(key, devices))
+    before = len(compiles)
+    ts, state, _ = learner.epoch(ts, state, distributed.epoch_keys(jax.random.PRNGKey(4), devices))
+    leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curriculum})
+    differing = [jax.tree_util.keystr(path) for path, x in leaves
+                 if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))]
+    return {"goals": goals.tolist(), "second_epoch_compiles": len(compiles) - before, "leaves": len(leaves),
+            "replicas_differing": differing, "episodes_seen": int(state.curriculum.episode_count[0])}
+
+
+def _terrain_facts() -> dict:
+    """Per-env terrain of a mixed-terrain batch reset with the trainer's keys, 2 envs per device."""
+    import jax
+    import hsa_mjx
+    from hsa_mjx.curriculum import CurriculumConfig
+    from hsa_mjx.training_env import AutoResetEnv
+    from train import distributed
+    from train.ppo import AXIS
+    env = hsa_mjx.make_env("mixed", terrain__types=["wavy", "perlin", "craters", "stairs"])
+    batch = AutoResetEnv(env, CurriculumConfig(enabled=False), axis_name=AXIS)
+    keys = distributed.env_keys(jax.random.PRNGKey(5), 2 * len(jax.local_devices()), jax.local_devices())
+    terrain = np.asarray(jax.pmap(batch.reset, axis_name=AXIS)(keys).env.pipeline_state.task.terrain)
+    cross = [float(np.abs(a - b).max()) for a in terrain[0] for b in terrain[1]]
+    return {"terrain_shape": list(terrain.shape), "terrain_cross_device_differences": cross}
+
+
+# Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
+DONE = [[[1, 1, 0, 0], [1, 0, 1, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[1, 0, 0, 1], [1, 1, 0, 0]]]
+SUCCESS = [[[1, 1, 0, 0], [1, 0, 0, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[0, 0, 0, 1], [1, 0, 0, 0]]]
+
+
+def _curriculum_facts() -> dict:
+    """The curriculum under pmap from per-device outcomes; one update over all of them; each device alone."""
+    import jax
+    import jax.numpy as jnp
+    from hsa_mjx import curriculum as cur
+    from hsa_mjx.env import HSAEnv
+    from hsa_mjx.training_env import AutoResetEnv
+    from train import config as tcfg
+    from train.ppo import AXIS, replicate
+    config = cur.CurriculumConfig(window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2)
+    batch = AutoResetEnv(HSAEnv(tcfg.from_dict({}).env), config, axis_name=AXIS)
+    done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
+
+    def steps(cstate, success, done):
+        return jax.lax.scan(lambda c, sd: (batch._update_curriculum(c, *sd), None), cstate, (success, done))[0]
+
+    start = replicate(cur.init(config), jax.local_devices()[:done.shape[1]])
+    gathered = jax.pmap(steps, axis_name=AXIS)(start, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))
+    reference, alone = cur.init(config), [cur.init(config) for _ in range(done.shape[1])]
+    for s, d in zip(success, done):
+        reference = cur.update(reference, s.reshape(-1), d.reshape(-1), config)  # device 0's envs, then device 1's
+        alone = [cur.update(a, s[i], d[i], config) for i, a in enumerate(alone)]
+    as_lists = lambda tree: {k: np.asarray(v).tolist() for k, v in vars(tree).items()}  # noqa: E731
+    return {"curriculum_pmapped": as_lists(gathered), "curriculum_reference": as_lists(reference),
+            "curriculum_alone": [as_lists(a) for a in alone]}
+
+
+def scenario_two_devices(config_path: str, run_dir: str, port: str) -> dict:
+    """Train through the CLI (jax.distributed with one process), resume, refusals, per-device facts."""
+    compiles, saved = _compile_counter(), _record_saves()
+    from train.cli import main
+    args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
+    rc_train = main(args + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "1", "--process-id", "0"])
+    saved_first = list(saved)
+    rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
+    facts = {"rc_train": rc_train, "rc_resume": rc_resume, "saved_first": saved_first,
+             "saved_resume": saved[len(saved_first):]}
+    facts.update(_refusals(config_path, Path(run_dir).parent, compiles))
+    facts.update(_learner_facts(config_path, compiles))
+    facts.update(_terrain_facts())
+    facts.update(_curriculum_facts())
+    return facts
+
+
+def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
+    """One of two processes (one CPU device each) training through the CLI."""
+    saved = _record_saves()
+    from train.cli import main
+    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", "--coordinator", f"127.0.0.1:{port}",
+               "--num-processes", "2", "--process-id", process_id])
+    return {"rc": rc, "saved": saved}
+
+
+SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process}
+
+
+# ----- the tests ------------------------------------------------------------------------------
+def _free_port() -> int:
+    """A TCP port on localhost that nothing listens on now (for the coordinator)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _subprocess_env(devices: int | None) -> dict:
+    """The test environment plus the fake device count and the persistent compile cache of conftest."""
+    import jax
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    env.pop("XLA_FLAGS", None)
+    if jax.config.jax_compilation_cache_dir:
+        env["JAX_COMPILATION_CACHE_DIR"] = str(jax.config.jax_compilation_cache_dir)
+        env["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = str(jax.config.jax_persistent_cache_min_compile_time_secs)
+    if devices:
+        env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+    return env
+
+
+def _check(proc: subprocess.CompletedProcess) -> str:
+    """The stdout of a subprocess that must have succeeded (its output tails in the failure message)."""
+    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
+    return proc.stdout
+
+
+def _write_config(path: Path, data: dict) -> str:
+    """Write a training config as YAML; its path."""
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def _facts(stdout: str) -> dict:
+    """The JSON a scenario printed."""
+    return json.loads([ln for ln in stdout.splitlines() if ln.startswith(FACTS)][-1][len(FACTS):])
+
+
+@pytest.fixture(scope="module")
+def two_devices(tmp_path_factory):
+    """Facts of the two-device scenario and its run dir."""
+    tmp = tmp_path_factory.mktemp("two_devices")
+    config = _write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
+    proc = subprocess.run([sys.executable, __file__, "two_devices", config, str(tmp / "run"), str(_free_port())],
+                          cwd=ROOT, env=_subprocess_env(FAKE_DEVICES), capture_output=True, text=True,
+                          timeout=SUBPROCESS_TIMEOUT_S)
+    return _facts(_check(proc)), tmp / "run"
+
+
+def _run_processes(command: list[str], count: int) -> list[dict]:
+    """Start ``command + [process id]`` ``count`` times at once (one CPU device each); their facts."""
+    procs = [subprocess.Popen(command + [str(i)], cwd=ROOT, env=_subprocess_env(None), stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for i in range(count)]
+    try:
+        outs = [p.communicate(timeout=SUBPROCESS_TIMEOUT_S) for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    return [_facts(_check(subprocess.CompletedProcess(p.args, p.returncode, *out))) for p, out in zip(procs, outs)]
+
+
+def _records(run_dir: Path) -> list[dict]:
+    """The run's metrics records."""
+    from train.logger import read_jsonl
+    return read_jsonl(run_dir / "metrics.jsonl")
+
+
+def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
+    from train import checkpoint
+    facts, run_dir = two_devices
+    assert facts["rc_train"] == 0 and facts["rc_resume"] == 0
+    assert facts["saved_first"] == [80, 160] and facts["saved_resume"] == [240]
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == [
+        "step_000000000080", "step_000000000160", "step_000000000240"]
+    assert not [p for p in checkpoint.checkpoint_dir(run_dir).iterdir() if p.name.startswith(".tmp")]
+    assert [r["step"] for r in _records(run_dir)] == [80, 160, 240]  # one log record per epoch, not per device
+
+
+def test_curriculum_counts_the_episodes_of_both_devices(two_devices):
+    facts, run_dir = two_devices
+    first_run = [r for r in _records(run_dir) if r["step"] == 160][0]
+    assert first_run["episodes"] == 8  # 20 steps per env, one 15-step episode for each of the 8 envs
+    assert first_run["curriculum/episode_count"] == 8  # not 4: both devices' episodes reach the curriculum
+    assert first_run["curriculum/max_distance"] > 1.8 + 1e-6  # a full window of 4 widened it
+    assert facts["episodes_seen"] == 8  # two epochs of 80 steps from fresh envs: again all 8 episodes
+    assert facts["leaves"] > 10 and facts["replicas_differing"] == []  # one learner and curriculum, copied
+
+
+def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
+    facts, _ = two_devices
+    pmapped, reference = facts["curriculum_pmapped"], facts["curriculum_reference"]
+    for key, value in reference.items():
+        per_device = np.asarray(pmapped[key])
+        assert per_device.shape[0] == FAKE_DEVICES
+        for copy in per_device:  # identical on every device and equal to one update over all outcomes
+            np.testing.assert_array_equal(copy, value, err_msg=key)
+    assert reference["max_distance"] > 1.8 + 1e-6  # the gathered window widened the range...
+    assert all(a["max_distance"] == pytest.approx(1.8) for a in facts["curriculum_alone"])  # ...no device alone did
+
+
+def test_envs_differ_across_devices(two_devices):
+    facts, _ = two_devices
+    goals = np.asarray(facts["goals"])  # (devices, envs per device, 2)
+    assert goals.shape == (FAKE_DEVICES, 4, 2)
+    flat = goals.reshape(-1, 2)
+    assert len({tuple(np.round(g, 6)) for g in flat}) == len(flat)  # every env of every device its own goal
+    assert facts["terrain_shape"][:2] == [FAKE_DEVICES, 2] and facts["terrain_shape"][2] > 100  # per-env fields
+    differences = facts["terrain_cross_device_differences"]  # max |height difference| per (device 0, device 1) pair
+    assert len(differences) == 4 and min(differences) > 1e-3  # no env of device 0 shares a terrain with device 1
+
+
+def test_no_recompile_at_the_second_epoch(two_devices):
+    assert two_devices[0]["second_epoch_compiles"] == 0
+
+
+def test_bad_device_split_refused_before_compile(two_devices):
+    facts, _ = two_devices
+    assert "run.num_envs = 3 must be divisible by the 2 devices" in facts["refusals"]["indivisible"]
+    assert "only 2 local devices" in facts["refusals"]["too_many"]
+    assert facts["refusal_compiles"] == 0 and facts["refusal_dirs"] == []
+
+
+def test_two_processes_train_like_two_devices(two_devices, tmp_path):
+    from train import checkpoint
+    config, run_dir = _write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
+    facts = _run_processes([sys.executable, __file__, "process", config, str(run_dir), str(_free_port())], 2)
+    assert [f["rc"] for f in facts] == [0, 0]
+    assert facts[0]["saved"] == [80, 160] and facts[1]["saved"] == []  # process 0 alone writes
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == ["step_000000000080", "step_000000000160"]
+    records = _records(run_dir)
+    assert [r["step"] for r in records] == [80, 160]
+    # The same global env and epoch keys, the same reductions: what one process with two devices logged.
+    for mine, theirs in zip(records, _records(two_devices[1])):
+        assert set(mine) == set(theirs)
+        for key in (k for k in COMPARED_METRICS if k in theirs):
+            assert mine[key] == pytest.approx(theirs[key], rel=1e-4, abs=1e-6), (mine["step"], key)
+    assert "episode/return" in records[-1]  # compared, not skipped
+
+
+def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
+    from train import config as tcfg
+    from train.evaluate import main as evaluate
+    from train.trainer import train
+    _, run_dir = two_devices
+    one_device = json.loads(json.dumps(TINY))  # 4 envs, the minibatch for one device
+    one_device["run"].update(num_timesteps=280)
+    summary = train(tcfg.from_dict(one_device), run_dir, resume=True, quiet=True)
+    assert summary["env_steps"] == 280
+    last = _records(run_dir)[-1]
+    assert last["step"] == 280 and last["curriculum/episode_count"] >= 8  # the curriculum came along
+    assert evaluate([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0
+    assert json.loads((run_dir / "eval" / "eval.json").read_text())["step"] == 280
+
+
+def test_scaling_benchmark_smoke(tmp_path):
+    config = _write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG)
+    proc = subprocess.run(
+        [sys.executable, "-m", "benchmarks.scaling", "--config", config, "--envs-per-device", "4", "--devices", "1,2",
+         "--steps", "2", "--repeats", "1", "--epochs", "1", "--tag", "smoke", "--out-dir", str(tmp_path / "out")],
+        cwd=ROOT, env=_subprocess_env(FAKE_DEVICES), capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT_S)
+    _check(proc)
+    rows = json.loads((tmp_path / "out" / "scaling_smoke.json").read_text())["rows"]
+    assert [(r["devices"], r["num_envs"], r["batch_size"]) for r in rows] == [(1, 4, 4), (2, 8, 8)]
+    for row in rows:
+        for key in ("env_steps_per_s", "ppo_env_steps_per_s", "collect_env_steps_per_s"):
+            assert row[key] > 0, key
+        assert 0 <= row["update_fraction"] < 1 and row["gpu"] == "cpu" and row["versions"]["jax"]
+    assert rows[0]["speedup_ppo_env_steps_per_s"] == 1.0 and rows[0]["efficiency_env_steps_per_s"] == 1.0
+    two = rows[1]
+    assert two["efficiency_ppo_env_steps_per_s"] == pytest.approx(two["speedup_ppo_env_steps_per_s"] / 2, abs=1e-3)
+    table = (tmp_path / "out" / "scaling_smoke.md").read_text()
+    assert table.count("\n| 1 | 4 |") == 1 and table.count("\n| 2 | 8 |") == 1
+    assert (tmp_path / "out" / "scaling_smoke.png").stat().st_size > 10_000
+
+
+def test_scaling_device_counts_and_config():
+    from benchmarks.scaling import device_counts, scaled_config
+    from train import config as tcfg
+    assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
+    flat = tcfg.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
+    four = scaled_config(flat, 8192, 4, iterations=1)
+    assert (four.run.num_envs, four.run.num_devices, four.ppo.batch_size) == (32768, 4, 2048)
+    assert four.run.steps_per_epoch == 2048 * 32 * 20 and four.ppo.num_minibatches == 32
+    with pytest.raises(ValueError, match="not a whole number"):
+        scaled_config(flat, 100, 2, iterations=1)
+    with pytest.raises(ValueError, match="at least one device"):
+        device_counts(0)
+
+
+def test_cluster_spec_from_flags_or_environment():
+    from train import distributed
+    assert distributed.resolve_spec(environ={}) is None
+    env = {"HSA_COORDINATOR": "10.0.0.1:1234", "HSA_NUM_PROCESSES": "4", "HSA_PROCESS_ID": "3"}
+    assert distributed.resolve_spec(environ=env) == distributed.ClusterSpec("10.0.0.1:1234", 4, 3)
+    assert distributed.resolve_spec(process_id=0, environ=env).process_id == 0  # a flag wins
+    for kwargs, match in (({"coordinator": "h:1", "num_processes": 2}, "--process-id"),
+                          ({"coordinator": "host", "num_processes": 2, "process_id": 0}, "HOST:PORT"),
+                          ({"coordinator": "h:1", "num_processes": 2, "process_id": 2}, "0 <= --process-id")):
+        with pytest.raises(ValueError, match=match):
+            distributed.resolve_spec(**kwargs, environ={})
+    with pytest.raises(ValueError, match="HSA_NUM_PROCESSES must be an integer"):
+        distributed.resolve_spec(environ={**env, "HSA_NUM_PROCESSES": "four"})
+
+
+def test_one_process_keys_are_the_single_host_split():
+    import jax
+    from train import distributed
+    devices, key = jax.local_devices()[:1], jax.random.PRNGKey(7)
+    np.testing.assert_array_equal(distributed.env_keys(key, 6, devices), jax.random.split(key, 6).reshape(1, 6, 2))
+    np.testing.assert_array_equal(distributed.epoch_keys(key, devices), jax.random.split(key, 1))
+    assert distributed.is_main() and distributed.any_process(True) and not distributed.any_process(False)
+
+
+if __name__ == "__main__":
+    result = SCENARIOS[sys.argv[1]](*sys.argv[2:])
+    print(FACTS + json.dumps(result), flush=True)

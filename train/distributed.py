@@ -1,0 +1,115 @@
+"""Training over several processes (hosts): set-up, which process writes, and each process's share of keys.
+
+One process per host, each driving its own local devices with ``pmap``; the ``pmap`` axis spans
+the devices of every process, so the gradient, observation-statistics and curriculum reductions
+of :mod:`train.ppo` already run over all of them (Brax's multi-host scheme). What differs from
+one host: ``jax.distributed.initialize`` must run before any other JAX call, the envs are split
+over the global device count, every process takes its own slice of the env and epoch keys, only
+process 0 writes the run dir, and a stop request on any process stops all of them together.
+
+With one process every function here is the plain single-host behaviour.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from typing import Any, Mapping
+
+import jax
+import numpy as np
+
+ENV_VARS = {"coordinator": "HSA_COORDINATOR", "num_processes": "HSA_NUM_PROCESSES", "process_id": "HSA_PROCESS_ID"}
+
+
+@dataclasses.dataclass(frozen=True)
+class ClusterSpec:
+    """Where the coordinator listens, how many processes take part and which one this is."""
+
+    coordinator: str
+    num_processes: int
+    process_id: int
+
+
+def _int_setting(value: int | str | None, flag: str, env_var: str) -> int | None:
+    """An integer from a flag or environment variable (ValueError naming both when it is not one)."""
+    if value is None or value == "":
+        return None
+    try:
+        return int(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{flag} / {env_var} must be an integer, got {value!r}") from err
+
+
+def resolve_spec(coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None,
+                 environ: Mapping[str, str] | None = None) -> ClusterSpec | None:
+    """The cluster from flags, else ``HSA_*`` environment variables; None when none is asked for."""
+    environ = os.environ if environ is None else environ
+    coordinator = coordinator or environ.get(ENV_VARS["coordinator"]) or None
+    count = _int_setting(num_processes if num_processes is not None else environ.get(ENV_VARS["num_processes"]),
+                         "--num-processes", ENV_VARS["num_processes"])
+    index = _int_setting(process_id if process_id is not None else environ.get(ENV_VARS["process_id"]),
+                         "--process-id", ENV_VARS["process_id"])
+    if coordinator is None and count is None and index is None:
+        return None
+    if coordinator is None or count is None or index is None:
+        raise ValueError("several processes need all of --coordinator HOST:PORT, --num-processes N and "
+                         f"--process-id I (or {', '.join(ENV_VARS.values())}); got coordinator={coordinator!r}, "
+                         f"num_processes={count}, process_id={index}")
+    host, _, port = coordinator.rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"--coordinator must be HOST:PORT (process 0's address), got {coordinator!r}")
+    if count < 1 or not 0 <= index < count:
+        raise ValueError(f"need --num-processes >= 1 and 0 <= --process-id < --num-processes, got {count}, {index}")
+    return ClusterSpec(coordinator, count, index)
+
+
+def initialize(spec: ClusterSpec | None) -> None:
+    """Join the cluster with ``jax.distributed.initialize`` (call before any other JAX call); None: one host."""
+    if spec is None:
+        return
+    jax.distributed.initialize(coordinator_address=spec.coordinator, num_processes=spec.num_processes,
+                               process_id=spec.process_id)
+
+
+def is_main() -> bool:
+    """Whether this process writes checkpoints, logs and plots (process 0)."""
+    return jax.process_index() == 0
+
+
+def global_device_count(local_devices: list) -> int:
+    """Devices of all processes taking part (every process uses as many local devices as this one)."""
+    return len(local_devices) * jax.process_count()
+
+
+def process_share(keys: jax.Array, local_devices: list) -> jax.Array:
+    """This process's part of keys made for every global device, shaped (local devices, per device, ...)."""
+    per_device = keys.shape[0] // global_device_count(local_devices)
+    shaped = keys.reshape((jax.process_count(), len(local_devices), per_device) + keys.shape[1:])
+    return shaped[jax.process_index()]
+
+
+def env_keys(key: jax.Array, num_envs: int, local_devices: list) -> jax.Array:
+    """One key per env of the whole run, split from ``key``; this process's share, (local devices, envs / device, 2)."""
+    return process_share(jax.random.split(key, num_envs), local_devices)
+
+
+def epoch_keys(key: jax.Array, local_devices: list) -> jax.Array:
+    """One key per global device, split from ``key``; this process's share, (local devices, 2)."""
+    return process_share(jax.random.split(key, global_device_count(local_devices)), local_devices)[:, 0]
+
+
+def all_devices(tree: Any) -> Any:
+    """Host values with a leading axis over this process's devices, extended to every process's devices."""
+    if jax.process_count() == 1:
+        return tree
+    from jax.experimental import multihost_utils
+    return multihost_utils.process_allgather(tree, tiled=True)
+
+
+def any_process(flag: bool) -> bool:
+    """True when ``flag`` is set on any process (a host-side all-gather; no communication with one process)."""
+    if jax.process_count() == 1:
+        return bool(flag)
+    from jax.experimental import multihost_utils
+    return bool(np.any(multihost_utils.process_allgather(np.asarray(flag))))
