@@ -19,7 +19,7 @@ from hsa_mjx.env import HSAEnv
 from hsa_mjx.types import EnvState
 
 TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
-              "nonfinite_action", "nonfinite_state")
+              "nonfinite_action", "nonfinite_state", "step_reward", "step_distance", "step_checkpoint")
 
 
 @struct.dataclass
@@ -138,6 +138,9 @@ class AutoResetEnv:
             "env_steps": jnp.asarray(done.shape[0], jnp.float32),
             "nonfinite_action": jnp.sum(m["nonfinite_action"]),
             "nonfinite_state": jnp.sum(m["termination/non_finite"]),
+            # per env step, finished or not: what long episodes (corridor, spiral) show before they end
+            "step_reward": jnp.sum(nxt.reward), "step_distance": jnp.sum(m["distance_to_goal"]),
+            "step_checkpoint": jnp.sum(m["checkpoint_index"]),
         }
         add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
         add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
@@ -156,6 +159,9 @@ def summarize(totals: dict[str, float]) -> dict[str, float]:
     """
     out = {"episodes": totals["episodes"], "env_steps": totals["env_steps"],
            "nonfinite/actions": totals["nonfinite_action"], "nonfinite/states": totals["nonfinite_state"]}
+    steps = max(totals["env_steps"], 1.0)
+    out.update({"step/reward": totals["step_reward"] / steps, "step/distance_to_goal": totals["step_distance"] / steps,
+                "step/checkpoint_index": totals["step_checkpoint"] / steps})
     episodes = totals["episodes"]
     if episodes <= 0:
         return out

@@ -126,3 +126,8 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     radius = np.linalg.norm(goals, axis=-1)
     assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
     assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes
+    from hsa_mjx.training_env import summarize
+    logged = summarize({k: float(v) for k, v in jax.device_get(state.totals).items()})
+    assert logged["env_steps"] == 14  # 7 steps x 2 envs
+    distances = np.asarray(state.env.metrics["distance_to_goal"])
+    assert 1.0 < logged["step/distance_to_goal"] < 5.0 and np.all(distances > 0)  # a mean over every env step
