@@ -31,12 +31,9 @@ def substep_stats(data: mjx.Data) -> SubstepStats:
     """Stats of one substep's state."""
     finite = (jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
               & jnp.all(jnp.isfinite(data.qacc)))
-    return SubstepStats(
-        max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))),
-        max_abs_qacc=jnp.max(jnp.abs(jnp.nan_to_num(data.qacc))),
-        non_finite=jnp.logical_not(finite),
-        final_abs_qacc=jnp.max(jnp.abs(jnp.nan_to_num(data.qacc))),
-    )
+    qacc = jnp.max(jnp.abs(jnp.nan_to_num(data.qacc)))
+    return SubstepStats(max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))), max_abs_qacc=qacc,
+                        non_finite=jnp.logical_not(finite), final_abs_qacc=qacc)
 
 
 def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
