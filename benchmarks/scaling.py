@@ -4,18 +4,23 @@ For every device count k (powers of two up to ``jax.local_device_count()``, plus
 fixed batch per device (weak scaling: k times the envs, the PPO minibatch and the epoch scaled with
 them, so every device does the same work at every k), in one process:
 
+The devices share the work as the trainer's learner does (``run.multi_device``, default ``auto``:
+one ``pmap`` on one device or on CPUs, ``per_device`` on 2+ GPUs, see ``train/per_device.py``;
+``--set run.multi_device=per_device`` measures that path at k = 1 too). Each row names it.
+
 - **env**: the full training env step (``AutoResetEnv``: physics, observation, reward,
-  termination, auto-reset, the curriculum with outcomes gathered over the k devices), random
-  actions, ``--steps`` steps per call under ``lax.scan``, ``pmap``-ed over k devices; the loop of
-  ``benchmarks.throughput``.
-- **ppo**: ``train.ppo.PPOLearner``'s pmapped epoch (collection, observation statistics, SGD with
+  termination, auto-reset, curriculum), random actions, ``--steps`` steps per call under
+  ``lax.scan``, on every device at once: ``pmap``-ed (outcomes gathered over the devices every
+  step) or jitted once per device (each device's curriculum alone, one host thread per device);
+  the loop of ``benchmarks.throughput``.
+- **ppo**: the learner's epoch (collection, observation statistics, curriculum, SGD with
   gradients averaged over the devices), one PPO iteration of the config per epoch by default.
-- **collect** (the split, best effort after the rest): the epoch's collection alone (policy plus
+- **collect** (the split, best effort after the rest): the epoch's collections alone (policy plus
   env steps), so the update's share is the epoch time minus it.
 
-Each is compiled ahead of time (compile seconds reported apart), run once to warm up, then timed
-(``block_until_ready``); rates use the median call. Speed-up and efficiency (speed-up / device
-ratio) are relative to the smallest k measured. Results go to ``--out-dir`` as
+Each is called once to compile and warm up (compile seconds: that call less the median call),
+then timed (``block_until_ready``); rates use the median call. Speed-up and efficiency (speed-up /
+device ratio) are relative to the smallest k measured. Results go to ``--out-dir`` as
 ``scaling_<tag>.{json,md,png}`` (tag default: the device name), rewritten after every measurement.
 
     python -m benchmarks.scaling [--config FILE] [--envs-per-device N] [--devices 1,2,4] [--steps K]
@@ -35,7 +40,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 from benchmarks import scaling_report as report
 from benchmarks import throughput
@@ -43,10 +48,12 @@ from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx import curriculum as cur
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.training_env import AutoResetEnv
 from train import config as tcfg
 from train import distributed
 from train.cli import default_config
-from train.ppo import AXIS, PPOLearner, init_training_state, replicate
+from train.per_device import PerDeviceLearner, make_learner
+from train.ppo import AXIS, init_training_state
 from train.trainer import replicate_for_pmap
 
 GPU_DEFAULTS = {"envs_per_device": 8192, "steps": 16, "repeats": 3, "epochs": 2}
@@ -79,7 +86,7 @@ def scaled_config(base: tcfg.TrainConfig, envs_per_device: int, devices: int, it
 
 @dataclasses.dataclass
 class Timed:
-    """Compile time and the wall time of each timed call of a pmapped function."""
+    """Compile time and the wall time of each timed call."""
 
     compile_s: float
     seconds: list[float]
@@ -90,29 +97,37 @@ class Timed:
         return statistics.median(self.seconds)
 
 
-def time_pmapped(pmapped: Callable, carry: tuple, keys: Callable[[], jax.Array], calls: int) -> tuple[Timed, tuple]:
-    """Compile ``pmapped(*carry, keys())`` ahead of time, warm up once, then time ``calls`` calls."""
+def time_calls(call: Callable[[tuple], tuple], carry: tuple, calls: int) -> Timed:
+    """Time ``carry = call(carry)``: a first (compiling) call, then ``calls`` timed ones.
+
+    ``compile_s`` is the first call's time less the median timed call (compile and warm-up).
+    """
     tic = time.perf_counter()
-    compiled = pmapped.lower(*carry, keys()).compile()
-    compile_s = time.perf_counter() - tic
-    carry = tuple(jax.block_until_ready(compiled(*carry, keys())))[:-1]
+    carry = jax.block_until_ready(call(carry))
+    first_s = time.perf_counter() - tic
     seconds = []
     for _ in range(calls):
         tic = time.perf_counter()
-        carry = tuple(jax.block_until_ready(compiled(*carry, keys())))[:-1]
+        carry = jax.block_until_ready(call(carry))
         seconds.append(time.perf_counter() - tic)
-    return Timed(compile_s, seconds), carry
+    return Timed(max(first_s - statistics.median(seconds), 0.0), seconds)
 
 
 class Bench:
-    """The pieces measured at one device count, built from the scaled config."""
+    """The pieces measured at one device count, built from the scaled config with the trainer's learner."""
 
     def __init__(self, config: tcfg.TrainConfig, devices: list, seed: int = 0):
         self.config, self.devices = config, devices
         self.env = HSAEnv(config.env)
-        self.learner = PPOLearner(config, self.env, len(devices))
+        self.learner = make_learner(config, self.env, devices)
+        self.per_device = isinstance(self.learner, PerDeviceLearner)
         self.key = jax.random.PRNGKey(seed)
         self.donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)
+
+    @property
+    def strategy(self) -> str:
+        """How the devices share the work: ``pmap`` or ``per_device`` (``run.multi_device``)."""
+        return "per_device" if self.per_device else "pmap"
 
     def keys(self) -> jax.Array:
         """A fresh key per device."""
@@ -122,7 +137,7 @@ class Bench:
     def reset(self) -> Any:
         """Fresh envs on every device with the initial curriculum."""
         env_keys = distributed.env_keys(self.keys()[0], self.config.run.num_envs, self.devices)
-        return self.learner.reset(env_keys, replicate(cur.init(self.config.curriculum), self.devices))
+        return self.learner.reset(env_keys, cur.init(self.config.curriculum))
 
     def training_state(self) -> Any:
         """Fresh learner state, one copy per device."""
@@ -130,35 +145,37 @@ class Bench:
         return replicate_for_pmap(ts, self.devices)
 
     def env_loop(self, steps: int, repeats: int) -> Timed:
-        """(i) ``steps`` random-action steps of the training batch env per call."""
-        _, run = throughput.env_loop(self.env, self.learner.batch_env, steps)
+        """(i) ``steps`` random-action steps of the training batch env per call on every device."""
+        if self.per_device:
+            return self._env_loop_per_device(steps, repeats)
+        batch_env = AutoResetEnv(self.env, self.config.curriculum, axis_name=AXIS)  # outcomes gathered per step
+        _, run = throughput.env_loop(self.env, batch_env, steps)
         pmapped = jax.pmap(run, axis_name=AXIS, donate_argnums=(0,) if self.donate else ())
-        timed, _ = time_pmapped(pmapped, (self.reset(),), self.keys, repeats)
-        return timed
+        return time_calls(lambda carry: (pmapped(carry[0], self.keys())[0],), (self.reset(),), repeats)
+
+    def _env_loop_per_device(self, steps: int, repeats: int) -> Timed:
+        """The env loop jitted once per device (each with its own env and curriculum), one thread each."""
+        learner, runs = self.learner, []
+        for env in learner.batch_envs:
+            batch_env = AutoResetEnv(env.env, self.config.curriculum)
+            runs.append(jax.jit(throughput.env_loop(env.env, batch_env, steps)[1],
+                                donate_argnums=(0,) if self.donate else ()))
+
+        def call(carry: tuple) -> tuple:
+            keys = [jax.device_put(np.asarray(k), d) for k, d in zip(np.asarray(self.keys()), self.devices)]
+            return tuple(learner._on_each(lambda i, s, k: runs[i](s, k)[0], carry, keys))
+
+        return time_calls(call, tuple(self.reset().envs), repeats)
 
     def ppo_epochs(self, epochs: int) -> Timed:
-        """(ii) PPO epochs with updates."""
-        timed, _ = time_pmapped(self.learner.epoch, (self.training_state(), self.reset()), self.keys, epochs)
-        return timed
+        """(ii) PPO epochs with updates, as the trainer runs them."""
+        return time_calls(lambda c: self.learner.epoch(c[0], c[1], self.keys())[:2],
+                          (self.training_state(), self.reset()), epochs)
 
     def collection(self, epochs: int) -> Timed:
-        """The epoch's collection alone: ``iterations_per_epoch`` rounds of the learner's unrolls."""
-        learner = self.learner
-
-        def collect(ts, state, key):
-            """Collection rounds as in one epoch, without the updates."""
-            def one(carry, _):
-                state, key = carry
-                key, k_collect = jax.random.split(key)
-                state, data = learner._collect(ts, state, k_collect)
-                return (state, key), sum(jnp.sum(x) for x in jax.tree.leaves(data))  # keep every output live
-
-            (state, _), checksum = jax.lax.scan(one, (state, key), None, length=learner.iterations_per_epoch)
-            return ts, state, checksum
-
-        pmapped = jax.pmap(collect, axis_name=AXIS, donate_argnums=(1,) if self.donate else ())
-        timed, _ = time_pmapped(pmapped, (self.training_state(), self.reset()), self.keys, epochs)
-        return timed
+        """The epoch's collections alone (no learning)."""
+        return time_calls(lambda c: self.learner.collect_epoch(c[0], c[1], self.keys()),
+                          (self.training_state(), self.reset()), epochs)
 
 
 def _env_fields(timed: Timed, batch: int, steps: int) -> dict[str, Any]:
@@ -188,7 +205,8 @@ def measure_count(args: argparse.Namespace, base: tcfg.TrainConfig, k: int, over
     """Env loop and PPO epochs at ``k`` devices (each skipped once past the budget); the row and its bench."""
     config = scaled_config(base, args.envs_per_device, k, args.iterations_per_epoch)
     bench = Bench(config, jax.local_devices()[:k], args.seed)
-    row = {"devices": k, "envs_per_device": args.envs_per_device, "num_envs": config.run.num_envs,
+    row = {"devices": k, "multi_device": bench.strategy, "envs_per_device": args.envs_per_device,
+           "num_envs": config.run.num_envs,
            "batch_size": config.ppo.batch_size, "iterations_per_epoch": args.iterations_per_epoch,
            **report.provenance(info)}
     if not over_budget():

@@ -145,8 +145,13 @@ class RobotModel:
 
 
 def local_device() -> jax.Device:
-    """This process's first device: MJX's default (``jax.devices()[0]``) belongs to process 0 on several hosts."""
-    return jax.local_devices()[0]
+    """Where MJX model and data go: ``jax.default_device`` when set, else this process's first device.
+
+    MJX's own default (``jax.devices()[0]``) belongs to process 0 on several hosts; the per-device
+    training path builds one env per GPU inside ``jax.default_device(gpu)``.
+    """
+    default = jax.config.jax_default_device
+    return default if isinstance(default, jax.Device) else jax.local_devices()[0]
 
 
 def load_robot(config: EnvConfig, asset_dir: Path | None = None) -> RobotModel:

@@ -58,15 +58,17 @@ class AutoResetEnv:
         env: the single-env :class:`HSAEnv`.
         curriculum: curriculum settings; when enabled the env must use ``goal.mode: radial``.
         axis_name: the ``pmap`` axis to gather episode outcomes over (None on one device).
+        step_curriculum: update the curriculum inside ``step`` (True); False leaves it to the
+            caller (the PPO learner feeds it each collection's outcomes, ``train.ppo``).
     """
 
     def __init__(self, env: HSAEnv, curriculum: cur.CurriculumConfig | None = None,
-                 axis_name: str | None = None):
+                 axis_name: str | None = None, step_curriculum: bool = True):
         self.env = env
         self.curriculum = curriculum or cur.CurriculumConfig(enabled=False)
         if self.curriculum.enabled and env.config.goal.mode != "radial":
             raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
-        self.axis_name = axis_name
+        self.axis_name, self.step_curriculum = axis_name, step_curriculum
 
     @property
     def observation_size(self) -> int:
@@ -109,7 +111,7 @@ class AutoResetEnv:
     def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
                            done: jax.Array) -> cur.CurriculumState:
         """Feed this step's episode ends (from every device) to the curriculum."""
-        if not self.curriculum.enabled:
+        if not (self.curriculum.enabled and self.step_curriculum):
             return cstate
         if self.axis_name is not None:
             success = jax.lax.all_gather(success, self.axis_name)

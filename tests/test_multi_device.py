@@ -65,6 +65,41 @@ def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
     return {"refusals": messages, "refusal_compiles": len(compiles) - before, "refusal_dirs": made}
 
 
+def _same_run_facts(config_path: str, compiles: list) -> dict:
+    """Two epochs of the pmap learner and of the per-device learner from the same keys: how far apart."""
+    import jax
+    from hsa_mjx import curriculum as cur
+    from hsa_mjx.env import HSAEnv
+    from train import config as tcfg
+    from train import distributed
+    from train.per_device import PerDeviceLearner
+    from train.ppo import PPOLearner, init_training_state
+    from train.trainer import replicate_for_pmap
+    config = tcfg.load(config_path)
+    devices, env = jax.local_devices(), HSAEnv(config.env)
+    runs = {}
+    for name, learner in (("pmap", PPOLearner(config, env, len(devices))),
+                          ("per_device", PerDeviceLearner(config, env, devices))):
+        key = jax.random.PRNGKey(11)
+        state = learner.reset(distributed.env_keys(key, config.run.num_envs, devices), cur.init(config.curriculum))
+        ts = replicate_for_pmap(init_training_state(config, learner.networks, key, env.observation_size), devices)
+        totals, before = [], len(compiles)
+        for epoch in range(2):
+            if epoch == 1:
+                before = len(compiles)
+            ts, state, out = learner.epoch(ts, state, distributed.epoch_keys(jax.random.PRNGKey(20 + epoch), devices))
+            totals.append({k: float(np.asarray(v)[0]) for k, v in jax.device_get(out["totals"]).items()})
+        runs[name] = (jax.device_get((ts, state.curriculum)), totals, len(compiles) - before)
+    (ts_a, cs_a), totals_a, _ = runs["pmap"]
+    (ts_b, cs_b), totals_b, recompiles = runs["per_device"]
+    gap = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in
+              zip(jax.tree.leaves(ts_a), jax.tree.leaves(ts_b)))
+    curriculum_equal = all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(cs_a), jax.tree.leaves(cs_b)))
+    return {"same_run_param_gap": gap, "same_run_curriculum_equal": curriculum_equal,
+            "same_run_totals": [totals_a, totals_b], "same_run_episodes": int(np.asarray(cs_b.episode_count)[0]),
+            "per_device_second_epoch_compiles": recompiles}
+
+
 def _learner_facts(config_path: str, compiles: list) -> dict:
     """Goals per device after the trainer's reset; recompiles at the second epoch; replicas after it."""
     import jax
@@ -72,15 +107,14 @@ def _learner_facts(config_path: str, compiles: list) -> dict:
     from hsa_mjx.env import HSAEnv
     from train import config as tcfg
     from train import distributed
-    from train.ppo import PPOLearner, init_training_state, replicate
+    from train.ppo import PPOLearner, init_training_state
     from train.trainer import replicate_for_pmap
     config = tcfg.load(config_path)
     devices = jax.local_devices()
     env = HSAEnv(config.env)
     learner = PPOLearner(config, env, len(devices))
     key = jax.random.PRNGKey(3)
-    state = learner.reset(distributed.env_keys(key, config.run.num_envs, devices),
-                          replicate(cur.init(config.curriculum), devices))
+    state = learner.reset(distributed.env_keys(key, config.run.num_envs, devices), cur.init(config.curriculum))
     goals = np.asarray(state.env.pipeline_state.task.goal_xy)
     ts = replicate_for_pmap(init_training_state(config, learner.networks, key, env.observation_size), devices)
     ts, state, _ = learner.epoch(ts, state, distributed.epoch_keys(key, devices))
@@ -153,6 +187,11 @@ def scenario_two_devices(config_path: str, run_dir: str, port: str) -> dict:
              "saved_resume": saved[len(saved_first):]}
     facts.update(_refusals(config_path, Path(run_dir).parent, compiles))
     facts.update(_learner_facts(config_path, compiles))
+    facts.update(_same_run_facts(config_path, compiles))
+    per_device_dir = str(Path(run_dir).parent / "run_per_device")
+    facts["rc_per_device"] = main(["--config", config_path, "--run-dir", per_device_dir, "--quiet",
+                                   "--set", "run.multi_device=per_device"])
+    facts["per_device_run_dir"] = per_device_dir
     facts.update(_terrain_facts())
     facts.update(_curriculum_facts())
     return facts
@@ -282,6 +321,35 @@ def test_envs_differ_across_devices(two_devices):
     assert len(differences) == 4 and min(differences) > 1e-3  # no env of device 0 shares a terrain with device 1
 
 
+def test_per_device_learner_trains_exactly_like_pmap(two_devices):
+    """One jitted collection per device (train/per_device.py) gives the pmap epoch's results."""
+    facts, _ = two_devices
+    assert facts["same_run_param_gap"] < 1e-5  # learner parameters, optimiser and normaliser after 2 epochs
+    assert facts["same_run_curriculum_equal"]
+    pmap_totals, per_device_totals = facts["same_run_totals"]
+    for a, b in zip(pmap_totals, per_device_totals):
+        assert a.keys() == b.keys()
+        for key in a:
+            assert b[key] == pytest.approx(a[key], rel=1e-5, abs=1e-5), key
+    assert facts["same_run_episodes"] == 8 and pmap_totals[1]["episodes"] == 8  # both devices' episodes counted
+    assert facts["per_device_second_epoch_compiles"] == 0
+
+
+def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
+    from train import checkpoint
+    facts, run_dir = two_devices
+    assert facts["rc_per_device"] == 0
+    per_device_dir = Path(facts["per_device_run_dir"])
+    assert [p.name for p in checkpoint.list_checkpoints(per_device_dir)] == ["step_000000000080", "step_000000000160"]
+    pmap_records = [r for r in _records(run_dir) if r["step"] <= 160]
+    records = _records(per_device_dir)
+    assert [r["step"] for r in records] == [r["step"] for r in pmap_records] == [80, 160]
+    for mine, theirs in zip(records, pmap_records):
+        for key in (k for k in COMPARED_METRICS if k in theirs):
+            assert mine[key] == pytest.approx(theirs[key], rel=1e-4, abs=1e-6), (mine["step"], key)
+    assert "episode/return" in records[-1]
+
+
 def test_no_recompile_at_the_second_epoch(two_devices):
     assert two_devices[0]["second_epoch_compiles"] == 0
 
@@ -338,6 +406,7 @@ def test_scaling_benchmark_smoke(tmp_path):
         for key in ("env_steps_per_s", "ppo_env_steps_per_s", "collect_env_steps_per_s"):
             assert row[key] > 0, key
         assert 0 <= row["update_fraction"] < 1 and row["gpu"] == "cpu" and row["versions"]["jax"]
+        assert row["multi_device"] == "pmap"  # run.multi_device auto: pmap on CPU devices
     assert rows[0]["speedup_ppo_env_steps_per_s"] == 1.0 and rows[0]["efficiency_env_steps_per_s"] == 1.0
     two = rows[1]
     assert two["efficiency_ppo_env_steps_per_s"] == pytest.approx(two["speedup_ppo_env_steps_per_s"] / 2, abs=1e-3)

@@ -133,3 +133,32 @@ def test_compat_shim_replicates_onto_devices(monkeypatch):
     assert compat.install() is False  # already present: nothing replaced
     summed = jax.pmap(lambda t: t["a"].sum() + t["b"])(out)
     np.testing.assert_allclose(summed, [10.0] * len(devices))
+
+
+def test_incompatibilities_keys_added_later_match_their_default():
+    """A checkpoint written before a config key existed resumes when that key keeps its default."""
+    defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({}))))
+    saved = json.loads(json.dumps(defaults))
+    del saved["env"]["termination"]["qacc_every_substep"]
+    assert checkpoint.incompatibilities(saved, defaults, defaults) == []
+    changed = tcfg.to_dict(tcfg.from_dict({"env": {"termination": {"qacc_every_substep": True}}}))
+    assert checkpoint.incompatibilities(saved, json.loads(json.dumps(changed)), defaults) == [
+        "env.termination.qacc_every_substep"]
+    assert checkpoint.incompatibilities(saved, defaults) == ["env.termination.qacc_every_substep"]
+
+
+def test_multi_device_option_is_checked_and_resolved():
+    import jax
+    from train.per_device import use_per_device
+    with pytest.raises(ValueError, match=r"run.multi_device.*'pmap', 'per_device'"):
+        tcfg.from_dict({"run": {"multi_device": "shard_map"}})
+    cpu = jax.devices("cpu")[:1]
+
+    class FakeGpu:
+        platform = "gpu"
+
+    for mode, devices, expected in (("auto", cpu, False), ("auto", [FakeGpu()], False),
+                                    ("auto", [FakeGpu(), FakeGpu()], True), ("per_device", cpu, True),
+                                    ("pmap", [FakeGpu(), FakeGpu()], False)):
+        config = tcfg.from_dict({"run": {"multi_device": mode}})
+        assert use_per_device(config, devices) is expected, (mode, len(devices))

@@ -100,8 +100,14 @@ def test_evaluate_writes_summary_and_plots(run_dir):
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0
     assert result["mean_final_distance"] > 0
+    assert result["policy"] == "deterministic" and result["max_steps"] == 12
+    ends = sum(v for k, v in result.items() if k.startswith("termination/"))
+    assert 0.0 <= result["not_finished"] <= 1.0 and ends + result["not_finished"] >= 1.0 - 1e-6  # every episode
     for name in ("actions.png", "joints.png", "constraint.png", "trajectories.png"):
         assert (run_dir / "eval" / name).stat().st_size > 5_000
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--stochastic"]) == 0
+    sampled = json.loads((run_dir / "eval" / "eval.json").read_text())
+    assert sampled["policy"] == "stochastic" and sampled["episodes"] == 2
     assert main([str(run_dir / "missing")]) == 2
 
 

@@ -126,21 +126,34 @@ def _check_shapes(template: Any, restored: Any, path: Path) -> None:
                              f"has shape {got.shape}, expected {np.shape(want)}")
 
 
-def incompatibilities(saved: dict, current: dict) -> list[str]:
-    """Config keys whose change makes a checkpoint unusable for resuming (empty list: compatible)."""
+def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) -> list[str]:
+    """Config keys whose change makes a checkpoint unusable for resuming (empty list: compatible).
+
+    A key the saved config lacks (added to the code after the checkpoint was written) is
+    compatible when its current value equals its value in ``defaults`` (the default config).
+    """
+    defaults = defaults or {}
     problems = []
     for section in COMPATIBLE_SECTIONS:
-        problems += [f"{section}.{k}" for k in _diff(saved.get(section, {}), current.get(section, {}))]
+        problems += [f"{section}.{k}" for k in _diff(saved.get(section, {}), current.get(section, {}),
+                                                     defaults.get(section, {}))]
     ppo_saved, ppo_now = saved.get("ppo", {}), current.get("ppo", {})
     problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k) != ppo_now.get(k)]
     return problems
 
 
-def _diff(a: Any, b: Any, prefix: str = "") -> list[str]:
-    """Dotted keys where two nested dicts differ."""
+_ABSENT = object()
+
+
+def _diff(a: Any, b: Any, default: Any = _ABSENT, prefix: str = "") -> list[str]:
+    """Dotted keys where two nested dicts differ (a key missing from ``a`` matches ``default``)."""
     if isinstance(a, dict) and isinstance(b, dict):
         out = []
+        default = default if isinstance(default, dict) else {}
         for key in sorted(set(a) | set(b)):
-            out += _diff(a.get(key), b.get(key), f"{prefix}{key}.")
+            d = default.get(key, _ABSENT)
+            if key not in a and key in b and d is not _ABSENT and b[key] == d:
+                continue
+            out += _diff(a.get(key), b.get(key), d, f"{prefix}{key}.")
         return out
     return [] if a == b else [prefix.rstrip(".")]

@@ -52,6 +52,9 @@ class PPOConfig:
     init_noise_std: float = 1.0
 
 
+MULTI_DEVICE = ("auto", "pmap", "per_device")
+
+
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
     """Run length, batch, seed and the cadence of logs and checkpoints."""
@@ -64,6 +67,9 @@ class RunConfig:
     checkpoint_every: int = 1_000_000  # env steps between checkpoints
     keep_checkpoints: int = 3
     num_devices: int = 0  # local devices to use; 0 = all
+    # how several devices share the work: "pmap" (one pmapped epoch), "per_device" (one env
+    # collection per GPU, pmapped update; train/per_device.py), "auto" (per_device on 2+ GPUs)
+    multi_device: str = "auto"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,6 +124,8 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
     for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
         if getattr(run, key) < 1:
             raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if run.multi_device not in MULTI_DEVICE:
+        raise ValueError(f"config key 'run.multi_device' = {run.multi_device!r}; choose one of {list(MULTI_DEVICE)}")
     if config.curriculum.enabled and config.env.goal.mode != "radial":
         raise ValueError("curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum "
                          f"range), got {config.env.goal.mode!r}; set curriculum.enabled: false or env.goal.mode: radial")

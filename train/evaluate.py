@@ -1,8 +1,9 @@
 """Evaluate a trained run: ``python -m train.evaluate RUN_DIR [--episodes N] [--video]``.
 
 Loads the run's config and latest checkpoint, runs N episodes at once on the device with the
-deterministic policy (each env plays exactly one episode), prints success rate, mean final
-distance and mean speed, and writes the diagnostic plots (and optionally a GIF/MP4) into
+deterministic policy (its mean action; ``--stochastic`` samples as in training; each env plays
+exactly one episode), prints success rate, mean final distance, mean speed and how the episodes
+ended (termination reasons, ``not_finished`` at the step cap), and writes the diagnostic plots (and optionally a GIF/MP4) into
 ``RUN_DIR/eval/``.
 """
 
@@ -18,14 +19,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from hsa_mjx import curriculum as cur
-from hsa_mjx import observation
+from hsa_mjx import observation, termination
 from hsa_mjx.env import HSAEnv
 from train import checkpoint
 from train import config as tcfg
 
 
-def load_policy(run_dir: Path, checkpoint_path: Path | None = None):
-    """(config, env, deterministic policy fn, checkpoint path, step) of a run."""
+def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True):
+    """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training."""
     from train.ppo import init_training_state, make_networks
     from brax.training.agents.ppo import networks as ppo_networks
     path = checkpoint_path or checkpoint.latest(run_dir)
@@ -38,7 +39,7 @@ def load_policy(run_dir: Path, checkpoint_path: Path | None = None):
                 "rng": jax.random.PRNGKey(0)}
     restored = checkpoint.load(path, template)
     ts = jax.tree.map(jnp.asarray, restored["training_state"])
-    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
+    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
     return config, env, policy, path, int(meta["step"])
 
 
@@ -49,9 +50,9 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
     def one(key):
         state = env.reset_with_goal_range(key, goal_range)
 
-        def step(carry, _):
+        def step(carry, k_act):
             s, alive = carry
-            action, _ = policy(s.obs, jax.random.PRNGKey(0))
+            action, _ = policy(s.obs, k_act)
             ns = env.step(s, action)
             ns = jax.tree.map(lambda new, old: jnp.where(alive, new, old), ns, s)
             data = ns.pipeline_state.physics
@@ -59,10 +60,11 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
                      "joint_pos": observation.joint_positions(data, idx),
                      "joint_vel": observation.joint_velocities(data, idx), "qpos": data.qpos,
                      "goal": ns.pipeline_state.task.goal_xy, "distance": ns.metrics["distance_to_goal"],
-                     "success": ns.metrics["termination/goal_reached"], "done": ns.done}
+                     "success": ns.metrics["termination/goal_reached"], "done": ns.done,
+                     "reasons": jnp.stack([ns.metrics[f"termination/{r}"] for r in termination.REASONS])}
             return (ns, alive & (ns.done < 0.5)), trace
 
-        (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), None, length=steps)
+        (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), jax.random.split(jax.random.fold_in(key, 1), steps))
         traces["start_xy"] = observation.robot_xy(state.pipeline_state.physics, idx)
         return traces
 
@@ -79,9 +81,13 @@ def summarize(traces: dict[str, np.ndarray], dt: float) -> dict[str, float]:
     success = traces["success"][rows, last] > 0.5
     displacement = np.linalg.norm(final_xy - traces["start_xy"], axis=-1)
     speed = displacement / np.maximum(length * dt, dt)
+    ended = traces["done"][rows, last] > 0.5
+    reasons = traces["reasons"][rows, last] > 0.5  # (episodes, reasons)
+    ends = {f"termination/{r}": float(np.mean(ended & reasons[:, i])) for i, r in enumerate(termination.REASONS)}
     return {"episodes": int(alive.shape[0]), "success_rate": float(success.mean()),
             "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
-            "mean_episode_steps": float(length.mean())}
+            "mean_episode_steps": float(length.mean()), **{k: v for k, v in ends.items() if v > 0},
+            "not_finished": float(np.mean(~ended))}
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -92,6 +98,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--steps", type=int, default=0, help="max steps per episode (0: the env's max_episode_steps)")
     parser.add_argument("--goal-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                         help="radial goal distance range (default: the curriculum's target range)")
+    parser.add_argument("--stochastic", action="store_true",
+                        help="sample actions from the policy as in training (default: its mean action)")
     parser.add_argument("--video", action="store_true", help="render the first episode to eval/episode.gif")
     parser.add_argument("--seed", type=int, default=1)
     return parser.parse_args(argv)
@@ -106,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         run_dir = Path(args.run_dir)
         if not run_dir.is_dir():
             raise FileNotFoundError(f"run directory not found: {run_dir}")
-        config, env, policy, path, step = load_policy(run_dir)
+        config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -115,7 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
     traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
     traces = {k: np.asarray(v) for k, v in traces.items()}
-    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range), **summarize(traces, env.dt)}
+    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range),
+              "policy": "stochastic" if args.stochastic else "deterministic", "max_steps": steps,
+              **summarize(traces, env.dt)}
     out = run_dir / "eval"
     out.mkdir(exist_ok=True)
     from train import diagnostics

@@ -6,7 +6,10 @@ curriculum lives) never reaches a callback. This module keeps Brax's PPO pieces
 (``ppo.networks``, ``ppo.losses.compute_ppo_loss``, ``gradients.gradient_update_fn``, running
 observation statistics) and exposes one jitted, ``pmap``-ed training epoch whose whole state is a
 pytree the caller can save and restore. Multi-device: the batch of envs is split over local
-devices; gradients, observation statistics and curriculum outcomes are reduced over them.
+devices; gradients, observation statistics and curriculum outcomes are reduced over them. The
+epoch is built from two pure pieces, ``_collect`` (policy and env steps) and ``_learn``
+(statistics, curriculum, SGD); ``train/per_device.py`` runs the same pieces with the collection
+jitted per GPU (``run.multi_device``).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
+from hsa_mjx import curriculum as cur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.training_env import AutoResetEnv, BatchState
 from train import compat
@@ -78,7 +82,8 @@ class PPOLearner:
 
     def __init__(self, config: TrainConfig, env: HSAEnv, num_devices: int):
         self.config, self.env, self.num_devices = config, env, num_devices
-        self.batch_env = AutoResetEnv(env, config.curriculum, axis_name=AXIS)
+        # the curriculum learns from each collection's outcomes in ``_learn`` (gathered over devices)
+        self.batch_env = AutoResetEnv(env, config.curriculum, step_curriculum=False)
         self.networks = make_networks(config, env.observation_size, env.action_size)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(config)
@@ -93,8 +98,23 @@ class PPOLearner:
             vf_coefficient=ppo.vf_loss_coefficient)
         self.update_fn = gradients.gradient_update_fn(self.loss_fn, self.optimizer, pmap_axis_name=AXIS,
                                                       has_aux=True)
-        self.reset = jax.pmap(self.batch_env.reset, axis_name=AXIS)
-        self.epoch = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self.reset_fn = jax.pmap(self.batch_env.reset, axis_name=AXIS)
+        self.epoch_fn = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self.collect_epoch_fn = jax.pmap(self._collect_epoch, axis_name=AXIS)
+
+    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState) -> BatchState:
+        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)."""
+        devices = jax.local_devices()[:env_keys.shape[0]]
+        return self.reset_fn(jax.device_put(env_keys), replicate(curriculum, devices))
+
+    def epoch(self, ts: TrainingState, state: BatchState, keys: jax.Array):
+        """``iterations_per_epoch`` PPO iterations on every device (one key per device); returns
+        (ts, state, {"totals": episode totals summed over devices, "losses": mean losses per device})."""
+        return self.epoch_fn(ts, state, keys)
+
+    def collect_epoch(self, ts: TrainingState, state: BatchState, keys: jax.Array):
+        """The epoch's collections alone, no learning (for timing the update's share)."""
+        return self.collect_epoch_fn(ts, state, keys)
 
     @property
     def env_steps_per_epoch(self) -> int:
@@ -102,7 +122,8 @@ class PPOLearner:
         return self.iterations_per_epoch * self.config.env_steps_per_iteration
 
     # ----- rollout ------------------------------------------------------------------------
-    def _unroll(self, ts: TrainingState, state: BatchState, key: jax.Array) -> tuple[BatchState, types.Transition]:
+    def _unroll(self, ts: TrainingState, state: BatchState, key: jax.Array,
+                batch_env: AutoResetEnv) -> tuple[BatchState, types.Transition]:
         """``unroll_length`` steps of every env under the current stochastic policy."""
         policy = self.make_policy((ts.normalizer, ts.params.policy))
 
@@ -110,22 +131,26 @@ class PPOLearner:
             s, k = carry
             k, k_act = jax.random.split(k)
             actions, extras = policy(s.obs, k_act)
-            ns = self.batch_env.step(s, actions)
+            ns = batch_env.step(s, actions)
+            state_extras = {"truncation": ns.env.info["truncation"], "episode_done": ns.env.done,
+                            "goal_reached": ns.env.metrics["termination/goal_reached"]}
             transition = types.Transition(
                 observation=s.obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
-                next_observation=ns.env.obs,
-                extras={"policy_extras": extras, "state_extras": {"truncation": ns.env.info["truncation"]}})
+                next_observation=ns.env.obs, extras={"policy_extras": extras, "state_extras": state_extras})
             return (ns, k), transition
 
         (state, _), data = jax.lax.scan(step, (state, key), None, length=self.config.ppo.unroll_length)
         return state, data
 
-    def _collect(self, ts: TrainingState, state: BatchState, key: jax.Array) -> tuple[BatchState, types.Transition]:
-        """Several unrolls, reshaped to (sequences, unroll_length, ...)."""
+    def _collect(self, ts: TrainingState, state: BatchState, key: jax.Array,
+                 batch_env: AutoResetEnv | None = None) -> tuple[BatchState, types.Transition]:
+        """Several unrolls, reshaped to (sequences, unroll_length, ...), sequences unroll-major."""
+        batch_env = batch_env or self.batch_env
+
         def one(carry, _):
             s, k = carry
             k, k_unroll = jax.random.split(k)
-            s, data = self._unroll(ts, s, k_unroll)
+            s, data = self._unroll(ts, s, k_unroll, batch_env)
             return (s, k), data
 
         (state, _), data = jax.lax.scan(one, (state, key), None, length=self.unrolls_per_iteration)
@@ -155,23 +180,49 @@ class PPOLearner:
         carry, metrics = jax.lax.scan(self._minibatch_step, (params, opt_state, normalizer, key, skipped), shuffled)
         return carry, metrics
 
-    def _iteration(self, carry, _):
-        """Collect, update observation statistics, then ``num_updates_per_batch`` SGD passes."""
-        ts, state, key = carry
-        key, k_collect, k_sgd = jax.random.split(key, 3)
-        state, data = self._collect(ts, state, k_collect)
+    def _curriculum(self, cstate: cur.CurriculumState, data: types.Transition) -> cur.CurriculumState:
+        """Feed the collection's episode ends to the curriculum in step order, all devices' envs per step.
+
+        The same sequence of updates as one update per env step with outcomes gathered over the
+        devices; only the goals of episodes that start during the collection use the range from its
+        start (a lag of at most ``unroll_length x unrolls`` steps, see docs/training.md).
+        """
+        if not self.config.curriculum.enabled:
+            return cstate
+        unrolls, length = self.unrolls_per_iteration, self.config.ppo.unroll_length
+
+        def step_major(x: jax.Array) -> jax.Array:  # (unrolls * B, T) -> (unrolls * T, B)
+            x = jnp.swapaxes(x.reshape((unrolls, -1, length)), 1, 2)
+            return jax.lax.all_gather(x.reshape((unrolls * length, -1)), AXIS, axis=1, tiled=True)
+
+        extras = data.extras["state_extras"]
+        outcomes = (step_major(extras["goal_reached"]) > 0, step_major(extras["episode_done"]) > 0)
+        update = lambda c, sd: (cur.update(c, sd[0], sd[1], self.config.curriculum), None)  # noqa: E731
+        return jax.lax.scan(update, cstate, outcomes)[0]
+
+    def _learn(self, ts: TrainingState, cstate: cur.CurriculumState, data: types.Transition,
+               key: jax.Array) -> tuple[TrainingState, cur.CurriculumState, dict]:
+        """Observation statistics, curriculum, then ``num_updates_per_batch`` SGD passes over ``data``."""
         obs = data.observation.reshape((-1, data.observation.shape[-1]))
         finite = jnp.all(jnp.isfinite(obs), axis=-1)
         normalizer = ts.normalizer
         if self.config.ppo.normalize_observations:
             normalizer = running_statistics.update(normalizer, jnp.where(finite[:, None], obs, 0.0),
                                                    weights=finite.astype(jnp.float32), pmap_axis_name=AXIS)
-        carry = (ts.params, ts.optimizer_state, normalizer, k_sgd, jnp.zeros(()))
+        carry = (ts.params, ts.optimizer_state, normalizer, key, jnp.zeros(()))
         (params, opt_state, _, _, skipped), metrics = jax.lax.scan(
             functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch)
         metrics = jax.tree.map(jnp.mean, metrics)
         metrics["skipped_updates"] = skipped
-        return (TrainingState(params, opt_state, normalizer), state, key), metrics
+        return TrainingState(params, opt_state, normalizer), self._curriculum(cstate, data), metrics
+
+    def _iteration(self, carry, _):
+        """Collect, then learn from the collection; new episodes see the updated curriculum."""
+        ts, state, key = carry
+        key, k_collect, k_sgd = jax.random.split(key, 3)
+        state, data = self._collect(ts, state, k_collect)
+        ts, cstate, metrics = self._learn(ts, state.curriculum, data, k_sgd)
+        return (ts, state.replace(curriculum=cstate), key), metrics
 
     def _epoch(self, ts: TrainingState, state: BatchState, key: jax.Array):
         """``iterations_per_epoch`` PPO iterations; returns the drained episode totals and losses."""
@@ -181,6 +232,18 @@ class PPOLearner:
         totals = jax.lax.psum(totals, AXIS)
         metrics = jax.tree.map(jnp.mean, metrics)
         return ts, state, {"totals": totals, "losses": metrics}
+
+
+    def _collect_epoch(self, ts: TrainingState, state: BatchState, key: jax.Array):
+        """``iterations_per_epoch`` collections with the same keys as ``_epoch``, without learning."""
+        def one(carry, _):
+            state, key = carry
+            key, k_collect, _ = jax.random.split(key, 3)
+            state, data = self._collect(ts, state, k_collect)
+            return (state, key), sum(jnp.sum(x) for x in jax.tree.leaves(data))  # keep every output live
+
+        (state, _), _ = jax.lax.scan(one, (state, key), None, length=self.iterations_per_epoch)
+        return ts, state
 
 
 def replicate(tree: Any, devices: list) -> Any:

@@ -23,7 +23,8 @@ from hsa_mjx.training_env import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar
-from train.ppo import AXIS, PPOLearner, TrainingState, init_training_state, replicate, unreplicate
+from train.per_device import make_learner
+from train.ppo import AXIS, TrainingState, init_training_state, replicate, unreplicate
 
 
 class _StopFlag:
@@ -96,7 +97,8 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | No
         path = checkpoint.latest(run_dir)
         meta = checkpoint.read_meta(path)
         now = json.loads(json.dumps(config_dict))
-        bad = checkpoint.incompatibilities(meta["config"], now)
+        defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
+        bad = checkpoint.incompatibilities(meta["config"], now, defaults)
         if bad:
             raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
                              f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
@@ -115,7 +117,7 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     devices = select_devices(config)
     meta = prepare_run_dir(run_dir, config_dict, resume)
     env = HSAEnv(config.env)
-    learner = PPOLearner(config, env, distributed.global_device_count(devices))
+    learner = make_learner(config, env, devices)
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
     ts = init_training_state(config, learner.networks, k_init, env.observation_size)
@@ -128,7 +130,7 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
-    state = learner.reset(jax.device_put(env_keys), replicate(cstate, devices))
+    state = learner.reset(env_keys, cstate)
     return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet)
 
 

@@ -1,0 +1,174 @@
+"""Multi-GPU PPO without ``pmap`` over the physics: one compiled env collection per GPU, one host thread each.
+
+Why: on the H200s (jaxlib 0.11.2) every ``pmap`` of MJX's Newton solver over two or more GPUs
+crashes XLA's GPU compiler, while the same collection compiles for one GPU and the learning step
+(networks, no MJX) compiles under ``pmap`` (``benchmarks/results/multi_gpu_h200/``). So:
+
+- each GPU gets its own env copy (model and data on that GPU) and its own jitted collection
+  (``PPOLearner._collect``); JAX's persistent compilation cache ignores which GPU a program is
+  for, so the copies after the first load from it;
+- one host thread per GPU calls it: MJX's solver ``while_loop`` makes a GPU call wait for the
+  loop to finish, so a single thread would run the GPUs one after another;
+- the learning step (observation statistics, curriculum over every GPU's outcomes in step order,
+  SGD with gradients averaged over the GPUs) is ``PPOLearner._learn`` under ``pmap``;
+- data moves between the two as the per-GPU pieces of one array (no copy, no host round-trip).
+
+Same random streams and update order as the ``pmap`` epoch: both give the same training run
+(tests/test_multi_device.py compares them on fake CPU devices).
+"""
+
+from __future__ import annotations
+
+import functools
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Callable, Sequence
+
+import jax
+import numpy as np
+from flax import struct
+from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
+
+from hsa_mjx import curriculum as cur
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.training_env import AutoResetEnv, BatchState
+from train.config import TrainConfig
+from train.ppo import AXIS, PPOLearner, TrainingState
+
+
+@struct.dataclass
+class DeviceStates:
+    """The env batches of every GPU (each on its GPU) and the curriculum (one copy per GPU, ``pmap`` layout)."""
+
+    envs: tuple[BatchState, ...]
+    curriculum: cur.CurriculumState
+
+
+def split(tree: Any, devices: Sequence[jax.Device]) -> list[Any]:
+    """The per-device pieces (leading axis 1) of arrays laid out one slice per device, in ``devices`` order."""
+    leaves, treedef = jax.tree.flatten(tree)
+    pieces = []
+    for leaf in leaves:
+        by_device = {shard.device: shard.data for shard in leaf.addressable_shards}
+        pieces.append([_single(by_device[d], d) for d in devices])
+    return [treedef.unflatten([p[i] for p in pieces]) for i in range(len(devices))]
+
+
+def _single(x: jax.Array, device: jax.Device) -> jax.Array:
+    """``x`` as a plain one-device array (the piece of a one-device mesh keeps the mesh's sharding, and
+    a jitted function would compile again for it)."""
+    return x if isinstance(x.sharding, SingleDeviceSharding) else jax.device_put(x, SingleDeviceSharding(device))
+
+
+def stack(trees: Sequence[Any], devices: Sequence[jax.Device]) -> Any:
+    """One array per leaf from per-device pieces (leading axis 1, piece i on device i), without copying."""
+    sharding = NamedSharding(Mesh(np.array(devices), (AXIS,)), PartitionSpec(AXIS))
+
+    def assemble(*pieces: jax.Array) -> jax.Array:
+        return jax.make_array_from_single_device_arrays((len(pieces),) + pieces[0].shape[1:], sharding, list(pieces))
+
+    return jax.tree.map(assemble, *trees)
+
+
+def _lead(tree: Any) -> Any:
+    """Add a leading axis of 1 (inside jit)."""
+    return jax.tree.map(lambda x: x[None], tree)
+
+
+def _unlead(tree: Any) -> Any:
+    """Drop the leading axis of 1 (inside jit)."""
+    return jax.tree.map(lambda x: x[0], tree)
+
+
+def _drain_piece(state: BatchState) -> tuple[BatchState, dict]:
+    """One GPU's drained state and its totals with a leading device axis of 1."""
+    state, totals = AutoResetEnv.drain(state)
+    return state, _lead(totals)
+
+
+class PerDeviceLearner(PPOLearner):
+    """:class:`PPOLearner` whose ``reset``/``epoch`` run the env collection per GPU (see module doc).
+
+    Args:
+        config: the training config.
+        env: the single-env :class:`HSAEnv` (networks and sizes; each GPU builds its own copy).
+        devices: this process's devices to use.
+    """
+
+    def __init__(self, config: TrainConfig, env: HSAEnv, devices: Sequence[jax.Device]):
+        super().__init__(config, env, len(devices) * jax.process_count())
+        self.devices = list(devices)
+        self.batch_envs = []
+        for device in self.devices:
+            with jax.default_device(device):
+                self.batch_envs.append(AutoResetEnv(HSAEnv(config.env), config.curriculum, step_curriculum=False))
+        donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated
+        self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b), donate_argnums=donate)
+                            for b in self.batch_envs]
+        self.reset_fns = [jax.jit(b.reset) for b in self.batch_envs]
+        self.drain_fn = jax.jit(_drain_piece)
+        self.learn_fn = jax.pmap(self._learn, axis_name=AXIS)
+        self.sum_fn = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
+        self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
+
+    def _on_each(self, fn: Callable, *per_device: Sequence) -> list:
+        """``fn(i, *args_i)`` for every device at once, one thread each; the results in device order."""
+        futures = [self.pool.submit(fn, i, *(args[i] for args in per_device)) for i in range(len(self.devices))]
+        return [f.result() for f in futures]
+
+    def _collect_piece(self, ts: TrainingState, cstate: cur.CurriculumState, state: BatchState, key: jax.Array,
+                       batch_env: AutoResetEnv):
+        """One GPU's collection (arguments and outputs with a leading device axis of 1, ``state`` without)."""
+        ts, cstate, key = _unlead((ts, cstate, key))
+        key, k_collect, k_sgd = jax.random.split(key, 3)
+        state, data = self._collect(ts, state.replace(curriculum=cstate), k_collect, batch_env)
+        return state, _lead((data, key, k_sgd))
+
+    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState) -> DeviceStates:
+        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)."""
+        keys, host = np.asarray(env_keys), jax.device_get(curriculum)
+        envs = self._on_each(lambda i, k: self.reset_fns[i](jax.device_put(k, self.devices[i]),
+                                                            jax.device_put(host, self.devices[i])), keys)
+        pieces = [jax.device_put(jax.tree.map(lambda x: np.asarray(x)[None], host), d) for d in self.devices]
+        return DeviceStates(envs=tuple(envs), curriculum=stack(pieces, self.devices))
+
+    def epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
+        """``iterations_per_epoch`` PPO iterations; returns (ts, states, drained totals and mean losses)."""
+        keys = [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
+        envs, cstate, losses = list(states.envs), states.curriculum, []
+        for _ in range(self.iterations_per_epoch):
+            outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices),
+                                 split(cstate, self.devices), envs, keys)
+            envs, keys = [o[0] for o in outs], [o[1][1] for o in outs]
+            data, k_sgd = stack([o[1][0] for o in outs], self.devices), stack([o[1][2] for o in outs], self.devices)
+            ts, cstate, metrics = self.learn_fn(ts, cstate, data, k_sgd)
+            losses.append(metrics)
+        drained = self._on_each(lambda i, s: self.drain_fn(s), envs)
+        totals = self.sum_fn(stack([d[1] for d in drained], self.devices))
+        losses = jax.tree.map(lambda *xs: np.mean(np.stack([np.asarray(x) for x in xs]), axis=0), *losses)
+        return ts, DeviceStates(envs=tuple(d[0] for d in drained), curriculum=cstate), {"totals": totals,
+                                                                                        "losses": losses}
+
+    def collect_epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
+        """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling)."""
+        keys = [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
+        envs, cs = list(states.envs), split(states.curriculum, self.devices)
+        for _ in range(self.iterations_per_epoch):
+            outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices), cs, envs, keys)
+            envs, keys = [o[0] for o in outs], [o[1][1] for o in outs]
+        jax.block_until_ready(envs)
+        return ts, DeviceStates(envs=tuple(envs), curriculum=states.curriculum)
+
+
+def use_per_device(config: TrainConfig, devices: Sequence[jax.Device]) -> bool:
+    """Whether ``run.multi_device`` (``auto``: several local GPUs) picks :class:`PerDeviceLearner`."""
+    mode = config.run.multi_device
+    if mode == "auto":
+        return len(devices) > 1 and devices[0].platform == "gpu"
+    return mode == "per_device"
+
+
+def make_learner(config: TrainConfig, env: HSAEnv, devices: Sequence[jax.Device]) -> PPOLearner:
+    """The learner ``run.multi_device`` asks for over ``devices`` (this process's share)."""
+    if use_per_device(config, devices):
+        return PerDeviceLearner(config, env, devices)
+    return PPOLearner(config, env, len(devices) * jax.process_count())
