@@ -3,7 +3,8 @@
 Loads the run's config and latest checkpoint, runs N episodes at once on the device with the
 deterministic policy (its mean action; ``--stochastic`` samples as in training; each env plays
 exactly one episode), prints success rate, mean final distance, mean speed and how the episodes
-ended (termination reasons, ``not_finished`` at the step cap), and writes the diagnostic plots (and optionally a GIF/MP4) into
+ended (termination reasons, ``not_finished`` at the step cap), and writes the diagnostic plots
+(and optionally a GIF/MP4) into
 ``RUN_DIR/eval/``.
 """
 
@@ -64,7 +65,8 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
                      "reasons": jnp.stack([ns.metrics[f"termination/{r}"] for r in termination.REASONS])}
             return (ns, alive & (ns.done < 0.5)), trace
 
-        (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), jax.random.split(jax.random.fold_in(key, 1), steps))
+        act_keys = jax.random.split(jax.random.fold_in(key, 1), steps)
+        (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), act_keys)
         traces["start_xy"] = observation.robot_xy(state.pipeline_state.physics, idx)
         return traces
 

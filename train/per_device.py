@@ -7,8 +7,9 @@ crashes XLA's GPU compiler, while the same collection compiles for one GPU and t
 - each GPU gets its own env copy (model and data on that GPU) and its own jitted collection
   (``PPOLearner._collect``); JAX's persistent compilation cache ignores which GPU a program is
   for, so the copies after the first load from it;
-- one host thread per GPU calls it: MJX's solver ``while_loop`` makes a GPU call wait for the
-  loop to finish, so a single thread would run the GPUs one after another;
+- one host thread per GPU calls it: called in turn from one thread (with keys made on GPU 0) the
+  GPUs ran one after another on the H200s, likely because MJX's solver ``while_loop`` holds the
+  calling thread until the loop ends (docs/scaling.md);
 - the learning step (observation statistics, curriculum over every GPU's outcomes in step order,
   SGD with gradients averaged over the GPUs) is ``PPOLearner._learn`` under ``pmap``;
 - data moves between the two as the per-GPU pieces of one array (no copy, no host round-trip).
@@ -115,6 +116,10 @@ class PerDeviceLearner(PPOLearner):
         futures = [self.pool.submit(fn, i, *(args[i] for args in per_device)) for i in range(len(self.devices))]
         return [f.result() for f in futures]
 
+    def _device_keys(self, keys: jax.Array) -> list[jax.Array]:
+        """One key per device (leading axis 1), each made on its own device (no wait on another GPU)."""
+        return [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
+
     def _collect_piece(self, ts: TrainingState, cstate: cur.CurriculumState, state: BatchState, key: jax.Array,
                        batch_env: AutoResetEnv):
         """One GPU's collection (arguments and outputs with a leading device axis of 1, ``state`` without)."""
@@ -133,7 +138,7 @@ class PerDeviceLearner(PPOLearner):
 
     def epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
         """``iterations_per_epoch`` PPO iterations; returns (ts, states, drained totals and mean losses)."""
-        keys = [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
+        keys = self._device_keys(keys)
         envs, cstate, losses = list(states.envs), states.curriculum, []
         for _ in range(self.iterations_per_epoch):
             outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices),
@@ -150,7 +155,7 @@ class PerDeviceLearner(PPOLearner):
 
     def collect_epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
         """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling)."""
-        keys = [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
+        keys = self._device_keys(keys)
         envs, cs = list(states.envs), split(states.curriculum, self.devices)
         for _ in range(self.iterations_per_epoch):
             outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices), cs, envs, keys)
