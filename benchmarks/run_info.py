@@ -14,6 +14,10 @@ from typing import Any
 import jax
 
 
+# environment variables that change speed or numerics: recorded with every result
+SPEED_ENV_VARS = ("XLA_FLAGS", "JAX_DEFAULT_MATMUL_PRECISION", "CUDA_VISIBLE_DEVICES", "JAX_ENABLE_X64")
+
+
 def _version(package: str) -> str | None:
     try:
         return importlib.metadata.version(package)
@@ -69,6 +73,7 @@ def run_info() -> dict[str, Any]:
         "versions": versions(),
         "python": platform.python_version(),
         "command": "python -m " + _module_name() + " " + shlex.join(sys.argv[1:]),
+        "environment": {name: os.environ.get(name) for name in SPEED_ENV_VARS},
         **git_state(),
     }
 

@@ -62,18 +62,20 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
                      "joint_vel": observation.joint_velocities(data, idx), "qpos": data.qpos,
                      "goal": ns.pipeline_state.task.goal_xy, "distance": ns.metrics["distance_to_goal"],
                      "success": ns.metrics["termination/goal_reached"], "done": ns.done,
+                     "checkpoint": ns.metrics["checkpoint_index"],
                      "reasons": jnp.stack([ns.metrics[f"termination/{r}"] for r in termination.REASONS])}
             return (ns, alive & (ns.done < 0.5)), trace
 
         act_keys = jax.random.split(jax.random.fold_in(key, 1), steps)
         (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), act_keys)
         traces["start_xy"] = observation.robot_xy(state.pipeline_state.physics, idx)
+        traces["start_distance"] = state.metrics["distance_to_goal"]
         return traces
 
     return jax.jit(jax.vmap(one))(keys)
 
 
-def summarize(traces: dict[str, np.ndarray], dt: float) -> dict[str, float]:
+def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, float]:
     """Success rate, mean final distance and mean speed over the evaluated episodes."""
     alive = traces["alive"].astype(bool)
     length = alive.sum(axis=1)
@@ -86,8 +88,12 @@ def summarize(traces: dict[str, np.ndarray], dt: float) -> dict[str, float]:
     ended = traces["done"][rows, last] > 0.5
     reasons = traces["reasons"][rows, last] > 0.5  # (episodes, reasons)
     ends = {f"termination/{r}": float(np.mean(ended & reasons[:, i])) for i, r in enumerate(termination.REASONS)}
+    # net progress towards the goal; with spiral checkpoints the goal moves, so count those instead
+    progress = {"mean_checkpoints_collected": float(traces["checkpoint"][rows, last].mean())} if checkpoints \
+        else {"mean_progress_m": float(np.mean(traces["start_distance"] - final_distance))}
     return {"episodes": int(alive.shape[0]), "success_rate": float(success.mean()),
             "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
+            "mean_start_distance": float(traces["start_distance"].mean()), **progress,
             "mean_episode_steps": float(length.mean()), **{k: v for k, v in ends.items() if v > 0},
             "not_finished": float(np.mean(~ended))}
 
@@ -127,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     traces = {k: np.asarray(v) for k, v in traces.items()}
     result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range),
               "policy": "stochastic" if args.stochastic else "deterministic", "max_steps": steps,
-              **summarize(traces, env.dt)}
+              **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral")}
     out = run_dir / "eval"
     out.mkdir(exist_ok=True)
     from train import diagnostics

@@ -5,7 +5,7 @@
 #   bash benchmarks/device/train.sh CONFIG WALL_SECONDS [RESUME_RUN_DIR]
 # TAG names the archive (default: the config's name), SET adds `--set` overrides; several runs can
 # share one machine's GPUs at once with CUDA_VISIBLE_DEVICES and distinct TAGs. EVAL_S bounds the
-# evaluation (default 240 s; 0 skips it).
+# evaluation (default 240 s; 0 skips it), EVAL_EPISODES its episode count (default 128).
 # Training gets SIGINT after WALL_SECONDS (it finishes the epoch and writes a checkpoint).
 # With RESUME_RUN_DIR (a run dir carried to the device) the run continues from its checkpoint.
 set -u
@@ -27,7 +27,7 @@ echo "train exit ${PIPESTATUS[0]} after $(( $(date +%s) - start )) s" >> "$out/t
 tail -n 25 "$out/train.log"
 rm -rf "$run/tensorboard"
 if [ "${EVAL_S:-240}" -gt 0 ]; then
-  timeout "${EVAL_S:-240}" python3 -m train.evaluate "$run" --episodes 128 2>&1 | tail -n 20 | tee "$out/eval.log"
+  timeout "${EVAL_S:-240}" python3 -m train.evaluate "$run" --episodes "${EVAL_EPISODES:-128}" 2>&1 | tail -n 20 | tee "$out/eval.log"
 fi
 # the device tool returns few files and few folder levels: pack everything into one archive
 tar czf "${OUT:-/tmp/out}/$name.tgz" -C "${OUT:-/tmp/out}" "$name" && rm -rf "$out"
