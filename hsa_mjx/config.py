@@ -109,6 +109,15 @@ class GoalConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ObservationConfig:
+    """Optional observation entries beyond the original's 24 values."""
+
+    # true appends the heading (cos, sin of yaw, block A -> block B) and the unit vector to the
+    # goal in that heading frame: 28 values. Off keeps the original's 24 (no orientation at all).
+    heading: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
 class EnvConfig:
     """Everything that defines one HSA environment."""
 
@@ -122,6 +131,7 @@ class EnvConfig:
     termination: TerminationConfig = TerminationConfig()
     goal: GoalConfig = GoalConfig()
     terrain: TerrainConfig = TerrainConfig()
+    observation: ObservationConfig = ObservationConfig()
 
     @property
     def dt(self) -> float:
@@ -351,6 +361,6 @@ def get_preset(name: str) -> EnvConfig:
 
 __all__ = [
     "EnvConfig", "PhysicsConfig", "ControlConfig", "RewardConfig", "TerminationConfig",
-    "GoalConfig", "TerrainConfig", "PRESETS", "get_preset", "load_config", "from_dict", "to_dict",
-    "with_overrides", "validate",
+    "GoalConfig", "TerrainConfig", "ObservationConfig", "PRESETS", "get_preset", "load_config",
+    "from_dict", "to_dict", "with_overrides", "validate",
 ]

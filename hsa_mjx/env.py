@@ -63,7 +63,8 @@ class HSAEnv(BraxEnv):
     # ----- Brax Env interface -------------------------------------------------------------
     @property
     def observation_size(self) -> int:
-        return observation.OBSERVATION_SIZE
+        """Observation length: the original's 24, or 28 with ``observation.heading``."""
+        return observation.observation_size(self.config.observation)
 
     @property
     def action_size(self) -> int:
@@ -100,7 +101,7 @@ class HSAEnv(BraxEnv):
             prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
             step_count=jnp.zeros((), jnp.int32), rng=rng, terrain=terrain, terrain_id=terrain_id)
-        obs = observation.observe(data, goal_xy, self.index)
+        obs = observation.observe(data, goal_xy, self.index, self.config.observation)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
@@ -115,7 +116,7 @@ class HSAEnv(BraxEnv):
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
         return state.replace(pipeline_state=SimState(data, task),
-                             obs=observation.observe(data, goal_xy, self.index))
+                             obs=observation.observe(data, goal_xy, self.index, self.config.observation))
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Advance one env step (``frame_skip`` physics steps) with a normalised action."""
@@ -134,7 +135,7 @@ class HSAEnv(BraxEnv):
         task, collected, completed = self._update_goal(task, after)
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.terrain)
         distance, direction = observation.goal_vector(after, task.goal_xy)
-        obs = observation.observe(new_data, task.goal_xy, idx)
+        obs = observation.observe(new_data, task.goal_xy, idx, cfg.observation)
         ground = self.world.ground(task.terrain, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
                                               cfg.termination, idx)

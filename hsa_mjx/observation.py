@@ -1,4 +1,7 @@
-"""The 24-value observation of the original, with block B's velocity read from the right dofs."""
+"""The 24-value observation of the original, with block B's velocity read from the right dofs.
+
+``observation.heading: true`` appends 4 values: the robot's heading and the goal direction in it.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +9,21 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
+from hsa_mjx.config import ObservationConfig
 from hsa_mjx.model import RobotIndex
 
-OBSERVATION_SIZE = 24
+OBSERVATION_SIZE = 24  # the original's observation (the default)
+HEADING_SIZE = 4  # appended by observation.heading
+HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
+ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
 # Slot layout: 0-7 hinge angles, 8-15 hinge velocities, 16-17 robot xy, 18-20 mean block linear
-# velocity, 21 distance to goal, 22-23 unit vector to goal.
+# velocity, 21 distance to goal, 22-23 world-frame unit vector to goal; with observation.heading
+# 24-25 heading (cos yaw, sin yaw), 26-27 unit vector to goal in the heading frame (x ahead, y left).
+
+
+def observation_size(config: ObservationConfig) -> int:
+    """Number of observation values for this observation config."""
+    return OBSERVATION_SIZE + (HEADING_SIZE if config.heading else 0)
 
 
 def robot_xy(data: mjx.Data, index: RobotIndex) -> jax.Array:
@@ -41,15 +54,34 @@ def goal_vector(position: jax.Array, goal_xy: jax.Array) -> tuple[jax.Array, jax
     return distance, delta / (distance + 1e-8)
 
 
-def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex) -> jax.Array:
-    """Build the 24-value observation (float32)."""
+def heading(data: mjx.Data, index: RobotIndex) -> jax.Array:
+    """Unit vector (cos yaw, sin yaw) in the XY plane from block A's body origin to block B's."""
+    block_a, block_b = data.xpos[index.block_body, :2]
+    delta = block_b - block_a
+    return delta / (jnp.linalg.norm(delta) + HEADING_EPS)
+
+
+def to_heading_frame(vector: jax.Array, unit_heading: jax.Array) -> jax.Array:
+    """A world XY vector in the heading frame (x along the heading, y to its left): rotated by -yaw."""
+    cos, sin = unit_heading
+    x, y = vector
+    return jnp.stack([cos * x + sin * y, cos * y - sin * x])
+
+
+def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
+            config: ObservationConfig = ORIGINAL) -> jax.Array:
+    """Build the observation (float32): the original's 24 values, then the heading ones if enabled."""
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
-    return jnp.concatenate([
+    parts = [
         joint_positions(data, index),
         joint_velocities(data, index),
         position,
         base_velocity(data, index),
         distance[None],
         direction,
-    ]).astype(jnp.float32)
+    ]
+    if config.heading:
+        unit_heading = heading(data, index)
+        parts += [unit_heading, to_heading_frame(direction, unit_heading)]
+    return jnp.concatenate(parts).astype(jnp.float32)

@@ -72,3 +72,16 @@ def test_overrides_with_dotted_keys():
 def test_round_trip_to_dict():
     c = cfg.get_preset("flat_radial")
     assert cfg.from_dict(cfg.to_dict(c)) == c
+
+
+def test_observation_section_is_opt_in_and_checked():
+    assert cfg.EnvConfig().observation.heading is False  # the original's 24 values by default
+    assert all(not preset.observation.heading for preset in cfg.PRESETS.values())
+    on = cfg.from_dict({"observation": {"heading": True}})
+    assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
+    assert cfg.to_dict(on)["observation"] == {"heading": True}
+    assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
+    with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*\['heading'\]"):
+        cfg.from_dict({"observation": {"headng": True}})
+    with pytest.raises(ValueError, match="observation.heading.*true or false"):
+        cfg.from_dict({"observation": {"heading": "yes"}})

@@ -17,7 +17,7 @@ def _actions(key, n):
 def test_reset_matches_the_original_start(env, jit_single):
     reset, _, _ = jit_single
     state = reset(jax.random.PRNGKey(0))
-    assert state.obs.shape == (24,) and state.obs.dtype == jnp.float32
+    assert state.obs.shape == (24,) == (env.observation_size,) and state.obs.dtype == jnp.float32
     np.testing.assert_allclose(state.obs[:21], 0.0, atol=1e-6)  # robot at rest at the origin
     goal = np.asarray(state.pipeline_state.task.goal_xy)
     assert 1.5 <= abs(goal[0]) <= 4.5 and abs(goal[1]) <= 4.0
@@ -119,3 +119,47 @@ def test_vmapped_step_over_1024_envs_on_cpu(env):
     assert state.obs.shape == (n, 24)
     assert bool(jnp.all(jnp.isfinite(state.obs)))
     assert float(jnp.std(state.obs[:, 0])) > 0  # the envs really differ (random actions)
+
+
+def _yaw(physics, env):
+    """Direction from block A's body origin to block B's, computed from the state's block positions."""
+    a, b = np.asarray(physics.xpos)[env.index.block_body, :2]
+    return np.arctan2(b[1] - a[1], b[0] - a[0])
+
+
+def _rotated_about_z(state, env, angle):
+    """The reset state with the whole robot turned by ``angle`` about the world z axis (both free blocks)."""
+    physics = state.pipeline_state.physics
+    qpos = np.asarray(physics.qpos).copy()
+    c, s = np.cos(angle), np.sin(angle)
+    turn = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
+    for adr in env.index.block_qpos:
+        x, y = qpos[adr:adr + 2]
+        qpos[adr:adr + 2] = c * x - s * y, s * x + c * y
+        w, v = turn[0], turn[1:]
+        q0, qv = qpos[adr + 3], qpos[adr + 4:adr + 7]
+        qpos[adr + 3:adr + 7] = np.concatenate([[w * q0 - v @ qv], w * qv + q0 * v + np.cross(v, qv)])
+    return state.replace(pipeline_state=state.pipeline_state.replace(physics=physics.replace(qpos=jnp.asarray(qpos))))
+
+
+def test_heading_observation(jit_single):
+    """observation.heading: 28 values, unit heading, goal direction rotated by -yaw, sanitised like the rest."""
+    env = hsa_mjx.make_env("flat", observation__heading=True)
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    start = reset(jax.random.PRNGKey(0))
+    assert env.observation_size == 28 == start.obs.shape[0]
+    np.testing.assert_allclose(start.obs[:24], jit_single[0](jax.random.PRNGKey(0)).obs, atol=1e-6)
+    turned = step(_rotated_about_z(start, env, 2.0), jnp.zeros(8))
+    for state in (start, turned):
+        obs, yaw = np.asarray(state.obs), _yaw(state.pipeline_state.physics, env)
+        heading, body_goal, world_goal = obs[24:26], obs[26:28], obs[22:24]
+        np.testing.assert_allclose(heading, [np.cos(yaw), np.sin(yaw)], atol=1e-5)
+        np.testing.assert_allclose([np.linalg.norm(heading), np.linalg.norm(body_goal)], 1.0, atol=1e-5)
+        rotation = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # by -yaw
+        np.testing.assert_allclose(body_goal, rotation @ world_goal, atol=1e-5)
+    assert yaw == pytest.approx(2.0, abs=0.05)  # the turned robot faces where it was turned
+    physics = turned.pipeline_state.physics
+    poisoned = turned.replace(pipeline_state=turned.pipeline_state.replace(
+        physics=physics.replace(qvel=physics.qvel.at[7].set(jnp.nan))))
+    out = step(poisoned, jnp.zeros(8))
+    assert float(out.metrics["termination/non_finite"]) == 1.0 and np.all(np.isfinite(out.obs))

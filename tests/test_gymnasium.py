@@ -29,6 +29,13 @@ def test_spaces_and_step_types(gym_env):
     assert "reward/forward" in info and isinstance(info["termination_reasons"], list)
 
 
+def test_observation_space_follows_the_heading_option(gym_env):
+    assert gym_env.observation_space.shape == (gym_env.unwrapped.env.observation_size,) == (24,)
+    heading = gymnasium.make("hsa_mjx/HSA-v0", observation__heading=True)  # built, not compiled
+    assert heading.observation_space.shape == (heading.unwrapped.env.observation_size,) == (28,)
+    heading.close()
+
+
 def test_thousand_random_steps(gym_env):
     """1000 random steps (resetting after each episode end) stay finite and inside the spaces."""
     obs, _ = gym_env.reset(seed=11)

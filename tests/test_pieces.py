@@ -1,4 +1,4 @@
-"""Control, goals and termination on synthetic inputs (no MJX compile)."""
+"""Control, goals, observation and termination on synthetic inputs (no MJX compile)."""
 
 from types import SimpleNamespace
 
@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import control, goals, termination
-from hsa_mjx.config import GoalConfig, TerminationConfig
+from hsa_mjx import control, goals, observation, termination
+from hsa_mjx.config import GoalConfig, ObservationConfig, TerminationConfig
 
 
 def test_targets_are_clipped_to_ctrlrange():
@@ -100,3 +100,44 @@ def test_qacc_limit_checks_the_last_substep_unless_asked_for_every_one():
     every = TerminationConfig(qacc_every_substep=True)
     assert _reasons((0.14, 0.14), transient, config=every) == {"qacc_limit": True}
     assert _reasons((0.14, 0.14), _stats(qacc=5e4, final_qacc=2e4)) == {"qacc_limit": True}
+
+
+def _fake_robot(block_a_xy, block_b_xy):
+    """Synthetic data and index for ``observation.observe``: two blocks, 8 hinges, rest elsewhere."""
+    xpos = jnp.zeros((3, 3)).at[1, :2].set(jnp.array(block_a_xy)).at[2, :2].set(jnp.array(block_b_xy))
+    data = SimpleNamespace(xpos=xpos, qpos=jnp.arange(30.0), qvel=jnp.arange(30.0) / 10)
+    index = SimpleNamespace(block_body=np.array([1, 2]), joint_qpos=np.arange(7, 15), joint_qvel=np.arange(6, 14),
+                            block_qvel=np.array([0, 14]))
+    return data, index
+
+
+def test_observation_size_follows_the_heading_option():
+    assert observation.observation_size(ObservationConfig()) == observation.OBSERVATION_SIZE == 24
+    assert observation.observation_size(ObservationConfig(heading=True)) == 28
+    data, index = _fake_robot((-0.2, 0.0), (0.2, 0.0))
+    goal = jnp.array([0.0, 3.0])
+    base = observation.observe(data, goal, index)
+    assert base.shape == (24,) and base.dtype == jnp.float32
+    full = observation.observe(data, goal, index, ObservationConfig(heading=True))
+    assert full.shape == (28,)
+    np.testing.assert_array_equal(full[:24], base)  # the original's 24 values come first, unchanged
+
+
+def test_heading_frame_rotation_on_hand_made_vectors():
+    along_y = jnp.array([0.0, 1.0])
+    np.testing.assert_allclose(observation.to_heading_frame(jnp.array([0.0, 1.0]), along_y), [1.0, 0.0], atol=1e-7)
+    np.testing.assert_allclose(observation.to_heading_frame(jnp.array([-1.0, 0.0]), along_y), [0.0, 1.0], atol=1e-7)
+    np.testing.assert_allclose(observation.to_heading_frame(jnp.array([1.0, 0.0]), along_y), [0.0, -1.0], atol=1e-7)
+    diagonal = jnp.array([np.sqrt(0.5), np.sqrt(0.5)])  # yaw 45 degrees
+    np.testing.assert_allclose(observation.to_heading_frame(jnp.array([1.0, 0.0]), diagonal),
+                               [np.sqrt(0.5), -np.sqrt(0.5)], atol=1e-7)
+
+
+def test_heading_points_from_block_a_to_block_b_and_stays_finite():
+    data, index = _fake_robot((1.0, 1.0), (1.0, 1.5))  # block B north of block A: yaw 90 degrees
+    np.testing.assert_allclose(observation.heading(data, index), [0.0, 1.0], atol=1e-6)
+    full = observation.observe(data, jnp.array([-2.0, 1.25]), index, ObservationConfig(heading=True))
+    np.testing.assert_allclose(full[24:26], [0.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(full[26:28], [0.0, 1.0], atol=1e-6)  # goal due west: on the robot's left
+    same, index = _fake_robot((0.5, 0.5), (0.5, 0.5))  # coincident origins: no direction, but finite
+    assert np.all(np.isfinite(observation.heading(same, index)))

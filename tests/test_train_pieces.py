@@ -15,10 +15,14 @@ from train import config as tcfg
 
 def test_default_and_shipped_configs_validate():
     assert tcfg.from_dict({}).run.num_envs == 1024
-    for name in ("train_quickstart_cpu", "train_flat"):
+    for name in ("train_quickstart_cpu", "train_flat", "train_flat_heading"):
         config = tcfg.load(f"configs/{name}.yaml")
         assert config.curriculum.enabled and config.env.goal.mode == "radial"
         assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
+    plain = tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
+    heading = tcfg.to_dict(tcfg.load("configs/train_flat_heading.yaml"))
+    assert plain["env"]["observation"] == {"heading": False} and heading["env"]["observation"] == {"heading": True}
+    assert checkpoint.incompatibilities(plain, heading) == ["env.observation.heading"]  # resume refuses
     for name, goal_mode in (("train_corridor", "random"), ("train_spiral", "spiral")):
         config = tcfg.validate(tcfg.load(f"configs/{name}.yaml"))
         assert config.env.scene == "terrain" and config.env.goal.mode == goal_mode
@@ -29,7 +33,7 @@ def test_default_and_shipped_configs_validate():
 def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
-    for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_spiral"):
+    for name in ("train_flat", "train_flat_heading", "train_quickstart_cpu", "train_corridor", "train_spiral"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name
@@ -145,6 +149,11 @@ def test_incompatibilities_keys_added_later_match_their_default():
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(changed)), defaults) == [
         "env.termination.qacc_every_substep"]
     assert checkpoint.incompatibilities(saved, defaults) == ["env.termination.qacc_every_substep"]
+    without_section = json.loads(json.dumps(defaults))
+    del without_section["env"]["observation"]  # written before the observation section existed
+    assert checkpoint.incompatibilities(without_section, defaults, defaults) == []
+    heading = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({"env": {"observation": {"heading": True}}}))))
+    assert checkpoint.incompatibilities(without_section, heading, defaults) == ["env.observation"]
 
 
 def test_multi_device_option_is_checked_and_resolved():
