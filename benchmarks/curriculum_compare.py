@@ -5,7 +5,10 @@
 
 Plots ``curriculum/max_distance`` and the logged episode success rate against env steps and
 against the curriculum's episode count (episodes it has seen, which is what its rule counts), one
-line per run, and prints per run: the steps and episodes at which each new maximum was reached.
+line per run, and prints per run: the steps, episodes and training seconds at which each new maximum
+was reached. Training seconds add up each log's env steps over its measured env-steps/s: the time
+spent in epochs without the pauses between resumed calls (the first log after each start or
+resume includes that call's compile).
 """
 
 from __future__ import annotations
@@ -25,13 +28,23 @@ def load(path: Path, from_step: int = 0) -> list[dict]:
     return [r for r in records if r["step"] >= from_step]
 
 
-def widenings(records: list[dict]) -> list[tuple[int, float, float]]:
-    """(step, curriculum episode count, new maximum) each time the range's maximum changed."""
-    out, last = [], None
+def training_seconds(records: list[dict]) -> list[float]:
+    """Cumulative time in training epochs at each record: env steps of each log over its env-steps/s."""
+    total, out = 0.0, []
     for r in records:
+        sps = r.get("training/env_steps_per_s") or 0.0
+        total += r.get("env_steps", 0.0) / sps if sps > 0 else 0.0
+        out.append(total)
+    return out
+
+
+def widenings(records: list[dict]) -> list[tuple[int, float, float, float]]:
+    """(step, curriculum episode count, training s, new maximum) each time the range's maximum changed."""
+    out, last = [], None
+    for r, seconds in zip(records, training_seconds(records)):
         value = r.get("curriculum/max_distance")
         if value is not None and (last is None or abs(value - last) > 1e-6):
-            out.append((r["step"], r.get("curriculum/episode_count", float("nan")), round(value, 3)))
+            out.append((r["step"], r.get("curriculum/episode_count", float("nan")), seconds, round(value, 3)))
             last = value
     return out
 
@@ -82,9 +95,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     for label, records in runs.items():
-        print(f"{label}: {len(records)} records; max distance reached (step, curriculum episodes, metres):")
-        for step, episodes, value in widenings(records):
-            print(f"  {step:>12,}  {episodes:>10,.0f}  {value}")
+        print(f"{label}: {len(records)} records; max distance reached "
+              "(step, curriculum episodes, training s, metres):")
+        for step, episodes, seconds, value in widenings(records):
+            print(f"  {step:>12,}  {episodes:>10,.0f}  {seconds:>8,.0f}  {value}")
     plot(runs, args.out)
     print(f"wrote {args.out}")
     return 0
