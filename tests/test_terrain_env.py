@@ -74,11 +74,26 @@ def test_corridor_goals_lie_on_the_corridor_floor():
     keys = jax.random.split(jax.random.PRNGKey(1), 256)
     raw = jax.vmap(lambda k: goals.radial_goal(k, jnp.array([1.5, 6.0])))(keys)
     placed = np.asarray(jax.vmap(world.place_goal, in_axes=(0, None))(raw, terrain_id))
-    assert np.all(placed[:, 1] == 0.0) and np.all(np.abs(placed[:, 0]) >= 1.5)
+    centre_y = world.grid.fraction_to_y(config.terrain.corridor.center)  # the original's +0.102 m row
+    np.testing.assert_allclose(placed[:, 1], centre_y, atol=1e-6)
+    assert np.all(np.abs(placed[:, 0]) >= 1.5)
     assert np.abs(placed[:, 0]).max() <= world.grid.half_x - config.terrain.edge_margin + 1e-6
     np.testing.assert_array_equal(np.sign(placed[:, 0]), np.sign(np.asarray(raw)[:, 0]))
     np.testing.assert_array_equal(np.asarray(surface_height(terrain, world.grid, jnp.asarray(placed))), 0.0)
-    assert float(world.ground(terrain, jnp.array([0.0, 0.6]))) == pytest.approx(0.25)  # the wall beside it
+    assert float(world.ground(terrain, jnp.array([0.0, 0.8]))) == pytest.approx(0.25)  # the wall beside it
+
+
+def test_corridor_preset_floor_is_the_originals_three_vertex_rows():
+    config = cfg.get_preset("corridor")
+    world, _ = _world(config)
+    terrain, _ = world.sampler.sample(jax.random.PRNGKey(0))
+    rows = world.grid.ys()
+    near = rows[np.argsort(np.abs(rows - 0.1))[:5]]  # y = -0.306 ... 0.510
+    heights = {round(float(y), 3): float(world.ground(terrain, jnp.array([1.0, y]))) for y in near}
+    assert [heights[y] for y in (-0.102, 0.102, 0.306)] == [0.0, 0.0, 0.0]  # rows 24-26 of the original
+    assert min(heights[-0.306], heights[0.51]) > 0.95 * config.terrain.corridor.wall_height
+    assert float(world.ground(terrain, jnp.array([2.0, 0.12]))) == 0.0  # the robot's feet (y +-0.1) stand on floor
+    assert float(world.ground(terrain, jnp.array([-2.0, -0.1]))) == 0.0
 
 
 def test_spiral_preset_checkpoints_sit_on_its_track():

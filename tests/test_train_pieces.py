@@ -15,7 +15,7 @@ from train import config as tcfg
 
 def test_default_and_shipped_configs_validate():
     assert tcfg.from_dict({}).run.num_envs == 1024
-    for name in ("train_quickstart_cpu", "train_flat", "train_flat_heading"):
+    for name in ("train_quickstart_cpu", "train_flat", "train_flat_heading", "train_flat_loose"):
         config = tcfg.load(f"configs/{name}.yaml")
         assert config.curriculum.enabled and config.env.goal.mode == "radial"
         assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
@@ -28,12 +28,20 @@ def test_default_and_shipped_configs_validate():
         assert config.env.scene == "terrain" and config.env.goal.mode == goal_mode
         assert not config.curriculum.enabled  # the curriculum needs radial goals
         assert (config.env.physics.integrator, config.env.physics.iterations) == ("implicitfast", 8)
+    # the track tasks can start from train_flat_loose's networks: same observation, same servo range
+    loose = tcfg.to_dict(tcfg.load("configs/train_flat_loose.yaml"))
+    for name in ("train_corridor", "train_spiral"):
+        track = tcfg.to_dict(tcfg.load(f"configs/{name}.yaml"))
+        assert track["env"]["observation"] == loose["env"]["observation"] == {"heading": True}
+        assert track["env"]["control"]["servo_target_limit"] == loose["env"]["control"]["servo_target_limit"] == 6.28
+        assert all(track["ppo"][k] == loose["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
 
 
 def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
-    for name in ("train_flat", "train_flat_heading", "train_quickstart_cpu", "train_corridor", "train_spiral"):
+    for name in ("train_flat", "train_flat_heading", "train_flat_loose", "train_quickstart_cpu", "train_corridor",
+                 "train_spiral"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name

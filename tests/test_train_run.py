@@ -137,3 +137,43 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     assert logged["env_steps"] == 14  # 7 steps x 2 envs
     distances = np.asarray(state.env.metrics["distance_to_goal"])
     assert 1.0 < logged["step/distance_to_goal"] < 5.0 and np.all(distances > 0)  # a mean over every env step
+
+
+def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
+    from train.trainer import train
+    data = tcfg.apply_overrides(json.loads(json.dumps(TINY)),
+                                ["env.reward.forward=1.0", "ppo.learning_rate=0.0", "run.num_timesteps=40",
+                                 f"run.init_from={run_dir}"])
+    summary = train(tcfg.from_dict(data), tmp_path / "ft", quiet=True)
+    assert summary["env_steps"] == 40  # a fresh step count
+    source_ts = load_payload(checkpoint.latest(run_dir))
+    tuned_ts = load_payload(checkpoint.latest(tmp_path / "ft"))
+    same = jax.tree.map(np.array_equal, source_ts["params"], tuned_ts["params"])  # learning rate 0
+    assert all(jax.tree.leaves(same))
+    assert _count(tuned_ts["normalizer"]["count"]) > _count(source_ts["normalizer"]["count"])  # stats carried on
+
+
+def _count(value) -> int:
+    """A normaliser count as msgpack stores it: a number, or a uint64 split into hi and lo words."""
+    return (int(value["hi"]) << 32) | int(value["lo"]) if isinstance(value, dict) else int(value)
+
+
+def load_payload(path):
+    from flax import serialization
+    return serialization.msgpack_restore((path / checkpoint.STATE_FILE).read_bytes())["training_state"]
+
+
+def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
+    from train.cli import main
+    from train.trainer import read_init_from
+    heading = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
+        "env.observation.heading=true", f"run.init_from={run_dir}"]))
+    with pytest.raises(ValueError, match="observation size"):
+        read_init_from(heading)
+    wider = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
+        "ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"]))
+    with pytest.raises(ValueError, match="policy_hidden_sizes"):
+        read_init_from(wider)
+    assert main(["--config", "configs/train_quickstart_cpu.yaml", "--run-dir", str(tmp_path / "x"),
+                 "--init-from", str(tmp_path / "missing")]) == 2
+    assert "run.init_from" in capsys.readouterr().err and not (tmp_path / "x").exists()

@@ -1,4 +1,4 @@
-"""Command line: ``python -m train --config configs/<task>.yaml [--set key=value ...] [--run-dir DIR] [--resume]``.
+"""Command line: ``python -m train --config configs/<task>.yaml [--set key=value ...] [--run-dir DIR] [--resume] [--init-from RUN]``.
 
 Every problem with the config, the run directory or the checkpoint to resume is reported before
 anything is compiled. Ctrl-C (or SIGTERM) finishes the current epoch, writes a checkpoint and
@@ -34,6 +34,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="override a config value, e.g. --set ppo.learning_rate=1e-4 (repeatable)")
     parser.add_argument("--run-dir", default=None, help="output directory (default runs/<config name>-<time>)")
     parser.add_argument("--resume", action="store_true", help="continue from the run dir's latest checkpoint")
+    parser.add_argument("--init-from", default=None, metavar="PATH",
+                        help="start from the networks of another run (a run dir or checkpoint dir): "
+                             "sets run.init_from; fresh optimiser, curriculum and step count")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     group = parser.add_argument_group("several hosts (jax.distributed; docs/scaling.md)")
     group.add_argument("--coordinator", default=None, metavar="HOST:PORT",
@@ -60,7 +63,8 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
         config_path = Path(default_config())
         if args.resume and (Path(args.run_dir) / "config.yaml").is_file():
             config_path = Path(args.run_dir) / "config.yaml"  # a resumed run keeps its own config
-    config = tcfg.load(config_path, args.overrides)
+    overrides = args.overrides + ([f"run.init_from={args.init_from}"] if args.init_from else [])
+    config = tcfg.load(config_path, overrides)
     run_dir = Path(args.run_dir) if args.run_dir else Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     return config, run_dir
 

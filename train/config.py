@@ -70,6 +70,9 @@ class RunConfig:
     # how several devices share the work: "pmap" (one pmapped epoch), "per_device" (one env
     # collection per GPU, pmapped update; train/per_device.py), "auto" (per_device on 2+ GPUs)
     multi_device: str = "auto"
+    # a run dir or checkpoint dir whose policy, value network and observation statistics start this
+    # run (fine-tuning; a fresh optimiser, curriculum and step count); ignored by --resume
+    init_from: str = ""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,6 +19,7 @@ import yaml
 
 from hsa_mjx import curriculum as cur
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.observation import observation_size
 from hsa_mjx.training_env import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
@@ -110,11 +111,40 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | No
     return None
 
 
+def read_init_from(config: tcfg.TrainConfig) -> dict | None:
+    """Metadata of the checkpoint named by ``run.init_from``, checked against this config's networks (before any compile)."""
+    if not config.run.init_from:
+        return None
+    source = Path(config.run.init_from)
+    if not source.exists():
+        raise FileNotFoundError(f"run.init_from: {source} not found (give a run dir or one of its checkpoint dirs)")
+    path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
+    meta = checkpoint.read_meta(path)
+    src = tcfg.from_dict(meta["config"])
+    bad = [f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
+           for k in checkpoint.COMPATIBLE_PPO_KEYS if getattr(src.ppo, k) != getattr(config.ppo, k)]
+    if observation_size(src.env.observation) != observation_size(config.env.observation):
+        bad.append(f"observation size ({observation_size(src.env.observation)} vs {observation_size(config.env.observation)}: "
+                   f"env.observation.heading)")
+    if bad:
+        raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
+    return {**meta, "path": path, "source": src}
+
+
+def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
+    """``ts`` with the parameters and observation statistics of the ``run.init_from`` checkpoint."""
+    template = _payload(ts, cur.init(init["source"].curriculum), key)
+    restored = jax.tree.map(jnp.asarray, checkpoint.load(init["path"], template)["training_state"])
+    # Adam's initial state does not depend on the parameter values: the fresh one stays valid
+    return ts.replace(params=restored.params, normalizer=restored.normalizer)
+
+
 def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False) -> dict:
     """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary."""
     run_dir = Path(run_dir)
     config_dict = tcfg.to_dict(config)
     devices = select_devices(config)
+    init = None if resume else read_init_from(config)
     meta = prepare_run_dir(run_dir, config_dict, resume)
     env = HSAEnv(config.env)
     learner = make_learner(config, env, devices)
@@ -127,6 +157,9 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
         ts, cstate = jax.tree.map(jnp.asarray, (restored["training_state"], restored["curriculum"]))
         key, step = jnp.asarray(restored["rng"], jnp.uint32), int(meta["step"])
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
+    elif init is not None:
+        ts = warm_start(ts, init, key)
+        print(f"networks and observation statistics from {init['path']} (step {init['step']:,})", flush=True)
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)

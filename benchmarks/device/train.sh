@@ -7,7 +7,8 @@
 # share one machine's GPUs at once with CUDA_VISIBLE_DEVICES and distinct TAGs. EVAL_S bounds the
 # evaluation (default 240 s; 0 skips it), EVAL_EPISODES its episode count (default 128).
 # Training gets SIGINT after WALL_SECONDS (it finishes the epoch and writes a checkpoint).
-# With RESUME_RUN_DIR (a run dir carried to the device) the run continues from its checkpoint.
+# With RESUME_RUN_DIR (a run dir carried to the device) the run continues from its checkpoint;
+# INIT_FROM (a carried run dir) starts a new run from its networks (--init-from).
 set -u
 config=$1; wall=$2; resume=${3:-}
 name=${TAG:-$(basename "$config" .yaml)}
@@ -16,6 +17,7 @@ mkdir -p "$out"
 run="$out/run"
 args=(--config "$config" --run-dir "$run")
 if [ -n "$resume" ]; then cp -r "$resume" "$run"; args+=(--resume); fi
+if [ -n "${INIT_FROM:-}" ]; then args+=(--init-from "$INIT_FROM"); fi
 for kv in ${SET:-}; do args+=(--set "$kv"); done
 export JAX_DEFAULT_MATMUL_PRECISION=highest   # no TF32 in the physics (DESIGN_NOTES)
 export XLA_PYTHON_CLIENT_PREALLOCATE=false

@@ -9,6 +9,12 @@
 from __future__ import annotations
 
 _LOOSE_MODEL = {"servo_target_limit": 6.28}
+# The original's corridor floor at the 50-vertex grid: three vertex rows at height 0 (y = -0.102,
+# 0.102, 0.306) and full-height walls from the next row on. A grid of 50 vertices has no row at
+# y = 0, so a floor of three rows cannot be centred on the robot: the original's +0.102 m offset is
+# kept on purpose. Centred instead (width 0.6, centre 0.5), the floor is flat only between the rows
+# at +-0.102 m and the feet stand on the walls' ramps; open-loop gaits then barely move (docs/training.md).
+_ORIGINAL_CORRIDOR = {"corridor_width": 0.62, "center": 0.510204}  # centre: the row at 0.5 + 0.5 / 49
 _TRACK_REWARD = {"ctrl": 0.0, "contact": 0.0, "lateral": 0.0, "constraint": 0.05, "acceleration": 1e-5,
                  "joint_velocity": 5e-4, "stagnation": 0.1, "alive": 0.0}
 
@@ -24,7 +30,8 @@ TERRAIN_PRESETS: dict[str, dict] = {
         "control": _LOOSE_MODEL,
         "reward": dict(_TRACK_REWARD, forward=10.0, distance=20.0),
         "termination": {"max_episode_steps": 4000},
-        "terrain": {"flat_spawn": {"enabled": False}},  # as corridor_config (ensure_flat_spawn: false)
+        "terrain": {"flat_spawn": {"enabled": False},  # as corridor_config (ensure_flat_spawn: false)
+                    "corridor": _ORIGINAL_CORRIDOR},
     },
     "spiral": {
         "name": "spiral", "scene": "terrain", "terrain_type": "spiral",
