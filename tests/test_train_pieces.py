@@ -51,6 +51,8 @@ def test_training_configs_use_the_guarded_physics():
     ({"trainer": {}}, "unknown config section"),
     ({"ppo": {"learning_rat": 1e-3}}, r"unknown config key.*learning_rate"),
     ({"ppo": {"activation": "gelu"}}, "activation"),
+    ({"ppo": {"distribution_type": "beta"}}, r"ppo.distribution_type.*'tanh_normal', 'normal'"),
+    ({"ppo": {"noise_std_type": "exp"}}, r"ppo.noise_std_type.*'scalar', 'log'"),
     ({"run": {"num_envs": "many"}}, "run.num_envs"),
     ({"run": {"num_envs": 3}}, "multiple of run.num_envs"),
     ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
@@ -162,6 +164,30 @@ def test_incompatibilities_keys_added_later_match_their_default():
     assert checkpoint.incompatibilities(without_section, defaults, defaults) == []
     heading = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({"env": {"observation": {"heading": True}}}))))
     assert checkpoint.incompatibilities(without_section, heading, defaults) == ["env.observation"]
+    older = json.loads(json.dumps(defaults))
+    del older["ppo"]["distribution_type"], older["ppo"]["noise_std_type"]  # written before these keys
+    assert checkpoint.incompatibilities(older, defaults, defaults) == []
+    normal = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({"ppo": {"distribution_type": "normal"}}))))
+    assert checkpoint.incompatibilities(older, normal, defaults) == ["ppo.distribution_type"]
+
+
+def test_unsquashed_policy_with_log_std_samples_beyond_one():
+    """distribution_type normal + noise_std_type log: SB3-like exploration (the env clips to [-1, 1])."""
+    from brax.training.agents.ppo import networks as ppo_networks
+    from train.ppo import init_training_state, make_networks
+    config = tcfg.from_dict({"ppo": {"distribution_type": "normal", "noise_std_type": "log", "init_noise_std": 3.0,
+                                     "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}})
+    networks = make_networks(config, 5, 2)
+    ts = init_training_state(config, networks, jax.random.PRNGKey(0), 5)
+    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=False)
+    keys = jax.random.split(jax.random.PRNGKey(1), 256)
+    actions, _ = jax.vmap(lambda k: policy(jnp.zeros(5), k))(keys)
+    assert float(jnp.std(actions)) == pytest.approx(3.0, rel=0.2) and float(jnp.max(jnp.abs(actions))) > 1.0
+    squashed = tcfg.from_dict({"ppo": {"policy_hidden_sizes": [8], "value_hidden_sizes": [8], "init_noise_std": 3.0}})
+    nets = make_networks(squashed, 5, 2)
+    ts2 = init_training_state(squashed, nets, jax.random.PRNGKey(0), 5)
+    pol2 = ppo_networks.make_inference_fn(nets)((ts2.normalizer, ts2.params.policy), deterministic=False)
+    assert float(jnp.max(jnp.abs(jax.vmap(lambda k: pol2(jnp.zeros(5), k))(keys)[0]))) <= 1.0
 
 
 def test_multi_device_option_is_checked_and_resolved():

@@ -26,7 +26,8 @@ STATE_FILE, META_FILE = "state.msgpack", "meta.json"
 _NAME = re.compile(r"^step_(\d{12})$")
 # Config keys that must match for a resume (the rest, e.g. run length or learning rate, may change).
 COMPATIBLE_SECTIONS = ("env", "curriculum")
-COMPATIBLE_PPO_KEYS = ("policy_hidden_sizes", "value_hidden_sizes", "activation", "normalize_observations")
+COMPATIBLE_PPO_KEYS = ("policy_hidden_sizes", "value_hidden_sizes", "activation", "normalize_observations",
+                       "distribution_type", "noise_std_type")
 
 
 def checkpoint_dir(run_dir: str | Path) -> Path:
@@ -137,8 +138,8 @@ def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) 
     for section in COMPATIBLE_SECTIONS:
         problems += [f"{section}.{k}" for k in _diff(saved.get(section, {}), current.get(section, {}),
                                                      defaults.get(section, {}))]
-    ppo_saved, ppo_now = saved.get("ppo", {}), current.get("ppo", {})
-    problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k) != ppo_now.get(k)]
+    ppo_saved, ppo_now, ppo_default = saved.get("ppo", {}), current.get("ppo", {}), defaults.get("ppo", {})
+    problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k, ppo_default.get(k)) != ppo_now.get(k)]
     return problems
 
 

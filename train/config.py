@@ -24,6 +24,8 @@ from hsa_mjx import curriculum as cur
 from hsa_mjx.config import EnvConfig, build_section
 
 ACTIVATIONS = ("swish", "tanh", "relu", "elu")
+DISTRIBUTIONS = ("tanh_normal", "normal")
+NOISE_STD_TYPES = ("scalar", "log")
 SECTIONS = ("env", "curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
 
@@ -50,6 +52,11 @@ class PPOConfig:
     value_hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "swish"
     init_noise_std: float = 1.0
+    # "tanh_normal" (Brax's default: squashed into [-1, 1]) or "normal" (unsquashed; the env clips
+    # actions to [-1, 1], as the original's SB3 policy was clipped); the std is a learned scalar per
+    # action dim, "scalar" (softplus) or "log" (exp, as SB3's log_std)
+    distribution_type: str = "tanh_normal"
+    noise_std_type: str = "scalar"
 
 
 MULTI_DEVICE = ("auto", "pmap", "per_device")
@@ -119,8 +126,10 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
     """Check the config's internal consistency (and the device split when ``device_count`` is given)."""
     cur.validate(config.curriculum)
     ppo, run = config.ppo, config.run
-    if ppo.activation not in ACTIVATIONS:
-        raise ValueError(f"config key 'ppo.activation' = {ppo.activation!r}; choose one of {list(ACTIVATIONS)}")
+    for key, choices in (("activation", ACTIVATIONS), ("distribution_type", DISTRIBUTIONS),
+                         ("noise_std_type", NOISE_STD_TYPES)):
+        if getattr(ppo, key) not in choices:
+            raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
     for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
         if getattr(ppo, key) < 1:
             raise ValueError(f"config key 'ppo.{key}' must be >= 1, got {getattr(ppo, key)}")

@@ -53,7 +53,8 @@ def make_networks(config: TrainConfig, observation_size: int, action_size: int) 
     return ppo_networks.make_ppo_networks(
         observation_size, action_size, preprocess_observations_fn=normalize,
         policy_hidden_layer_sizes=ppo.policy_hidden_sizes, value_hidden_layer_sizes=ppo.value_hidden_sizes,
-        activation=ACTIVATIONS[ppo.activation], init_noise_std=ppo.init_noise_std)
+        activation=ACTIVATIONS[ppo.activation], init_noise_std=ppo.init_noise_std,
+        distribution_type=ppo.distribution_type, noise_std_type=ppo.noise_std_type)
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
