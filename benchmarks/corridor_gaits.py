@@ -11,7 +11,6 @@ vertex rows of floor), and the plane.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -21,7 +20,7 @@ import numpy as np
 
 import hsa_mjx
 from benchmarks import fidelity
-from benchmarks.run_info import run_info
+from benchmarks.run_info import write_table_result
 from hsa_mjx import config as ec
 
 GAITS = ("extend_contract", "crawl", "sine", "wave")
@@ -67,11 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     for layout in args.layouts:
         rows += displacements(layout, args.seconds)
     table = f"Robot displacement (dx, dy) in m after {args.seconds:g} s of each open-loop gait\n\n" + markdown(rows)
-    print(table)
-    info = {**run_info(), "wall_s": round(time.perf_counter() - tic, 1)}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps({"meta": info, "rows": rows}, indent=1))
-    args.out.with_suffix(".md").write_text(table + f"\n\n{info['date']}, {info['device']}, command `{info['command']}`\n")
+    write_table_result(args.out, table, rows, tic)
 
 
 if __name__ == "__main__":

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import datetime
 import importlib.metadata
+import json
 import os
 import platform
 import shlex
 import subprocess
 import sys
+import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -83,3 +86,13 @@ def _module_name() -> str:
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")
+
+
+def write_table_result(out: Path, table: str, rows: list[dict], started: float) -> dict[str, Any]:
+    """Print ``table``; write ``out``.json (provenance and rows) and ``out``.md (table, date, device, command)."""
+    print(table)
+    info = {**run_info(), "wall_s": round(time.perf_counter() - started, 1)}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps({"meta": info, "rows": rows}, indent=1))
+    out.with_suffix(".md").write_text(table + f"\n\n{info['date']}, {info['device']}, command `{info['command']}`\n")
+    return info

@@ -115,6 +115,12 @@ class ObservationConfig:
     # true appends the heading (cos, sin of yaw, block A -> block B) and the unit vector to the
     # goal in that heading frame: 28 values. Off keeps the original's 24 (no orientation at all).
     heading: bool = False
+    # true appends the 8 servo targets (rad, action-slot order): the actions are increments of
+    # them, so without them the policy's own control state is hidden (the original's obs lacks it).
+    servo_targets: bool = False
+    # > 0 appends a gait clock, (sin, cos) of 2 pi t / clock_period_s with t the episode time:
+    # a phase signal from which a periodic gait is a plain function of the observation. 0 = off.
+    clock_period_s: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,6 +235,9 @@ def validate(config: EnvConfig) -> EnvConfig:
         raise ValueError("config keys 'termination.z_min' must be below 'termination.z_max'")
     if config.physics.tolerance < 0:
         raise ValueError("config key 'physics.tolerance' must be >= 0")
+    if config.observation.clock_period_s < 0:
+        raise ValueError("config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
+                         f"got {config.observation.clock_period_s!r}")
     _validate_terrain(config)
     return config
 

@@ -63,7 +63,7 @@ class HSAEnv(BraxEnv):
     # ----- Brax Env interface -------------------------------------------------------------
     @property
     def observation_size(self) -> int:
-        """Observation length: the original's 24, or 28 with ``observation.heading``."""
+        """Observation length: the original's 24 plus the enabled optional entries (``observation``)."""
         return observation.observation_size(self.config.observation)
 
     @property
@@ -115,8 +115,8 @@ class HSAEnv(BraxEnv):
         data = self._with_goal_marker(sim.physics, goal_xy, sim.task.terrain)
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
-        return state.replace(pipeline_state=SimState(data, task),
-                             obs=observation.observe(data, goal_xy, self.index, self.config.observation))
+        obs = observation.observe(data, goal_xy, self.index, self.config.observation, self._episode_time(task))
+        return state.replace(pipeline_state=SimState(data, task), obs=obs)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Advance one env step (``frame_skip`` physics steps) with a normalised action."""
@@ -135,7 +135,8 @@ class HSAEnv(BraxEnv):
         task, collected, completed = self._update_goal(task, after)
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.terrain)
         distance, direction = observation.goal_vector(after, task.goal_xy)
-        obs = observation.observe(new_data, task.goal_xy, idx, cfg.observation)
+        steps = task.step_count + 1
+        obs = observation.observe(new_data, task.goal_xy, idx, cfg.observation, steps * cfg.dt)
         ground = self.world.ground(task.terrain, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
                                               cfg.termination, idx)
@@ -160,7 +161,6 @@ class HSAEnv(BraxEnv):
             constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())))
         components = reward.compute_rewards(inputs, self.weights)
         total = reward.total_reward(components)
-        steps = task.step_count + 1
         truncated = (steps >= cfg.termination.max_episode_steps) & jnp.logical_not(terminated)
         task = task.replace(prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance,
                             step_count=steps)
@@ -171,6 +171,10 @@ class HSAEnv(BraxEnv):
                              done=(terminated | truncated).astype(jnp.float32), metrics=metrics, info=info)
 
     # ----- helpers ------------------------------------------------------------------------
+    def _episode_time(self, task: TaskState) -> jax.Array:
+        """Seconds since this episode's reset (env steps x dt)."""
+        return task.step_count * self.config.dt
+
     def _spawn(self, terrain: jax.Array) -> mjx.Data:
         """The reset state: on terrain both blocks are lifted to rest on this env's surface."""
         if not self.world.enabled:

@@ -1,6 +1,8 @@
 """The 24-value observation of the original, with block B's velocity read from the right dofs.
 
-``observation.heading: true`` appends 4 values: the robot's heading and the goal direction in it.
+Optional entries, appended in this order when enabled (``ObservationConfig``):
+``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
+(the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock).
 """
 
 from __future__ import annotations
@@ -14,16 +16,21 @@ from hsa_mjx.model import RobotIndex
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_SIZE = 4  # appended by observation.heading
+SERVO_TARGETS_SIZE = 8  # appended by observation.servo_targets
+CLOCK_SIZE = 2  # appended by observation.clock_period_s > 0
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
 ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
 # Slot layout: 0-7 hinge angles, 8-15 hinge velocities, 16-17 robot xy, 18-20 mean block linear
 # velocity, 21 distance to goal, 22-23 world-frame unit vector to goal; with observation.heading
-# 24-25 heading (cos yaw, sin yaw), 26-27 unit vector to goal in the heading frame (x ahead, y left).
+# 24-25 heading (cos yaw, sin yaw), 26-27 unit vector to goal in the heading frame (x ahead, y left);
+# then the 8 servo targets (action-slot order), then the clock (sin, cos of the gait phase).
 
 
 def observation_size(config: ObservationConfig) -> int:
     """Number of observation values for this observation config."""
-    return OBSERVATION_SIZE + (HEADING_SIZE if config.heading else 0)
+    return (OBSERVATION_SIZE + (HEADING_SIZE if config.heading else 0)
+            + (SERVO_TARGETS_SIZE if config.servo_targets else 0)
+            + (CLOCK_SIZE if config.clock_period_s > 0 else 0))
 
 
 def robot_xy(data: mjx.Data, index: RobotIndex) -> jax.Array:
@@ -68,9 +75,24 @@ def to_heading_frame(vector: jax.Array, unit_heading: jax.Array) -> jax.Array:
     return jnp.stack([cos * x + sin * y, cos * y - sin * x])
 
 
+def servo_targets(data: mjx.Data, index: RobotIndex) -> jax.Array:
+    """The 8 position-servo targets (rad) in action-slot order: the state the actions increment."""
+    return data.ctrl[index.servo_ids]
+
+
+def gait_clock(time_s: jax.Array, period_s: float) -> jax.Array:
+    """(sin, cos) of the phase 2 pi t / period; the phase is wrapped first so float32 stays exact."""
+    cycles = jnp.asarray(time_s, jnp.float32) / period_s
+    phase = 2.0 * jnp.pi * (cycles - jnp.floor(cycles))
+    return jnp.stack([jnp.sin(phase), jnp.cos(phase)])
+
+
 def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
-            config: ObservationConfig = ORIGINAL) -> jax.Array:
-    """Build the observation (float32): the original's 24 values, then the heading ones if enabled."""
+            config: ObservationConfig = ORIGINAL, time_s: jax.Array | float = 0.0) -> jax.Array:
+    """Build the observation (float32): the original's 24 values, then the enabled optional entries.
+
+    ``time_s`` is the episode time (env steps x dt), read only by the gait clock.
+    """
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
     parts = [
@@ -84,4 +106,8 @@ def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
     if config.heading:
         unit_heading = heading(data, index)
         parts += [unit_heading, to_heading_frame(direction, unit_heading)]
+    if config.servo_targets:
+        parts.append(servo_targets(data, index))
+    if config.clock_period_s > 0:
+        parts.append(gait_clock(time_s, config.clock_period_s))
     return jnp.concatenate(parts).astype(jnp.float32)

@@ -39,7 +39,8 @@ class SimState:
 class EnvState(BraxState):
     """Brax ``State`` whose ``pipeline_state`` is a :class:`SimState`.
 
-    Fields: ``pipeline_state`` (SimState), ``obs`` (24,) or (28,), ``reward`` (), ``done`` () float 0/1
-    (terminated or truncated), ``metrics`` (named reward components, termination reasons,
-    counters), ``info`` (``truncation``: 1.0 when the episode hit ``max_episode_steps``).
+    Fields: ``pipeline_state`` (SimState), ``obs`` (24,) plus the optional entries of
+    ``observation``, ``reward`` (), ``done`` () float 0/1 (terminated or truncated), ``metrics``
+    (named reward components, termination reasons, counters), ``info`` (``truncation``: 1.0 when
+    the episode hit ``max_episode_steps``).
     """

@@ -25,3 +25,37 @@ def test_corridor_gaits_table_has_one_row_per_layout_and_one_cell_per_gait():
     lines = markdown(rows).splitlines()
     assert len(lines) == 4 and lines[2].startswith("| corridor_preset |") and lines[3].count("|") == len(GAITS) + 2
     assert "+0.300, -0.010" in lines[3]
+
+
+def _layout():
+    import numpy as np
+    from benchmarks.gaits import GaitLayout
+    # slots 0-3 "A" cylinders (two on each block), 4-7 "C" cylinders
+    return GaitLayout(on_block_a=np.array([1, 0, 1, 0, 0, 1, 0, 1], np.float32), unit=np.array([1, 2, 3, 4] * 2),
+                      contracting=np.array([1, 1, 1, 1, 0, 0, 0, 0], np.float32))
+
+
+def test_gait_sweep_actions_reproduce_a_reachable_target_wave_and_saturate_otherwise():
+    import numpy as np
+    from benchmarks.gait_sweep import gait_actions, gait_targets
+    times = np.arange(201) * 0.02
+    slow = gait_targets("sine", 1.5, 4.0, "A", "opposite", _layout(), times, 6.28)
+    assert np.all(slow[0] == 0) and np.abs(slow).max() > 1.0
+    np.testing.assert_allclose(slow[:, 5], -slow[:, 0], atol=1e-12)  # same block and phase, C turns against A
+    actions = gait_actions(slow, 0.1785, 6.28)
+    assert actions.shape == (200, 8) and np.abs(actions).max() <= 1.0
+    np.testing.assert_allclose(np.cumsum(0.1785 * actions, axis=0), slow[1:], atol=1e-5)  # followed exactly
+    square = gait_actions(gait_targets("square", 6.28, 4.0, "B", "same", _layout(), times, 6.28), 0.1785, 6.28)
+    assert set(np.unique(np.round(square[:30], 6))) <= {-1.0, 1.0}  # full speed towards +-6.28
+    lead_b = gait_targets("sine", 2.0, 4.0, "B", "same", _layout(), times, 6.28)
+    assert lead_b[25, 0] < lead_b[25, 1]  # block A's servo (slot 0) lags block B's (slot 1) by a quarter period
+
+
+def test_track_progress_splits_calls_where_the_batch_restarts():
+    from benchmarks.track_progress import calls, table
+    distances = [1.75, 1.70, 1.60, 1.749, 1.5, 1.3]
+    records = [{"step": 1000 * (i + 1), "step/distance_to_goal": d, "step/reward": 0.01 * i} for i, d in enumerate(distances)]
+    assert [len(c) for c in calls(records)] == [3, 3]
+    lines = table([("run", records)]).splitlines()
+    assert lines[2] == "| run | 1 | 1,000 -> 3,000 | 1.750 -> 1.600 | +0.000 -> +0.020 |"
+    assert lines[3].startswith("| run | 2 | 4,000 -> 6,000 | 1.749 -> 1.300 |")

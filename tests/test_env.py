@@ -142,13 +142,23 @@ def _rotated_about_z(state, env, angle):
     return state.replace(pipeline_state=state.pipeline_state.replace(physics=physics.replace(qpos=jnp.asarray(qpos))))
 
 
-def test_heading_observation(jit_single):
-    """observation.heading: 28 values, unit heading, goal direction rotated by -yaw, sanitised like the rest."""
-    env = hsa_mjx.make_env("flat", observation__heading=True)
+def test_optional_observation_entries(jit_single):
+    """heading (unit heading, goal direction rotated by -yaw), servo targets and gait clock; sanitised like the rest.
+
+    One env with all three options (one compile): slots 24-27 heading, 28-35 targets, 36-37 clock.
+    """
+    env = hsa_mjx.make_env("flat", observation__heading=True, observation__servo_targets=True,
+                           observation__clock_period_s=1.0)
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     start = reset(jax.random.PRNGKey(0))
-    assert env.observation_size == 28 == start.obs.shape[0]
+    assert env.observation_size == 38 == start.obs.shape[0]
     np.testing.assert_allclose(start.obs[:24], jit_single[0](jax.random.PRNGKey(0)).obs, atol=1e-6)
+    np.testing.assert_allclose(start.obs[28:], np.r_[np.zeros(8), 0.0, 1.0], atol=1e-6)  # targets 0, phase 0
+    action = jnp.linspace(-1.0, 1.0, 8)
+    moved = step(step(start, action), action)  # two steps: 0.04 s of a 1 s clock, targets 2 x 0.1785 x a
+    np.testing.assert_allclose(moved.obs[28:36], 2 * env.config.control.max_increment * np.asarray(action), atol=1e-6)
+    np.testing.assert_allclose(moved.obs[28:36], moved.pipeline_state.physics.ctrl[env.index.servo_ids], atol=0)
+    np.testing.assert_allclose(moved.obs[36:38], [np.sin(2 * np.pi * 0.04), np.cos(2 * np.pi * 0.04)], atol=1e-5)
     turned = step(_rotated_about_z(start, env, 2.0), jnp.zeros(8))
     for state in (start, turned):
         obs, yaw = np.asarray(state.obs), _yaw(state.pipeline_state.physics, env)

@@ -105,10 +105,37 @@ def test_qacc_limit_checks_the_last_substep_unless_asked_for_every_one():
 def _fake_robot(block_a_xy, block_b_xy):
     """Synthetic data and index for ``observation.observe``: two blocks, 8 hinges, rest elsewhere."""
     xpos = jnp.zeros((3, 3)).at[1, :2].set(jnp.array(block_a_xy)).at[2, :2].set(jnp.array(block_b_xy))
-    data = SimpleNamespace(xpos=xpos, qpos=jnp.arange(30.0), qvel=jnp.arange(30.0) / 10)
+    data = SimpleNamespace(xpos=xpos, qpos=jnp.arange(30.0), qvel=jnp.arange(30.0) / 10,
+                           ctrl=-jnp.arange(12.0) / 4)
     index = SimpleNamespace(block_body=np.array([1, 2]), joint_qpos=np.arange(7, 15), joint_qvel=np.arange(6, 14),
-                            block_qvel=np.array([0, 14]))
+                            block_qvel=np.array([0, 14]), servo_ids=np.array([3, 1, 4, 1, 5, 9, 2, 6]))
     return data, index
+
+
+def test_optional_observation_entries_come_after_the_original_in_a_fixed_order():
+    sizes = {(h, t, c): observation.observation_size(ObservationConfig(heading=h, servo_targets=t, clock_period_s=c))
+             for h in (False, True) for t in (False, True) for c in (0.0, 4.0)}
+    assert sizes == {(h, t, c): 24 + 4 * h + 8 * t + 2 * (c > 0) for h, t, c in sizes}
+    data, index = _fake_robot((-0.2, 0.0), (0.2, 0.0))
+    goal = jnp.array([0.0, 3.0])
+    base = observation.observe(data, goal, index)
+    full = observation.observe(data, goal, index, ObservationConfig(heading=True, servo_targets=True,
+                                                                    clock_period_s=4.0), time_s=1.0)
+    assert full.shape == (38,) and full.dtype == jnp.float32
+    np.testing.assert_array_equal(full[:24], base)
+    np.testing.assert_array_equal(full[28:36], -np.array([3, 1, 4, 1, 5, 9, 2, 6]) / 4)  # ctrl by servo id
+    np.testing.assert_allclose(full[36:38], [1.0, 0.0], atol=1e-6)  # a quarter period: sin 1, cos 0
+    no_heading = observation.observe(data, goal, index, ObservationConfig(servo_targets=True))
+    np.testing.assert_array_equal(no_heading[24:], full[28:36])
+
+
+def test_gait_clock_is_periodic_and_exact_late_in_long_episodes():
+    period = 4.0
+    times = jnp.array([0.0, 1.0, 2.0, 3.0, 4.0, 159.5, 160.0])  # up to the spiral's 8,000 steps x 0.02 s
+    clock = np.asarray(jax.vmap(lambda t: observation.gait_clock(t, period))(times))
+    phase = 2 * np.pi * np.asarray(times, np.float64) / period
+    np.testing.assert_allclose(clock, np.stack([np.sin(phase), np.cos(phase)], 1), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(clock, axis=1), 1.0, atol=1e-6)
 
 
 def test_observation_size_follows_the_heading_option():

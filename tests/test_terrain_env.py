@@ -105,6 +105,18 @@ def test_spiral_preset_checkpoints_sit_on_its_track():
     assert float(jnp.max(terrain)) * world.grid.z_scale == pytest.approx(config.terrain.spiral.wall_height)
 
 
+@pytest.mark.parametrize("preset", ["corridor", "spiral"])
+def test_track_presets_draw_the_same_terrain_from_every_key(preset):
+    """The tracks are deterministic, so one shared copy (terrain.per_env: false) equals every per-env draw."""
+    world, _ = _world(cfg.get_preset(preset))
+    draws = jax.vmap(world.sampler.sample)(jax.random.split(jax.random.PRNGKey(5), 4))[0]
+    shared, _ = _world(cfg.with_overrides(cfg.get_preset(preset), terrain__per_env=False))
+    draws = np.asarray(draws)
+    np.testing.assert_array_equal(draws, np.broadcast_to(draws[0], draws.shape))  # every key: the same field
+    np.testing.assert_allclose(draws[0], shared.shared_data, atol=1e-5)  # = the shared one, up to float rounding (a micron)
+    assert np.ptp(draws[0]) > 0.4  # a real track, walls and floor
+
+
 def test_spawn_rests_the_lowest_geom_on_a_step_under_one_block():
     world, _ = _world(cfg.get_preset("craters"))
     x, _ = world.grid.mesh()

@@ -21,7 +21,7 @@ def test_default_and_shipped_configs_validate():
         assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
     plain = tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
     heading = tcfg.to_dict(tcfg.load("configs/train_flat_heading.yaml"))
-    assert plain["env"]["observation"] == {"heading": False} and heading["env"]["observation"] == {"heading": True}
+    assert not plain["env"]["observation"]["heading"] and heading["env"]["observation"]["heading"]
     assert checkpoint.incompatibilities(plain, heading) == ["env.observation.heading"]  # resume refuses
     for name, goal_mode in (("train_corridor", "random"), ("train_spiral", "spiral")):
         config = tcfg.validate(tcfg.load(f"configs/{name}.yaml"))
@@ -32,7 +32,9 @@ def test_default_and_shipped_configs_validate():
     loose = tcfg.to_dict(tcfg.load("configs/train_flat_loose.yaml"))
     for name in ("train_corridor", "train_spiral"):
         track = tcfg.to_dict(tcfg.load(f"configs/{name}.yaml"))
-        assert track["env"]["observation"] == loose["env"]["observation"] == {"heading": True}
+        assert track["env"]["observation"] == loose["env"]["observation"] == {
+            "heading": True, "servo_targets": True, "clock_period_s": 4.0}
+        assert not track["env"]["terrain"]["per_env"]  # one shared track (exact: test_terrain_env)
         assert track["env"]["control"]["servo_target_limit"] == loose["env"]["control"]["servo_target_limit"] == 6.28
         assert all(track["ppo"][k] == loose["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
 
@@ -58,6 +60,7 @@ def test_training_configs_use_the_guarded_physics():
     ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
     ({"env": {"preset": "nope"}}, "unknown preset"),
     ({"curriculum": {"window_size": 0}}, "window_size"),
+    ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
 ])
 def test_bad_config_is_named(data, match):
     with pytest.raises(ValueError, match=match):
@@ -188,6 +191,24 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
     ts2 = init_training_state(squashed, nets, jax.random.PRNGKey(0), 5)
     pol2 = ppo_networks.make_inference_fn(nets)((ts2.normalizer, ts2.params.policy), deterministic=False)
     assert float(jnp.max(jnp.abs(jax.vmap(lambda k: pol2(jnp.zeros(5), k))(keys)[0]))) <= 1.0
+
+
+def test_observation_clip_bounds_what_the_networks_see():
+    """ppo.observation_clip: a feature far outside its statistics reaches the networks clipped (0: unclipped)."""
+    from train.ppo import init_training_state, make_networks
+
+    def values(clip: float) -> np.ndarray:
+        config = tcfg.from_dict({"ppo": {"observation_clip": clip, "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}})
+        networks = make_networks(config, 3, 2)
+        ts = init_training_state(config, networks, jax.random.PRNGKey(0), 3)
+        obs = jnp.array([[10.0, 0.0, 0.0], [1e6, 0.0, 0.0], [-1e6, 0.0, 0.0], [-10.0, 0.0, 0.0]])  # mean 0, std 1
+        return np.asarray(networks.value_network.apply(ts.normalizer, ts.params.value, obs))
+
+    clipped, raw = values(10.0), values(0.0)
+    np.testing.assert_allclose(clipped[1], clipped[0], rtol=1e-6)  # 1e6 std away = 10 std away
+    np.testing.assert_allclose(clipped[2], clipped[3], rtol=1e-6)
+    np.testing.assert_allclose(raw[0], clipped[0], rtol=1e-6)  # within the clip nothing changes
+    assert abs(raw[1] - raw[0]) > 1e3 * max(abs(clipped[1] - clipped[0]), 1e-6)
 
 
 def test_multi_device_option_is_checked_and_resolved():

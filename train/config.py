@@ -45,6 +45,12 @@ class PPOConfig:
     num_updates_per_batch: int = 4
     reward_scaling: float = 1.0
     normalize_observations: bool = True
+    # normalised observations are clipped to +-observation_clip, as the original's VecNormalize
+    # (clip_obs 10). Without it, dimensions that barely vary over a fresh run's first unroll (every
+    # env starts in the same pose) later normalise to hundreds or more and the first updates' value
+    # loss reaches 1e7-1e12 (docs/training.md, session 7). 0 (the default) = no clip, so that
+    # checkpoints written before the key existed load and evaluate exactly as they were trained.
+    observation_clip: float = 0.0
     normalize_advantage: bool = True
     max_grad_norm: float = 1.0
     vf_loss_coefficient: float = 0.5
@@ -130,6 +136,8 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
                          ("noise_std_type", NOISE_STD_TYPES)):
         if getattr(ppo, key) not in choices:
             raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
+    if ppo.observation_clip < 0:
+        raise ValueError(f"config key 'ppo.observation_clip' must be >= 0 (0: no clip), got {ppo.observation_clip}")
     for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
         if getattr(ppo, key) < 1:
             raise ValueError(f"config key 'ppo.{key}' must be >= 1, got {getattr(ppo, key)}")

@@ -49,7 +49,9 @@ class TrainingState:
 def make_networks(config: TrainConfig, observation_size: int, action_size: int) -> ppo_networks.PPONetworks:
     """Brax PPO actor and critic MLPs with the configured sizes."""
     ppo = config.ppo
-    normalize = running_statistics.normalize if ppo.normalize_observations else types.identity_observation_preprocessor
+    normalize = types.identity_observation_preprocessor
+    if ppo.normalize_observations:
+        normalize = functools.partial(running_statistics.normalize, max_abs_value=ppo.observation_clip or None)
     return ppo_networks.make_ppo_networks(
         observation_size, action_size, preprocess_observations_fn=normalize,
         policy_hidden_layer_sizes=ppo.policy_hidden_sizes, value_hidden_layer_sizes=ppo.value_hidden_sizes,
