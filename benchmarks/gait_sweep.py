@@ -37,12 +37,12 @@ COMPONENTS = ("forward", "constraint_cost", "constraint_bonus", "stagnation_cost
 
 
 def gait_targets(shape: str, amplitude: float, period: float, lead: str, signs: str,
-                 layout: gaits.GaitLayout, times: np.ndarray, limit: float) -> np.ndarray:
+                 layout: gaits.GaitLayout, times: np.ndarray) -> np.ndarray:
     """Servo targets (len(times), 8) of one gait, starting at 0."""
     lag = (1.0 - layout.on_block_a if lead == "A" else layout.on_block_a) * (np.pi / 2.0)
     sign = np.ones(8) if signs == "same" else np.where(layout.contracting > 0, 1.0, -1.0)
     phase = 2.0 * np.pi * times[:, None] / period - lag[None]
-    if shape == "square":  # the target moves at full speed in the wave's direction, clipped at the limit
+    if shape == "square":  # +-amplitude by half periods: the env's targets run there at full speed
         return sign * amplitude * np.sign(np.sin(phase))
     wave = amplitude * sign * np.sin(phase)
     return wave - wave[0]
@@ -63,11 +63,11 @@ def variants(layout: gaits.GaitLayout, steps: int, dt: float, max_increment: flo
     times = np.arange(steps + 1) * dt
     out = {"hold": np.zeros((steps, 8), np.float32)}  # the baseline: standing still
     for period, lead in itertools.product((2.0, 4.0, 8.0), ("A", "B")):
-        targets = gait_targets("square", limit, period, lead, "same", layout, times, limit)
+        targets = gait_targets("square", limit, period, lead, "same", layout, times)
         out[f"square_T{period:g}_lead{lead}"] = gait_actions(targets, max_increment, limit)
     for amplitude, period, signs, lead in itertools.product((1.5, 2.2, 3.0), (2.0, 4.0), ("same", "opposite"),
                                                             ("A", "B")):
-        targets = gait_targets("sine", amplitude, period, lead, signs, layout, times, limit)
+        targets = gait_targets("sine", amplitude, period, lead, signs, layout, times)
         out[f"sine_a{amplitude:g}_T{period:g}_{signs}_lead{lead}"] = gait_actions(targets, max_increment, limit)
     return out
 

@@ -39,15 +39,15 @@ def test_gait_sweep_actions_reproduce_a_reachable_target_wave_and_saturate_other
     import numpy as np
     from benchmarks.gait_sweep import gait_actions, gait_targets
     times = np.arange(201) * 0.02
-    slow = gait_targets("sine", 1.5, 4.0, "A", "opposite", _layout(), times, 6.28)
+    slow = gait_targets("sine", 1.5, 4.0, "A", "opposite", _layout(), times)
     assert np.all(slow[0] == 0) and np.abs(slow).max() > 1.0
     np.testing.assert_allclose(slow[:, 5], -slow[:, 0], atol=1e-12)  # same block and phase, C turns against A
     actions = gait_actions(slow, 0.1785, 6.28)
     assert actions.shape == (200, 8) and np.abs(actions).max() <= 1.0
     np.testing.assert_allclose(np.cumsum(0.1785 * actions, axis=0), slow[1:], atol=1e-5)  # followed exactly
-    square = gait_actions(gait_targets("square", 6.28, 4.0, "B", "same", _layout(), times, 6.28), 0.1785, 6.28)
+    square = gait_actions(gait_targets("square", 6.28, 4.0, "B", "same", _layout(), times), 0.1785, 6.28)
     assert set(np.unique(np.round(square[:30], 6))) <= {-1.0, 1.0}  # full speed towards +-6.28
-    lead_b = gait_targets("sine", 2.0, 4.0, "B", "same", _layout(), times, 6.28)
+    lead_b = gait_targets("sine", 2.0, 4.0, "B", "same", _layout(), times)
     assert lead_b[25, 0] < lead_b[25, 1]  # block A's servo (slot 0) lags block B's (slot 1) by a quarter period
 
 
