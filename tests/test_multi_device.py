@@ -26,8 +26,16 @@ FAKE_DEVICES = 2
 SUBPROCESS_TIMEOUT_S = 1200  # cold compiles on a 2-core CPU take minutes
 FACTS = "FACTS "
 # 8 envs over 2 devices, one PPO iteration (80 env steps) per epoch: 160 steps = one 15-step episode per env.
-TWO_DEVICE_CONFIG = {**TINY, "ppo": {**TINY["ppo"], "batch_size": 8},
+# The solver runs to convergence (20 iterations, not TINY's 4): the pmap and per-device programs are
+# compiled separately and may round differently (seen on an AVX2 CI CPU), and the under-converged
+# 4-iteration solver turned a 6e-6 m difference into 5e-3 m in one step; converged, it stays ~1e-7.
+TWO_DEVICE_CONFIG = {**TINY, "env": {**TINY["env"], "physics": {"iterations": 20, "ls_iterations": 20}},
+                     "ppo": {**TINY["ppo"], "batch_size": 8},
                      "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1}}
+# Largest leaf difference, relative to max(1, |leaf|), between the pmap and per-device runs (and the
+# tolerance of their episode totals): float rounding gives ~3e-6 on the leaves and 1.3e-5 on a summed
+# reward term after 2 epochs, while the diverged 4-iteration runs differed by 2e-2.
+SAME_RUN_TOLERANCE = 1e-4
 COMPARED_METRICS = ("episode/return", "episode/final_distance", "loss/total_loss", "loss/policy_loss",
                     "curriculum/max_distance", "curriculum/episode_count")
 
@@ -92,8 +100,8 @@ def _same_run_facts(config_path: str, compiles: list) -> dict:
         runs[name] = (jax.device_get((ts, state.curriculum)), totals, len(compiles) - before)
     (ts_a, cs_a), totals_a, _ = runs["pmap"]
     (ts_b, cs_b), totals_b, recompiles = runs["per_device"]
-    gap = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in
-              zip(jax.tree.leaves(ts_a), jax.tree.leaves(ts_b)))
+    gap = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / max(1.0, np.max(np.abs(np.asarray(a)))))
+              for a, b in zip(jax.tree.leaves(ts_a), jax.tree.leaves(ts_b)))
     curriculum_equal = all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(cs_a), jax.tree.leaves(cs_b)))
     return {"same_run_param_gap": gap, "same_run_curriculum_equal": curriculum_equal,
             "same_run_totals": [totals_a, totals_b], "same_run_episodes": int(np.asarray(cs_b.episode_count)[0]),
@@ -322,15 +330,15 @@ def test_envs_differ_across_devices(two_devices):
 
 
 def test_per_device_learner_trains_exactly_like_pmap(two_devices):
-    """One jitted collection per device (train/per_device.py) gives the pmap epoch's results."""
+    """One jitted collection per device (train/per_device.py) gives the pmap epoch's results (to float rounding)."""
     facts, _ = two_devices
-    assert facts["same_run_param_gap"] < 1e-5  # learner parameters, optimiser and normaliser after 2 epochs
+    assert facts["same_run_param_gap"] < SAME_RUN_TOLERANCE  # parameters, optimiser and normaliser after 2 epochs
     assert facts["same_run_curriculum_equal"]
     pmap_totals, per_device_totals = facts["same_run_totals"]
     for a, b in zip(pmap_totals, per_device_totals):
         assert a.keys() == b.keys()
         for key in a:
-            assert b[key] == pytest.approx(a[key], rel=1e-5, abs=1e-5), key
+            assert b[key] == pytest.approx(a[key], rel=SAME_RUN_TOLERANCE, abs=SAME_RUN_TOLERANCE), key
     assert facts["same_run_episodes"] == 8 and pmap_totals[1]["episodes"] == 8  # both devices' episodes counted
     assert facts["per_device_second_epoch_compiles"] == 0
 
@@ -383,8 +391,8 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     from train.evaluate import main as evaluate
     from train.trainer import train
     _, run_dir = two_devices
-    one_device = json.loads(json.dumps(TINY))  # 4 envs, the minibatch for one device
-    one_device["run"].update(num_timesteps=280)
+    one_device = json.loads(json.dumps({**TWO_DEVICE_CONFIG, "ppo": TINY["ppo"]}))  # 4 envs, the minibatch for one device
+    one_device["run"].update(num_envs=4, checkpoint_every=40, num_timesteps=280)
     summary = train(tcfg.from_dict(one_device), run_dir, resume=True, quiet=True)
     assert summary["env_steps"] == 280
     last = _records(run_dir)[-1]

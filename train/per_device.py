@@ -14,8 +14,9 @@ crashes XLA's GPU compiler, while the same collection compiles for one GPU and t
   SGD with gradients averaged over the GPUs) is ``PPOLearner._learn`` under ``pmap``;
 - data moves between the two as the per-GPU pieces of one array (no copy, no host round-trip).
 
-Same random streams and update order as the ``pmap`` epoch: both give the same training run
-(tests/test_multi_device.py compares them on fake CPU devices).
+Same random streams and update order as the ``pmap`` epoch: both give the same training run up to
+float rounding, as the two are compiled as different programs (tests/test_multi_device.py compares
+them on fake CPU devices).
 """
 
 from __future__ import annotations
