@@ -18,10 +18,7 @@ Session 7 used it to see why PPO stood still in the corridor: docs/training.md.
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -29,7 +26,7 @@ import numpy as np
 
 import hsa_mjx
 from benchmarks import fidelity, gaits
-from benchmarks.run_info import write_table_result
+from benchmarks.run_info import gait_sweep_cli
 from hsa_mjx import config as ec
 
 PHYSICS = {"integrator": "implicitfast", "iterations": 8, "ls_iterations": 8}
@@ -105,26 +102,15 @@ def sweep(seconds: float) -> list[dict]:
              **{c: round(float(parts[c][i]), 4) for c in COMPONENTS}} for i, name in enumerate(names)]
 
 
-def markdown(rows: list[dict]) -> str:
-    """One row per gait."""
-    head = ["gait", "dx_m", "dy_m", "goal_x_m", "reward_per_step", *COMPONENTS]
-    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
-    lines += ["| " + " | ".join(str(r[k]) for k in head) + " |" for r in rows]
-    return "\n".join(lines)
+HEAD = ["gait", "dx_m", "dy_m", "goal_x_m", "reward_per_step", *COMPONENTS]
 
 
 def main(argv: list[str] | None = None) -> None:
     """Run the sweep, print and write the table."""
-    p = argparse.ArgumentParser(prog="python -m benchmarks.gait_sweep", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--seconds", type=float, default=20.0)
-    p.add_argument("--out", type=Path, default=Path("benchmarks/results/gait_sweep_corridor_cpu"))
-    args = p.parse_args(argv)
-    tic = time.perf_counter()
-    rows = sweep(args.seconds)
-    table = (f"Corridor preset, {args.seconds:g} s per open-loop gait: displacement (m; the goal lies at goal_x on "
-             "the corridor's line) and the mean per-step reward with its main components\n\n" + markdown(rows))
-    write_table_result(args.out, table, rows, tic)
+    gait_sweep_cli(argv, "python -m benchmarks.gait_sweep", __doc__, "benchmarks/results/gait_sweep_corridor_cpu",
+                   sweep, lambda seconds: f"Corridor preset, {seconds:g} s per open-loop gait: displacement (m; the "
+                   "goal lies at goal_x on the corridor's line) and the mean per-step reward with its main components",
+                   HEAD)
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import importlib.metadata
 import json
@@ -12,7 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import jax
 
@@ -96,3 +97,22 @@ def write_table_result(out: Path, table: str, rows: list[dict], started: float) 
     out.with_suffix(".json").write_text(json.dumps({"meta": info, "rows": rows}, indent=1))
     out.with_suffix(".md").write_text(table + f"\n\n{info['date']}, {info['device']}, command `{info['command']}`\n")
     return info
+
+
+def markdown_rows(rows: list[dict], head: list[str]) -> str:
+    """A markdown table of ``rows`` with the columns ``head`` (one row per dict)."""
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    lines += ["| " + " | ".join(str(r[k]) for k in head) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def gait_sweep_cli(argv: list[str] | None, prog: str, doc: str, default_out: str,
+                   sweep: Callable[[float], list[dict]], caption: Callable[[float], str], head: list[str]) -> None:
+    """The command line of an open-loop gait sweep: ``--seconds`` per gait, ``--out`` the result's stem."""
+    p = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--out", type=Path, default=Path(default_out))
+    args = p.parse_args(argv)
+    tic = time.perf_counter()
+    rows = sweep(args.seconds)
+    write_table_result(args.out, caption(args.seconds) + "\n\n" + markdown_rows(rows, head), rows, tic)

@@ -59,3 +59,23 @@ def test_track_progress_splits_calls_where_the_batch_restarts():
     lines = table([("run", records)]).splitlines()
     assert lines[2] == "| run | 1 | 1,000 -> 3,000 | 1.750 -> 1.600 | +0.000 -> +0.020 |"
     assert lines[3].startswith("| run | 2 | 4,000 -> 6,000 | 1.749 -> 1.300 |")
+
+
+def test_turn_gaits_sides_come_from_the_model_and_each_side_plays_its_own_lead():
+    import numpy as np
+    from benchmarks import fidelity, gaits
+    from benchmarks.turn_gaits import SIDES, left_side, mixed_targets, variants
+    model = fidelity.load_mj_model(fidelity.fidelity_config())
+    left, layout = left_side(model), gaits.gait_layout(model)
+    assert left.sum() == 4  # units 1 and 4 sit at +y (left of block_a -> block_b), units 2 and 3 at -y
+    np.testing.assert_array_equal(left, np.isin(layout.unit, [1, 4]).astype(np.float32))
+    times, base = np.arange(101) * 0.02, ("sine", 2.0, 4.0, "same")
+    one_side = mixed_targets(base, "A", "-", left, layout, times)
+    assert np.all(one_side[:, left == 0] == 0) and np.abs(one_side[:, left > 0]).max() > 1.0
+    crossed = mixed_targets(base, "A", "B", left, layout, times)
+    straight_a, straight_b = (mixed_targets(base, lead, lead, left, layout, times) for lead in "AB")
+    np.testing.assert_array_equal(crossed[:, left > 0], straight_a[:, left > 0])
+    np.testing.assert_array_equal(crossed[:, left == 0], straight_b[:, left == 0])
+    table = variants(layout, left, 50, 0.02, 0.1785, 6.28)
+    assert len(table) == 1 + 2 * len(SIDES) and len(set(SIDES)) == len(SIDES)
+    assert all(a.shape == (50, 8) and np.abs(a).max() <= 1.0 for a in table.values())
