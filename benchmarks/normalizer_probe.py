@@ -15,28 +15,14 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from benchmarks.run_info import write_table_result
-from hsa_mjx.config import ObservationConfig
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.observation import observation_labels
 from train import config as tcfg
 
 STD_FLOOR = 1e-6  # the running statistics' own floor (brax running_statistics.update std_min_value)
-
-
-def labels(config: ObservationConfig) -> list[str]:
-    """A short name per observation slot, in the layout of hsa_mjx.observation."""
-    names = [f"hinge_angle_{i}" for i in range(8)] + [f"hinge_velocity_{i}" for i in range(8)]
-    names += ["robot_x", "robot_y", "block_vx", "block_vy", "block_vz", "goal_distance", "goal_dir_x", "goal_dir_y"]
-    if config.heading:
-        names += ["heading_cos", "heading_sin", "goal_dir_ahead", "goal_dir_left"]
-    if config.servo_targets:
-        names += [f"servo_target_{i}" for i in range(8)]
-    if config.clock_period_s > 0:
-        names += ["clock_sin", "clock_cos"]
-    return names
 
 
 def random_rollout(env: HSAEnv, envs: int, steps: int, seed: int) -> np.ndarray:
@@ -69,7 +55,7 @@ def main(argv: list[str] | None = None) -> None:
     mean, std = first.mean(0), np.maximum(first.std(0), STD_FLOOR)
     drift = np.abs((obs[args.later:] - mean) / std).max(axis=(0, 1))
     order = np.argsort(-drift)[:args.rows]
-    rows = [{"slot": int(i), "name": labels(config.env.observation)[i], "first_unroll_std": float(std[i]),
+    rows = [{"slot": int(i), "name": observation_labels(config.env.observation)[i], "first_unroll_std": float(std[i]),
              "max_normalised_later": float(drift[i])} for i in order]
     table = (f"{args.config}, {args.envs} envs, random actions: std over the first {args.unroll} steps and the largest "
              f"|normalised value| at steps {args.later}-{args.later + args.unroll}\n\n"

@@ -15,22 +15,27 @@ from hsa_mjx.config import ObservationConfig
 from hsa_mjx.model import RobotIndex
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
-HEADING_SIZE = 4  # appended by observation.heading
-SERVO_TARGETS_SIZE = 8  # appended by observation.servo_targets
-CLOCK_SIZE = 2  # appended by observation.clock_period_s > 0
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
 ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
-# Slot layout: 0-7 hinge angles, 8-15 hinge velocities, 16-17 robot xy, 18-20 mean block linear
-# velocity, 21 distance to goal, 22-23 world-frame unit vector to goal; with observation.heading
-# 24-25 heading (cos yaw, sin yaw), 26-27 unit vector to goal in the heading frame (x ahead, y left);
-# then the 8 servo targets (action-slot order), then the clock (sin, cos of the gait phase).
+# Slot names in order: the original's 24, then each optional entry when enabled (``observe`` builds
+# them in this order). The heading frame's goal direction is (x ahead, y left).
+ORIGINAL_LABELS = (tuple(f"hinge_angle_{i}" for i in range(8)) + tuple(f"hinge_velocity_{i}" for i in range(8))
+                   + ("robot_x", "robot_y", "block_vx", "block_vy", "block_vz", "goal_distance", "goal_dir_x",
+                      "goal_dir_y"))
+HEADING_LABELS = ("heading_cos", "heading_sin", "goal_dir_ahead", "goal_dir_left")
+SERVO_TARGET_LABELS = tuple(f"servo_target_{i}" for i in range(8))  # action-slot order
+CLOCK_LABELS = ("clock_sin", "clock_cos")
+
+
+def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
+    """A short name per observation slot for this observation config, in ``observe``'s order."""
+    return (ORIGINAL_LABELS + (HEADING_LABELS if config.heading else ())
+            + (SERVO_TARGET_LABELS if config.servo_targets else ()) + (CLOCK_LABELS if config.clock_period_s > 0 else ()))
 
 
 def observation_size(config: ObservationConfig) -> int:
     """Number of observation values for this observation config."""
-    return (OBSERVATION_SIZE + (HEADING_SIZE if config.heading else 0)
-            + (SERVO_TARGETS_SIZE if config.servo_targets else 0)
-            + (CLOCK_SIZE if config.clock_period_s > 0 else 0))
+    return len(observation_labels(config))
 
 
 def robot_xy(data: mjx.Data, index: RobotIndex) -> jax.Array:

@@ -148,6 +148,8 @@ def test_observation_size_follows_the_heading_option():
     full = observation.observe(data, goal, index, ObservationConfig(heading=True))
     assert full.shape == (28,)
     np.testing.assert_array_equal(full[:24], base)  # the original's 24 values come first, unchanged
+    labels = observation.observation_labels(ObservationConfig(heading=True, servo_targets=True, clock_period_s=4.0))
+    assert len(labels) == len(set(labels)) == 38 and labels[24] == "heading_cos" and labels[-2:] == ("clock_sin", "clock_cos")
 
 
 def test_heading_frame_rotation_on_hand_made_vectors():
