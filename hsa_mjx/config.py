@@ -101,6 +101,9 @@ class GoalConfig:
     position: tuple[float, float] = (1.5, 0.0)  # fixed mode
     success_radius: float = 0.2
     radial_range: tuple[float, float] = (1.5, 1.8)  # radial mode: distance range of new goals
+    # radial mode: |angle| of the goal direction from world +x (the robot spawns facing +x), in
+    # degrees, either side; (0, 180) = any direction, (60, 120) = beside the robot (a turning task)
+    radial_bearing_deg: tuple[float, float] = (0.0, 180.0)
     num_checkpoints: int = 8
     checkpoint_radius: float = 0.4
     spiral_start_radius: float = 0.5
@@ -231,6 +234,10 @@ def validate(config: EnvConfig) -> EnvConfig:
     lo, hi = config.goal.radial_range
     if not 0 <= lo <= hi:
         raise ValueError(f"config key 'goal.radial_range' must satisfy 0 <= min <= max, got {(lo, hi)}")
+    lo, hi = config.goal.radial_bearing_deg
+    if not 0 <= lo <= hi <= 180:
+        raise ValueError("config key 'goal.radial_bearing_deg' must satisfy 0 <= min <= max <= 180 "
+                         f"(degrees from +x, either side), got {(lo, hi)}")
     if config.termination.z_min >= config.termination.z_max:
         raise ValueError("config keys 'termination.z_min' must be below 'termination.z_max'")
     if config.physics.tolerance < 0:

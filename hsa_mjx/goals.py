@@ -10,6 +10,7 @@ from hsa_mjx.config import EnvConfig, GoalConfig
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
 FLAT_ID = TERRAIN_TYPES.index("flat")
+FULL_CIRCLE = (0.0, 180.0)  # goal.radial_bearing_deg that means any direction
 
 
 def spiral_checkpoints(goal: GoalConfig) -> np.ndarray:
@@ -57,11 +58,17 @@ def random_goal(rng: jax.Array, types: tuple[str, ...], terrain_id: jax.Array | 
     return jnp.where(terrain_id == FLAT_ID, original_random_goal(rng, "flat"), original_random_goal(rng, "other"))
 
 
-def radial_goal(rng: jax.Array, radius_range: jax.Array) -> jax.Array:
-    """Distance uniform in ``radius_range`` (traced), direction uniform in [0, 2 pi)."""
+def radial_goal(rng: jax.Array, radius_range: jax.Array,
+                bearing_deg: tuple[float, float] = FULL_CIRCLE) -> jax.Array:
+    """Distance uniform in ``radius_range`` (traced); direction uniform in [0, 2 pi), or, with a
+    static ``bearing_deg`` = (lo, hi), at lo..hi degrees from world +x (the spawn heading) on
+    either side, each side equally likely."""
     k_r, k_a = jax.random.split(rng)
     radius = jax.random.uniform(k_r, (), minval=radius_range[0], maxval=radius_range[1])
-    angle = jax.random.uniform(k_a, (), minval=0.0, maxval=2.0 * jnp.pi)
+    if tuple(bearing_deg) == FULL_CIRCLE:
+        angle = jax.random.uniform(k_a, (), minval=0.0, maxval=2.0 * jnp.pi)
+    else:
+        angle = jnp.deg2rad(_random_side(k_a, float(bearing_deg[0]), float(bearing_deg[1])))
     return radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
 
 
@@ -74,7 +81,7 @@ def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
     if mode == "random":
         return random_goal(rng, config.terrain.types, terrain_id)
     if mode == "radial":
-        return radial_goal(rng, radius_range)
+        return radial_goal(rng, radius_range, config.goal.radial_bearing_deg)
     return checkpoints[0]
 
 

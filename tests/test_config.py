@@ -53,6 +53,8 @@ def test_wrong_type_and_bad_choice_and_range():
         cfg.from_dict({"control": {"frame_skip": 0}})
     with pytest.raises(ValueError, match="radial_range"):
         cfg.from_dict({"goal": {"radial_range": [3.0, 1.0]}})
+    with pytest.raises(ValueError, match=r"radial_bearing_deg.*<= 180"):
+        cfg.from_dict({"goal": {"radial_bearing_deg": [60.0, 200.0]}})
 
 
 def test_missing_file_and_unknown_preset(tmp_path):

@@ -54,6 +54,21 @@ def test_radial_goal_range_is_traced():
         assert r.min() >= lo - 1e-5 and r.max() <= hi + 1e-5
 
 
+def test_radial_goal_bearing_window():
+    keys = jax.random.split(jax.random.PRNGKey(2), 512)
+    side = jax.vmap(lambda k: goals.radial_goal(k, jnp.array([0.8, 1.2]), (60.0, 120.0)))(keys)
+    bearing = np.degrees(np.arctan2(side[:, 1], side[:, 0]))
+    assert np.all((np.abs(bearing) >= 60 - 1e-3) & (np.abs(bearing) <= 120 + 1e-3))
+    assert (bearing > 0).mean() == pytest.approx(0.5, abs=0.1)  # left and right alike
+    r = np.linalg.norm(side, axis=1)
+    assert r.min() >= 0.8 - 1e-5 and r.max() <= 1.2 + 1e-5
+    # the default window is the whole circle, drawn exactly as before the option existed
+    full = jax.vmap(lambda k: goals.radial_goal(k, jnp.array([1.5, 1.8])))(keys)
+    explicit = jax.vmap(lambda k: goals.radial_goal(k, jnp.array([1.5, 1.8]), goals.FULL_CIRCLE))(keys)
+    np.testing.assert_array_equal(full, explicit)
+    assert np.abs(np.degrees(np.arctan2(full[:, 1], full[:, 0]))).min() < 10  # goals ahead exist
+
+
 def test_checkpoint_advance():
     pts = jnp.array([[1.0, 0.0], [2.0, 0.0]])
     got, done, idx = goals.advance_checkpoint(jnp.array([0.7, 0.0]), pts, jnp.array(0), 0.4)

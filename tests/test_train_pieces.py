@@ -37,6 +37,14 @@ def test_default_and_shipped_configs_validate():
         assert not track["env"]["terrain"]["per_env"]  # one shared track (exact: test_terrain_env)
         assert track["env"]["control"]["servo_target_limit"] == loose["env"]["control"]["servo_target_limit"] == 6.28
         assert all(track["ppo"][k] == loose["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
+    # the turning task (goals beside the robot) shares them too, and the track tasks' PPO iteration size
+    turn = tcfg.validate(tcfg.load("configs/train_turn.yaml"))
+    assert turn.env.goal.mode == "radial" and turn.env.goal.radial_bearing_deg == (60.0, 120.0)
+    assert not turn.curriculum.enabled and turn.env.terrain_type == "flat"
+    turn_d, corridor = tcfg.to_dict(turn), tcfg.to_dict(tcfg.load("configs/train_corridor.yaml"))
+    assert turn_d["env"]["observation"] == loose["env"]["observation"]
+    assert turn_d["env"]["control"]["servo_target_limit"] == 6.28
+    assert all(turn_d["ppo"][k] == corridor["ppo"][k] for k in turn_d["ppo"])
 
 
 def test_training_configs_use_the_guarded_physics():
