@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from train import checkpoint, compat
+from train import checkpoint, compat, evaluate
 from train import config as tcfg
 
 
@@ -45,6 +45,9 @@ def test_default_and_shipped_configs_validate():
     assert turn_d["env"]["observation"] == loose["env"]["observation"]
     assert turn_d["env"]["control"]["servo_target_limit"] == 6.28
     assert all(turn_d["ppo"][k] == corridor["ppo"][k] for k in turn_d["ppo"])
+    # evaluation defaults to the goals each was trained on
+    assert evaluate.default_goal_range(turn) == (0.8, 1.2)
+    assert evaluate.default_goal_range(tcfg.load("configs/train_flat_loose.yaml")) == (1.5, 4.5)
 
 
 def test_training_configs_use_the_guarded_physics():

@@ -44,6 +44,13 @@ def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministi
     return config, env, policy, path, int(meta["step"])
 
 
+def default_goal_range(config: tcfg.TrainConfig) -> tuple[float, float]:
+    """The radial goal range to evaluate on: the curriculum's target, or the range training used."""
+    if config.curriculum.enabled:
+        return tuple(config.curriculum.target_range)
+    return tuple(config.env.goal.radial_range)
+
+
 def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int) -> dict[str, jax.Array]:
     """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...)."""
     idx = env.index
@@ -105,7 +112,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--episodes", type=int, default=16)
     parser.add_argument("--steps", type=int, default=0, help="max steps per episode (0: the env's max_episode_steps)")
     parser.add_argument("--goal-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help="radial goal distance range (default: the curriculum's target range)")
+                        help="radial goal distance range (default: the curriculum's target range, or "
+                             "the env's goal.radial_range when the curriculum is off)")
     parser.add_argument("--stochastic", action="store_true",
                         help="sample actions from the policy as in training (default: its mean action)")
     parser.add_argument("--video", action="store_true", help="render the first episode to eval/episode.gif")
@@ -126,12 +134,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    goal_range = args.goal_range or config.curriculum.target_range
+    goal_range = args.goal_range or default_goal_range(config)
     steps = args.steps or config.env.termination.max_episode_steps
     keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
     traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
     traces = {k: np.asarray(v) for k, v in traces.items()}
-    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range),
+    radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
+    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range) if radial else None,
               "policy": "stochastic" if args.stochastic else "deterministic", "max_steps": steps,
               **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral")}
     out = run_dir / "eval"
