@@ -76,6 +76,9 @@ class RewardConfig:
     checkpoint: float = 200.0
     spiral_completion: float = 100.0
     termination: float = 100.0  # the original hard-coded 100 whatever the config said
+    # Not in the original (0 keeps its reward): potential-based shaping that pays turning the robot's
+    # axis towards the goal, w * (|cos| after - |cos| before) of the axis-to-goal angle per step.
+    heading_alignment: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)

@@ -127,7 +127,7 @@ class HSAEnv(BraxEnv):
         start = data.ctrl[idx.servo_ids]
         end = control.next_targets(start, action, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
-        before = observation.robot_xy(data, idx)
+        before, heading_before = observation.robot_xy(data, idx), observation.heading(data, idx)
         model = self.world.model_for(self.robot.mjx_model, task.terrain)  # this env's own heightfield
         new_data, stats = physics.simulate(model, data, targets, idx)
         after = observation.robot_xy(new_data, idx)
@@ -156,7 +156,8 @@ class HSAEnv(BraxEnv):
             distance=distance, prev_distance=task.prev_distance, stagnation_progress=progress,
             history_full=full, checkpoint_collected=collected,
             spiral_complete=completed & success, goal_reached=success & (cfg.goal.mode != "spiral"),
-            failed=failed, terminated=terminated, dt=cfg.dt,
+            failed=failed, terminated=terminated, heading_before=heading_before,
+            heading_after=observation.heading(new_data, idx), dt=cfg.dt,
             rectified_forward=cfg.reward.forward_rectified,
             constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())))
         components = reward.compute_rewards(inputs, self.weights)

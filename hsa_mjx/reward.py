@@ -45,6 +45,7 @@ class RewardWeights:
     checkpoint: jax.Array
     spiral_completion: jax.Array
     termination: jax.Array
+    heading_alignment: jax.Array
 
     @classmethod
     def from_config(cls, config: RewardConfig) -> "RewardWeights":
@@ -74,6 +75,8 @@ class RewardInputs:
     goal_reached: jax.Array  # () bool (non-spiral success)
     failed: jax.Array  # () bool, terminated for a reason other than success
     terminated: jax.Array  # () bool
+    heading_before: jax.Array  # (2,) unit robot axis (block A -> B) in XY before the step
+    heading_after: jax.Array  # (2,) the same after the step
     dt: float = struct.field(pytree_node=False, default=0.02)  # env step length (static)
     rectified_forward: bool = struct.field(pytree_node=False, default=False)
     constraint_pairs: tuple = struct.field(pytree_node=False, default=((0, 4), (1, 5), (2, 6), (3, 7)))
@@ -169,10 +172,22 @@ def termination(x: RewardInputs, w: RewardWeights) -> jax.Array:
     return -jnp.where(x.failed, w.termination, 0.0)
 
 
+def heading_alignment(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """Turning towards the goal: change of |cos| between the robot's axis and the goal direction.
+
+    Shaping added here (weight 0 keeps the original's reward). Both ends of the axis count, as the
+    robot crawls either way; both angles are taken against this step's goal direction, so the term
+    pays rotation only, telescopes over a turn (a full spin earns 0) and is 0 on a checkpoint switch.
+    """
+    before = jnp.abs(jnp.dot(x.heading_before, x.goal_direction))
+    after = jnp.abs(jnp.dot(x.heading_after, x.goal_direction))
+    return w.heading_alignment * (after - before)
+
+
 TERMS = (
     forward, lateral_cost, ctrl_cost, contact_cost, constraint_cost, constraint_bonus,
     acceleration_cost, joint_velocity_cost, distance, stagnation_cost, checkpoint,
-    spiral_completion, goal_bonus, alive, termination,
+    spiral_completion, goal_bonus, alive, termination, heading_alignment,
 )
 TERM_NAMES = tuple(term.__name__ for term in TERMS)
 

@@ -59,6 +59,29 @@ def test_reward_is_the_sum_of_logged_components(jit_single):
     assert float(state.reward) == pytest.approx(parts, rel=1e-5, abs=1e-6)
 
 
+def test_heading_alignment_is_wired_to_the_robot_axis(env):
+    """With the shaping weight on, the logged term is w * (|cos| after - |cos| before) of axis vs goal."""
+    import copy
+    from hsa_mjx import observation
+    shaped = copy.copy(env)
+    shaped.weights = env.weights.replace(heading_alignment=jnp.float32(100.0))
+    reset, step = jax.jit(shaped.reset), jax.jit(shaped.step)
+    state = reset(jax.random.PRNGKey(4))
+    one_sided = jnp.array([1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0])
+    logged, expected = [], []
+    for _ in range(30):
+        new = step(state, one_sided)
+        data, goal = new.pipeline_state.physics, new.pipeline_state.task.goal_xy
+        _, direction = observation.goal_vector(observation.robot_xy(data, env.index), goal)
+        cos = [abs(float(jnp.dot(observation.heading(d, env.index), direction)))
+               for d in (state.pipeline_state.physics, data)]
+        expected.append(100.0 * (cos[1] - cos[0]))
+        logged.append(float(new.metrics["reward/heading_alignment"]))
+        state = new
+    np.testing.assert_allclose(logged, expected, rtol=1e-3, atol=1e-5)
+    assert np.max(np.abs(logged)) > 1e-4  # the robot did rotate
+
+
 def test_nan_state_terminates_and_never_reaches_the_learner(jit_single):
     reset, step, _ = jit_single
     state = reset(jax.random.PRNGKey(0))

@@ -18,7 +18,8 @@ def inputs(**kw):
         prev_distance=jnp.array(2.0), stagnation_progress=jnp.array(1.0),
         history_full=jnp.array(True), checkpoint_collected=jnp.array(False),
         spiral_complete=jnp.array(False), goal_reached=jnp.array(False), failed=jnp.array(False),
-        terminated=jnp.array(False), dt=0.02)
+        terminated=jnp.array(False), heading_before=jnp.array([1.0, 0.0]),
+        heading_after=jnp.array([1.0, 0.0]), dt=0.02)
     base.update(kw)
     return R.RewardInputs(**base)
 
@@ -86,5 +87,29 @@ def test_bonuses_alive_and_termination():
 def test_components_are_named_and_sum_to_total():
     x = inputs(velocity=jnp.array([0.3, 0.1]), action=jnp.ones(8), distance=jnp.array(1.95))
     comps = R.compute_rewards(x, W)
-    assert tuple(comps) == R.TERM_NAMES and len(comps) == 15
+    assert tuple(comps) == R.TERM_NAMES and len(comps) == 16
     assert float(R.total_reward(comps)) == pytest.approx(sum(float(v) for v in comps.values()), rel=1e-6)
+
+
+def _unit(deg):
+    return jnp.array([np.cos(np.radians(deg)), np.sin(np.radians(deg))], jnp.float32)
+
+
+def test_heading_alignment_pays_turning_towards_the_goal_either_end():
+    w = W.replace(heading_alignment=jnp.float32(100.0))
+    assert float(R.heading_alignment(inputs(heading_before=_unit(30), heading_after=_unit(60)), W)) == 0.0
+    side = dict(goal_direction=_unit(90))  # goal to the left of a robot facing +x
+    towards = inputs(heading_before=_unit(0), heading_after=_unit(30), **side)
+    assert float(R.heading_alignment(towards, w)) == pytest.approx(50.0, rel=1e-5)
+    away = inputs(heading_before=_unit(30), heading_after=_unit(0), **side)
+    assert float(R.heading_alignment(away, w)) == pytest.approx(-50.0, rel=1e-5)
+    backwards = inputs(heading_before=_unit(0), heading_after=_unit(-30), **side)  # tail swings to the goal
+    assert float(R.heading_alignment(backwards, w)) == pytest.approx(50.0, rel=1e-5)
+
+
+def test_heading_alignment_telescopes_over_a_full_spin():
+    w = W.replace(heading_alignment=jnp.float32(100.0))
+    angles = np.arange(0, 361, 15)
+    total = sum(float(R.heading_alignment(inputs(heading_before=_unit(a), heading_after=_unit(b),
+                                                 goal_direction=_unit(70)), w)) for a, b in zip(angles[:-1], angles[1:]))
+    assert abs(total) < 1e-3

@@ -72,6 +72,7 @@ def test_training_configs_use_the_guarded_physics():
     ({"env": {"preset": "nope"}}, "unknown preset"),
     ({"curriculum": {"window_size": 0}}, "window_size"),
     ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
+    ({"run": {"init_normalizer_count": -5}}, r"run.init_normalizer_count.*>= 0"),
 ])
 def test_bad_config_is_named(data, match):
     with pytest.raises(ValueError, match=match):
@@ -237,3 +238,18 @@ def test_multi_device_option_is_checked_and_resolved():
                                     ("pmap", [FakeGpu(), FakeGpu()], False)):
         config = tcfg.from_dict({"run": {"multi_device": mode}})
         assert use_per_device(config, devices) is expected, (mode, len(devices))
+
+
+def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
+    from brax.training.acme import running_statistics as rs
+    from train.trainer import restart_count
+    old = rs.init_state(jnp.zeros(3))
+    old = rs.update(old, jax.random.normal(jax.random.PRNGKey(0), (100_000, 3)) * jnp.array([1.0, 0.1, 2.0]))
+    fresh = restart_count(old, 1_000)
+    np.testing.assert_allclose(fresh.mean, old.mean)
+    np.testing.assert_allclose(fresh.std, old.std)
+    np.testing.assert_allclose(rs.update(fresh, jnp.zeros((1, 3))).std, rs.update(old, jnp.zeros((1, 3))).std, rtol=2e-3)
+    shifted = jnp.full((1_000, 3), 5.0)  # a new task's observations
+    assert float(rs.update(fresh, shifted).mean[0]) == pytest.approx(2.5, abs=0.05)  # half-way after as many samples
+    assert float(rs.update(old, shifted).mean[0]) < 0.1
+    assert restart_count(old, 10**9) is old  # never more samples than it had

@@ -177,3 +177,23 @@ def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, caps
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--run-dir", str(tmp_path / "x"),
                  "--init-from", str(tmp_path / "missing")]) == 2
     assert "run.init_from" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_transfer_probe_plays_a_run_in_another_env_config(run_dir, tmp_path):
+    import yaml
+    from benchmarks import transfer_probe
+    other = json.loads(json.dumps(TINY))
+    other["env"]["goal"]["radial_bearing_deg"] = [90.0, 90.0]  # the same networks, goals beside the robot
+    config = tmp_path / "other.yaml"
+    config.write_text(yaml.safe_dump(other))
+    out = tmp_path / "probe.md"
+    assert transfer_probe.main([str(run_dir), "--config", str(config), "--episodes", "2", "--steps", "6",
+                                "--out", str(out)]) == 0
+    rows = [line.split("|")[1:-1] for line in out.read_text().splitlines()[4:]]
+    assert len(rows) == 2 and all(len(r) == len(transfer_probe.COLUMNS) for r in rows)
+    values = np.array([[float(v) for v in r] for r in rows])
+    col = {c: i for i, c in enumerate(transfer_probe.COLUMNS)}
+    assert np.all(np.isfinite(values))
+    assert np.allclose(np.abs(values[:, col["goal_x"]]), 0.0, atol=1e-2)  # goals at 90 degrees: x = 0
+    np.testing.assert_allclose(values[:, col["progress_m"]],
+                               values[:, col["start_distance"]] - values[:, col["final_distance"]], atol=2e-3)

@@ -86,6 +86,10 @@ class RunConfig:
     # a run dir or checkpoint dir whose policy, value network and observation statistics start this
     # run (fine-tuning; a fresh optimiser, curriculum and step count); ignored by --resume
     init_from: str = ""
+    # with init_from: restart the observation statistics' sample count at this many samples (mean and
+    # std kept), so they follow the new task's observations within about as many env steps instead of
+    # being anchored by the source's tens of millions; 0 keeps the source's count
+    init_normalizer_count: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +148,9 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
     for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
         if getattr(run, key) < 1:
             raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if run.init_normalizer_count < 0:
+        raise ValueError(f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
+                         f"got {run.init_normalizer_count}")
     if run.multi_device not in MULTI_DEVICE:
         raise ValueError(f"config key 'run.multi_device' = {run.multi_device!r}; choose one of {list(MULTI_DEVICE)}")
     if config.curriculum.enabled and config.env.goal.mode != "radial":

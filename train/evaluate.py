@@ -28,20 +28,25 @@ from train import config as tcfg
 
 def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True):
     """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training."""
-    from train.ppo import init_training_state, make_networks
     from brax.training.agents.ppo import networks as ppo_networks
     path = checkpoint_path or checkpoint.latest(run_dir)
     meta = checkpoint.read_meta(path)
     config = tcfg.from_dict(meta["config"])
     env = HSAEnv(config.env)
-    networks = make_networks(config, env.observation_size, env.action_size)
-    template_ts = init_training_state(config, networks, jax.random.PRNGKey(0), env.observation_size)
+    networks, ts = load_training_state(config, path, env.observation_size, env.action_size)
+    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
+    return config, env, policy, path, int(meta["step"])
+
+
+def load_training_state(config: tcfg.TrainConfig, path: Path, observation_size: int, action_size: int):
+    """(PPO networks, training state) of the checkpoint at ``path`` written with ``config``."""
+    from train.ppo import init_training_state, make_networks
+    networks = make_networks(config, observation_size, action_size)
+    template_ts = init_training_state(config, networks, jax.random.PRNGKey(0), observation_size)
     template = {"training_state": template_ts, "curriculum": cur.init(config.curriculum),
                 "rng": jax.random.PRNGKey(0)}
     restored = checkpoint.load(path, template)
-    ts = jax.tree.map(jnp.asarray, restored["training_state"])
-    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
-    return config, env, policy, path, int(meta["step"])
+    return networks, jax.tree.map(jnp.asarray, restored["training_state"])
 
 
 def default_goal_range(config: tcfg.TrainConfig) -> tuple[float, float]:

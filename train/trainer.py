@@ -128,7 +128,7 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
                    f"env.observation: heading, servo_targets, clock_period_s)")
     if bad:
         raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
-    return {**meta, "path": path, "source": src}
+    return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
 
 
 def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
@@ -136,7 +136,27 @@ def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
     template = _payload(ts, cur.init(init["source"].curriculum), key)
     restored = jax.tree.map(jnp.asarray, checkpoint.load(init["path"], template)["training_state"])
     # Adam's initial state does not depend on the parameter values: the fresh one stays valid
-    return ts.replace(params=restored.params, normalizer=restored.normalizer)
+    normalizer = restart_count(restored.normalizer, init["count"]) if init.get("count") else restored.normalizer
+    return ts.replace(params=restored.params, normalizer=normalizer)
+
+
+def restart_count(stats: Any, count: int) -> Any:
+    """Observation statistics with the same mean and std as if from ``count`` samples (never more than they had).
+
+    Brax's running statistics weigh a new batch by batch size / total count; a smaller count lets
+    a fine-tune's new observations move them quickly. The summed variance scales with the count.
+    """
+    old = stats.count
+    old = float(old.hi) * 2.0**32 + float(old.lo) if hasattr(old, "hi") else float(old)
+    if old <= count:
+        return stats
+    factor = count / old
+    if hasattr(stats.count, "hi"):  # brax's UInt64 (two uint32 words)
+        new_count = type(stats.count)(hi=jnp.full_like(stats.count.hi, count >> 32),
+                                      lo=jnp.full_like(stats.count.lo, count & 0xFFFFFFFF))
+    else:
+        new_count = jnp.asarray(count, jnp.asarray(stats.count).dtype)
+    return stats.replace(count=new_count, summed_variance=jax.tree.map(lambda v: v * factor, stats.summed_variance))
 
 
 def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False) -> dict:
@@ -159,7 +179,8 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
     elif init is not None:
         ts = warm_start(ts, init, key)
-        print(f"networks and observation statistics from {init['path']} (step {init['step']:,})", flush=True)
+        print(f"networks and observation statistics from {init['path']} (step {init['step']:,})"
+              + (f", statistics' count restarted at {init['count']:,}" if init["count"] else ""), flush=True)
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
