@@ -76,7 +76,7 @@ class RewardConfig:
     checkpoint: float = 200.0
     spiral_completion: float = 100.0
     termination: float = 100.0  # the original hard-coded 100 whatever the config said
-    # Not in the original (0 keeps its reward): potential-based shaping that pays turning the robot's
+    # Not in the original (0 keeps its reward): potential-style shaping that pays turning the robot's
     # axis towards the goal, w * (|cos| after - |cos| before) of the axis-to-goal angle per step.
     heading_alignment: float = 0.0
 

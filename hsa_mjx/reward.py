@@ -177,7 +177,7 @@ def heading_alignment(x: RewardInputs, w: RewardWeights) -> jax.Array:
 
     Shaping added here (weight 0 keeps the original's reward). Both ends of the axis count, as the
     robot crawls either way; both angles are taken against this step's goal direction, so the term
-    pays rotation only, telescopes over a turn (a full spin earns 0) and is 0 on a checkpoint switch.
+    pays rotation only, adds up to 0 over a full spin, and a checkpoint switch makes it jump nowhere.
     """
     before = jnp.abs(jnp.dot(x.heading_before, x.goal_direction))
     after = jnp.abs(jnp.dot(x.heading_after, x.goal_direction))
