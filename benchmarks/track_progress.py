@@ -7,8 +7,9 @@ envs about half an episode, and a resumed call restarts every env, so finished-e
 barely exist. What does show learning is the per-env-step batch mean the trainer logs
 (``step/distance_to_goal``, ``step/reward``): within one call the whole batch walks from its start
 distance towards its goals. This plots both against env steps for several runs and prints, per
-call (a new call starts where the logged batch-mean distance jumps back up by more than 1 cm),
-the distance and reward at its first and last log.
+call (a new call starts where the logged batch-mean distance jumps back up by more than 1 cm
+while the batch-mean spiral checkpoint index does not rise: collected checkpoints also raise the
+distance, to the next checkpoint), the distance, checkpoint index and reward at its first and last log.
 """
 
 from __future__ import annotations
@@ -39,11 +40,18 @@ def load(spec: str) -> tuple[str, list[dict]]:
     return label, records
 
 
+def _checkpoint(record: dict) -> float:
+    return float(record.get("step/checkpoint_index", 0.0))
+
+
 def calls(records: list[dict]) -> list[list[dict]]:
-    """Split a run's records into device calls (all envs restart: the distance jumps back up)."""
+    """Split a run's records into device calls (all envs restart: the distance jumps back up and the
+    checkpoint index does not rise)."""
     out: list[list[dict]] = []
     for record in records:
-        if not out or record["step/distance_to_goal"] > out[-1][-1]["step/distance_to_goal"] + RESTART_JUMP_M:
+        prev = out[-1][-1] if out else None
+        if prev is None or (record["step/distance_to_goal"] > prev["step/distance_to_goal"] + RESTART_JUMP_M
+                            and _checkpoint(record) <= _checkpoint(prev)):
             out.append([])
         out[-1].append(record)
     return out
@@ -51,13 +59,14 @@ def calls(records: list[dict]) -> list[list[dict]]:
 
 def table(runs: list[tuple[str, list[dict]]]) -> str:
     """Markdown: one row per call of each run."""
-    lines = ["| run | call | env steps | distance to goal (batch mean, m) | reward per step (batch mean) |",
-             "|---|---|---|---|---|"]
+    lines = ["| run | call | env steps | distance to goal (batch mean, m) | checkpoint index (batch mean) "
+             "| reward per step (batch mean) |", "|---|---|---|---|---|---|"]
     for label, records in runs:
         for i, call in enumerate(calls(records), 1):
             first, last = call[0], call[-1]
             lines.append(f"| {label} | {i} | {first['step']:,} -> {last['step']:,} | "
                          f"{first['step/distance_to_goal']:.3f} -> {last['step/distance_to_goal']:.3f} | "
+                         f"{_checkpoint(first):.3f} -> {_checkpoint(last):.3f} | "
                          f"{first['step/reward']:+.3f} -> {last['step/reward']:+.3f} |")
     return "\n".join(lines)
 

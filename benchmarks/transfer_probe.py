@@ -5,8 +5,9 @@
 
 Loads RUN_DIR's latest checkpoint (its observation layout must fit the config's), plays its mean
 action for ``--steps`` env steps in the env of ``--config`` (with ``--set`` overrides) from the
-resets of seeds 0..episodes-1, and reports per episode the goal, the start and final distance,
-the displacement and how large the policy's action means were (the median over steps of the mean
+resets of seeds 0..episodes-1, and reports per episode the steps played, the goal, the start and
+final distance, the spiral checkpoints collected (the current checkpoint's index), the
+displacement and how large the policy's action means were (the median over steps of the mean
 |pre-tanh loc| over the 8 actions: a gait swings them, a stalled policy keeps them near 0 or at
 a constant bias). Session 10 used it to ask why the corridor's policy does not turn
 (docs/training.md).
@@ -24,8 +25,8 @@ from hsa_mjx.env import HSAEnv
 from train import config as tcfg
 from train.evaluate import load_policy, load_training_state
 
-COLUMNS = ("seed", "goal_x", "goal_y", "start_distance", "final_distance", "progress_m", "dx", "dy",
-           "median_abs_loc", "loc_swing")
+COLUMNS = ("seed", "steps", "goal_x", "goal_y", "start_distance", "final_distance", "progress_m", "checkpoints",
+           "dx", "dy", "median_abs_loc", "loc_swing")
 
 
 class Probe:
@@ -44,8 +45,9 @@ def probe(p: Probe, seed: int, steps: int) -> dict[str, float]:
     state = p.reset(jax.random.PRNGKey(seed))
     start_xy = np.asarray(state.pipeline_state.physics.xpos[env.index.block_body, :2]).mean(0)
     start_distance = float(state.metrics["distance_to_goal"])
-    locs = []
+    locs, played = [], 0
     for t in range(steps):
+        played = t + 1
         locs.append(np.asarray(loc_fn(state.obs)))
         action, _ = policy(state.obs, jax.random.PRNGKey(t))
         state = step(state, action)
@@ -55,7 +57,7 @@ def probe(p: Probe, seed: int, steps: int) -> dict[str, float]:
     goal = np.asarray(state.pipeline_state.task.goal_xy)
     locs = np.stack(locs)
     final = float(state.metrics["distance_to_goal"])
-    return {"seed": seed, "goal_x": goal[0], "goal_y": goal[1], "start_distance": start_distance,
+    return {"seed": seed, "steps": played, "checkpoints": float(state.metrics["checkpoint_index"]), "goal_x": goal[0], "goal_y": goal[1], "start_distance": start_distance,
             "final_distance": final, "progress_m": start_distance - final, "dx": xy[0] - start_xy[0],
             "dy": xy[1] - start_xy[1], "median_abs_loc": float(np.median(np.abs(locs).mean(1))),
             "loc_swing": float(np.mean(np.std(locs, axis=0)))}
@@ -64,7 +66,7 @@ def probe(p: Probe, seed: int, steps: int) -> dict[str, float]:
 def markdown(rows: list[dict[str, float]], title: str) -> str:
     """A markdown table of the probe rows."""
     lines = [f"# {title}", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    lines += ["| " + " | ".join(f"{r[c]:.3f}" if c != "seed" else str(r[c]) for c in COLUMNS) + " |" for r in rows]
+    lines += ["| " + " | ".join(f"{r[c]:.3f}" if c not in ("seed", "steps") else str(r[c]) for c in COLUMNS) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 

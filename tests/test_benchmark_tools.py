@@ -57,8 +57,18 @@ def test_track_progress_splits_calls_where_the_batch_restarts():
     records = [{"step": 1000 * (i + 1), "step/distance_to_goal": d, "step/reward": 0.01 * i} for i, d in enumerate(distances)]
     assert [len(c) for c in calls(records)] == [3, 3]
     lines = table([("run", records)]).splitlines()
-    assert lines[2] == "| run | 1 | 1,000 -> 3,000 | 1.750 -> 1.600 | +0.000 -> +0.020 |"
+    assert lines[2] == "| run | 1 | 1,000 -> 3,000 | 1.750 -> 1.600 | 0.000 -> 0.000 | +0.000 -> +0.020 |"
     assert lines[3].startswith("| run | 2 | 4,000 -> 6,000 | 1.749 -> 1.300 |")
+
+
+def test_track_progress_does_not_split_where_checkpoints_are_collected():
+    from benchmarks.track_progress import calls
+    # a collected checkpoint moves the goal on: the distance rises with the checkpoint index (one call);
+    # a restart drops the index back (a new call)
+    rows = [(0.60, 0.0), (0.50, 0.1), (0.55, 0.4), (0.65, 0.9), (0.80, 0.0), (0.70, 0.0)]
+    records = [{"step": i, "step/distance_to_goal": d, "step/checkpoint_index": c, "step/reward": 0.0}
+               for i, (d, c) in enumerate(rows)]
+    assert [len(c) for c in calls(records)] == [4, 2]
 
 
 def test_turn_gaits_sides_come_from_the_model_and_each_side_plays_its_own_lead():

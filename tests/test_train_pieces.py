@@ -45,6 +45,16 @@ def test_default_and_shipped_configs_validate():
     assert turn_d["env"]["observation"] == loose["env"]["observation"]
     assert turn_d["env"]["control"]["servo_target_limit"] == 6.28
     assert all(turn_d["ppo"][k] == corridor["ppo"][k] for k in turn_d["ppo"])
+    # the spiral on the NoStiff servo range: the spiral task, and train_flat_heading's networks and observation
+    nostiff, spiral = (tcfg.to_dict(tcfg.validate(tcfg.load(f"configs/{n}.yaml")))
+                       for n in ("train_spiral_nostiff", "train_spiral"))
+    flat_heading = tcfg.to_dict(tcfg.load("configs/train_flat_heading.yaml"))
+    assert nostiff["env"]["goal"] == spiral["env"]["goal"] and nostiff["env"]["terrain"] == spiral["env"]["terrain"]
+    assert nostiff["env"]["physics"] == spiral["env"]["physics"]
+    assert nostiff["env"]["control"]["servo_target_limit"] == flat_heading["env"]["control"]["servo_target_limit"] == 3141.5
+    assert nostiff["env"]["observation"] == flat_heading["env"]["observation"]
+    assert all(nostiff["ppo"][k] == flat_heading["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
+    assert all(nostiff["ppo"][k] == spiral["ppo"][k] for k in nostiff["ppo"])
     # evaluation defaults to the goals each was trained on
     assert evaluate.default_goal_range(turn) == (0.8, 1.2)
     assert evaluate.default_goal_range(tcfg.load("configs/train_flat_loose.yaml")) == (1.5, 4.5)
@@ -54,7 +64,7 @@ def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
     for name in ("train_flat", "train_flat_heading", "train_flat_loose", "train_quickstart_cpu", "train_corridor",
-                 "train_spiral"):
+                 "train_spiral", "train_spiral_nostiff"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name

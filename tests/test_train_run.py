@@ -197,3 +197,5 @@ def test_transfer_probe_plays_a_run_in_another_env_config(run_dir, tmp_path):
     assert np.allclose(np.abs(values[:, col["goal_x"]]), 0.0, atol=1e-2)  # goals at 90 degrees: x = 0
     np.testing.assert_allclose(values[:, col["progress_m"]],
                                values[:, col["start_distance"]] - values[:, col["final_distance"]], atol=2e-3)
+    assert np.all((values[:, col["steps"]] >= 1) & (values[:, col["steps"]] <= 6))
+    assert np.all(values[:, col["checkpoints"]] == 0)  # radial goals: no spiral checkpoints
