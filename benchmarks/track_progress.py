@@ -9,7 +9,8 @@ barely exist. What does show learning is the per-env-step batch mean the trainer
 distance towards its goals. This plots both against env steps for several runs and prints, per
 call (a new call starts where the logged batch-mean distance jumps back up by more than 1 cm
 while the batch-mean spiral checkpoint index does not rise: collected checkpoints also raise the
-distance, to the next checkpoint), the distance, checkpoint index and reward at its first and last log.
+distance, to the next checkpoint; or where that index falls by more than 0.1: the envs restarted
+from earlier checkpoints), the distance, checkpoint index and reward at its first and last log.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 from train.logger import read_jsonl  # noqa: E402
 
 RESTART_JUMP_M = 0.01  # a rise of the batch-mean distance this large between logs marks a restarted call
+# a fall of the batch-mean checkpoint index this large, too: a few failed episodes restarting lower it
+# by about index / num_envs (< 0.01 with thousands of envs); a restarted call by all collected so far
+RESTART_INDEX_DROP = 0.1
 
 
 def load(spec: str) -> tuple[str, list[dict]]:
@@ -46,15 +50,21 @@ def _checkpoint(record: dict) -> float:
 
 def calls(records: list[dict]) -> list[list[dict]]:
     """Split a run's records into device calls (all envs restart: the distance jumps back up and the
-    checkpoint index does not rise)."""
+    checkpoint index does not rise, or the checkpoint index falls)."""
     out: list[list[dict]] = []
     for record in records:
         prev = out[-1][-1] if out else None
-        if prev is None or (record["step/distance_to_goal"] > prev["step/distance_to_goal"] + RESTART_JUMP_M
-                            and _checkpoint(record) <= _checkpoint(prev)):
+        if prev is None or _restarted(prev, record):
             out.append([])
         out[-1].append(record)
     return out
+
+
+def _restarted(prev: dict, record: dict) -> bool:
+    """Whether the batch restarted between two consecutive logs."""
+    jumped = record["step/distance_to_goal"] > prev["step/distance_to_goal"] + RESTART_JUMP_M
+    return (jumped and _checkpoint(record) <= _checkpoint(prev)) or \
+        _checkpoint(record) < _checkpoint(prev) - RESTART_INDEX_DROP
 
 
 def table(runs: list[tuple[str, list[dict]]]) -> str:
@@ -72,16 +82,17 @@ def table(runs: list[tuple[str, list[dict]]]) -> str:
 
 
 def plot(runs: list[tuple[str, list[dict]]], out: Path) -> None:
-    """Batch-mean distance to goal and reward per step against env steps."""
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4.5 + 0.25 * len(runs)), constrained_layout=True)
+    """Batch-mean distance to goal, spiral checkpoint index and reward per step against env steps."""
+    fig, axes = plt.subplots(1, 3, figsize=(18, 4.5 + 0.25 * len(runs)), constrained_layout=True)
     for label, records in runs:
         for i, call in enumerate(calls(records)):
             steps = [r["step"] for r in call]
             color = f"C{runs.index((label, records))}"
             axes[0].plot(steps, [r["step/distance_to_goal"] for r in call], color=color, label=label if i == 0 else None)
-            axes[1].plot(steps, [r["step/reward"] for r in call], color=color)
+            axes[1].plot(steps, [_checkpoint(r) for r in call], color=color)
+            axes[2].plot(steps, [r["step/reward"] for r in call], color=color)
     for ax, title in zip(axes, ("distance to goal, batch mean (m); each call restarts the envs",
-                                "reward per env step, batch mean")):
+                                "spiral checkpoint index, batch mean", "reward per env step, batch mean")):
         ax.set_title(title)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)

@@ -23,7 +23,7 @@ import numpy as np
 
 from hsa_mjx.env import HSAEnv
 from train import config as tcfg
-from train.evaluate import load_policy, load_training_state
+from train.evaluate import evaluation_env_config, load_policy, load_training_state
 
 COLUMNS = ("seed", "steps", "goal_x", "goal_y", "start_distance", "final_distance", "progress_m", "checkpoints",
            "dx", "dy", "median_abs_loc", "loc_swing")
@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     args = parser.parse_args(argv)
-    env = HSAEnv(tcfg.load(args.config, args.overrides).env)
+    env = HSAEnv(evaluation_env_config(tcfg.load(args.config, args.overrides).env))
     runner = Probe(args.run_dir, env)
     rows = [probe(runner, seed, args.steps) for seed in range(args.episodes)]
     table = markdown(rows, f"{args.run_dir} in {args.config} {' '.join(args.overrides)} ({args.steps} steps)")

@@ -112,6 +112,10 @@ class GoalConfig:
     spiral_start_radius: float = 0.5
     spiral_end_radius: float = 4.0
     spiral_turns: float = 2.0
+    # spiral mode, a training aid: > 0 starts each episode at checkpoint k, k uniform in
+    # 0..track_starts (k > 0: on checkpoint k - 1, facing checkpoint k), so that training sees the
+    # whole track, not only its start. 0 = the original (always the origin); evaluation uses 0.
+    track_starts: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -248,8 +252,20 @@ def validate(config: EnvConfig) -> EnvConfig:
     if config.observation.clock_period_s < 0:
         raise ValueError("config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
                          f"got {config.observation.clock_period_s!r}")
+    _validate_track_starts(config.goal)
     _validate_terrain(config)
     return config
+
+
+def _validate_track_starts(goal: GoalConfig) -> None:
+    """``goal.track_starts``: only for spiral goals, below the number of checkpoints."""
+    if goal.track_starts == 0:
+        return
+    if goal.mode != "spiral":
+        raise ValueError(f"config key 'goal.track_starts' needs goal.mode 'spiral' (got {goal.mode!r}); 0 for other modes")
+    if not 0 < goal.track_starts < goal.num_checkpoints:
+        raise ValueError(f"config key 'goal.track_starts' must be in 0..{goal.num_checkpoints - 1} "
+                         f"(num_checkpoints - 1), got {goal.track_starts!r}")
 
 
 def _validate_terrain(config: EnvConfig) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 from brax.envs.base import Env as BraxEnv
 from mujoco import mjx
 
-from hsa_mjx import control, goals, observation, physics, reward, termination
+from hsa_mjx import control, goals, observation, physics, pose, reward, termination
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.model import RobotModel, compiled_forward, load_robot, local_device
 from hsa_mjx.terrain.world import TerrainWorld
@@ -59,6 +59,7 @@ class HSAEnv(BraxEnv):
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
+        self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
 
     # ----- Brax Env interface -------------------------------------------------------------
     @property
@@ -90,14 +91,19 @@ class HSAEnv(BraxEnv):
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
         terrain, terrain_id = self.world.draw(terrain_key)
-        goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
+        if self.config.goal.track_starts:  # static; off keeps the original start and key stream
+            rng, start_key = jax.random.split(rng)
+            index, goal_xy, move = self._track_start(start_key)
+        else:
+            index, move = jnp.zeros((), jnp.int32), None
+            goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
         goal_xy = self.world.place_goal(goal_xy, terrain_id)
-        data = self._with_goal_marker(self._spawn(terrain), goal_xy, terrain)
+        data = self._with_goal_marker(self._spawn(terrain, move), goal_xy, terrain)
         position = observation.robot_xy(data, self.index)
         distance, _ = observation.goal_vector(position, goal_xy)
         window = self.config.reward.stagnation_window
         task = TaskState(
-            goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=jnp.zeros((), jnp.int32),
+            goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=index,
             prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
             step_count=jnp.zeros((), jnp.int32), rng=rng, terrain=terrain, terrain_id=terrain_id)
@@ -176,12 +182,21 @@ class HSAEnv(BraxEnv):
         """Seconds since this episode's reset (env steps x dt)."""
         return task.step_count * self.config.dt
 
-    def _spawn(self, terrain: jax.Array) -> mjx.Data:
-        """The reset state: on terrain both blocks are lifted to rest on this env's surface."""
-        if not self.world.enabled:
+    def _track_start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, tuple]:
+        """A spiral start along the track: (checkpoint index, goal, move for ``_spawn``)."""
+        index, target, yaw = goals.track_start(key, self._checkpoints, self.config.goal.track_starts, self._origin)
+        return index, self._checkpoints[index], (self._origin, target, yaw)
+
+    def _spawn(self, terrain: jax.Array, move: tuple | None = None) -> mjx.Data:
+        """The reset state: on terrain both blocks are lifted to rest on this env's surface;
+        ``move`` = (centre, target, yaw) turns and shifts the robot first (``hsa_mjx.pose``)."""
+        if not self.world.enabled and move is None:
             return self._data0
-        z = self.world.spawn_height(terrain)
-        qpos = self._data0.qpos.at[self.index.block_qpos + 2].set(z)
+        qpos = self._data0.qpos
+        if self.world.enabled:
+            qpos = qpos.at[self.index.block_qpos + 2].set(self.world.spawn_height(terrain, move))
+        if move is not None:
+            qpos = pose.move_free_joints(qpos, self.index.block_qpos, *move)
         return mjx.kinematics(self.robot.mjx_model, self._data0.replace(qpos=qpos))
 
     def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array, terrain: jax.Array) -> mjx.Data:

@@ -12,7 +12,7 @@ from mujoco import mjx
 import hsa_mjx
 from conftest import TERRAIN_BATCH
 from hsa_mjx import config as cfg
-from hsa_mjx import goals
+from hsa_mjx import goals, observation
 from hsa_mjx.model import BLOCKS, load_mj_model
 from hsa_mjx.terrain import TERRAIN_TYPES, Grid, surface_height
 from hsa_mjx.terrain.world import TerrainWorld
@@ -103,6 +103,26 @@ def test_spiral_preset_checkpoints_sit_on_its_track():
     checkpoints = jnp.asarray(goals.spiral_checkpoints(config.goal))
     np.testing.assert_array_equal(np.asarray(world.ground(terrain, checkpoints)), 0.0)
     assert float(jnp.max(terrain)) * world.grid.z_scale == pytest.approx(config.terrain.spiral.wall_height)
+
+
+def test_spiral_track_starts_stand_the_robot_on_its_track_facing_the_next_checkpoint():
+    """goal.track_starts: episode k starts on checkpoint k - 1, resting on the track, heading for k."""
+    env = hsa_mjx.make_env("spiral", goal__num_checkpoints=20, goal__track_starts=19, observation__heading=True)
+    start = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(3), 8))
+    task = start.pipeline_state.task
+    index = np.asarray(task.checkpoint_index)
+    assert len(set(index.tolist())) >= 5 and index.max() <= 19, index
+    checkpoints = goals.spiral_checkpoints(env.config.goal)
+    np.testing.assert_allclose(np.asarray(task.goal_xy), checkpoints[index], atol=1e-6)
+    xy = np.asarray(start.pipeline_state.physics.xpos[:, env.index.block_body, :2].mean(axis=1))
+    expected = np.where(index[:, None] > 0, checkpoints[np.maximum(index - 1, 0)], 0.0)  # k = 0: the origin
+    np.testing.assert_allclose(xy, expected, atol=1e-5)
+    # resting on the highest ground under the turned footprint: never in it, at most a ramp's rise above
+    lift = _height_over_own_ground(env, start) - REST - env.config.terrain.spawn_clearance
+    assert lift.min() > -1e-3 and lift.max() < 0.03, lift
+    labels = observation.observation_labels(env.config.observation)
+    ahead = np.asarray(start.obs[:, labels.index("goal_dir_ahead")])
+    np.testing.assert_allclose(ahead[index > 0], 1.0, atol=1e-5)  # facing the goal checkpoint
 
 
 @pytest.mark.parametrize("preset", ["corridor", "spiral"])

@@ -11,6 +11,7 @@ ended (termination reasons, ``not_finished`` at the step cap), and writes the di
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -21,9 +22,16 @@ import numpy as np
 
 from hsa_mjx import curriculum as cur
 from hsa_mjx import observation, termination
+from hsa_mjx.config import EnvConfig
 from hsa_mjx.env import HSAEnv
 from train import checkpoint
 from train import config as tcfg
+
+
+def evaluation_env_config(config: EnvConfig) -> EnvConfig:
+    """The env that evaluates a run: its training env, with spiral episodes started at the origin
+    as in the original (``goal.track_starts`` is a training aid)."""
+    return dataclasses.replace(config, goal=dataclasses.replace(config.goal, track_starts=0))
 
 
 def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True):
@@ -32,7 +40,7 @@ def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministi
     path = checkpoint_path or checkpoint.latest(run_dir)
     meta = checkpoint.read_meta(path)
     config = tcfg.from_dict(meta["config"])
-    env = HSAEnv(config.env)
+    env = HSAEnv(evaluation_env_config(config.env))
     networks, ts = load_training_state(config, path, env.observation_size, env.action_size)
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
     return config, env, policy, path, int(meta["step"])

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from hsa_mjx.pose import move_points
 from hsa_mjx.terrain.grid import Grid, surface_height
 from hsa_mjx.terrain.params import CorridorParams
 
@@ -62,9 +63,14 @@ class Footprint:
                     drops.append(block_z[0] - lo[2])
         return cls(np.asarray(points, np.float32), np.asarray(drops, np.float32))
 
-    def spawn_height(self, data: jax.Array, grid: Grid, clearance: float) -> jax.Array:
-        """Block-origin z that leaves ``clearance`` under the robot's lowest point, robot level."""
-        ground = surface_height(data, grid, jnp.asarray(self.points))
+    def spawn_height(self, data: jax.Array, grid: Grid, clearance: float,
+                     move: tuple[jax.Array, jax.Array, jax.Array] | None = None) -> jax.Array:
+        """Block-origin z that leaves ``clearance`` under the robot's lowest point, robot level;
+        ``move`` = (centre, target, yaw) for a robot moved as by ``pose.move_points``."""
+        points = jnp.asarray(self.points)
+        if move is not None:
+            points = move_points(points, *move)
+        ground = surface_height(data, grid, points)
         return jnp.max(ground + self.drop) + clearance
 
 

@@ -74,9 +74,10 @@ class TerrainWorld:
         """The MJX model for this env's physics: its own heightfield when terrain is per env."""
         return model.replace(hfield_data=terrain) if self.per_env else model
 
-    def spawn_height(self, terrain: jax.Array) -> jax.Array:
-        """Block-origin z resting the level robot on this env's surface (clearance from the config)."""
-        return self.footprint.spawn_height(self.data(terrain), self.grid, self.config.spawn_clearance)
+    def spawn_height(self, terrain: jax.Array, move: tuple | None = None) -> jax.Array:
+        """Block-origin z resting the level robot on this env's surface (clearance from the config);
+        ``move`` = (centre, target, yaw) for a spawn pose moved along the ground (``hsa_mjx.pose``)."""
+        return self.footprint.spawn_height(self.data(terrain), self.grid, self.config.spawn_clearance, move)
 
     def ground(self, terrain: jax.Array, xy: jax.Array) -> jax.Array:
         """Surface height under the points ``xy`` (..., 2); 0 on a plane."""
