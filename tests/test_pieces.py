@@ -19,14 +19,15 @@ def test_targets_are_clipped_to_ctrlrange():
 def test_smooth_targets_ramp_and_end_exactly():
     ramp = control.substep_targets(jnp.zeros(8), jnp.ones(8), 20, True)
     assert ramp.shape == (20, 8)
-    np.testing.assert_allclose(ramp[0], 0.05) and np.testing.assert_allclose(ramp[-1], 1.0)
+    np.testing.assert_allclose(ramp[0], 0.05)
+    np.testing.assert_allclose(ramp[-1], 1.0)
     hold = control.substep_targets(jnp.zeros(8), jnp.ones(8), 20, False)
     np.testing.assert_allclose(hold, 1.0)
 
 
 def test_sanitize_action():
     clean, bad = control.sanitize_action(jnp.array([jnp.nan, 2.0, -jnp.inf, 0.5]))
-    np.testing.assert_allclose(clean, [0.0, 1.0, 0.0, 0.5]) and bool(bad)
+    np.testing.assert_allclose(clean, [0.0, 1.0, 0.0, 0.5])
     assert bool(bad)
     assert not bool(control.sanitize_action(jnp.zeros(3))[1])
 
