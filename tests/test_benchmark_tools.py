@@ -1,6 +1,11 @@
 """Pure helpers of the benchmark scripts (no MJX)."""
 
+import pytest
+
 from benchmarks import curriculum_compare as cc
+from benchmarks import track_floor
+from hsa_mjx import config as cfg
+from hsa_mjx.terrain.grid import Grid
 
 
 def _record(step: int, max_distance: float, sps: float, episodes: float) -> dict:
@@ -95,3 +100,18 @@ def test_turn_gaits_sides_come_from_the_model_and_each_side_plays_its_own_lead()
     table = variants(layout, left, 50, 0.02, 0.1785, 6.28)
     assert len(table) == 1 + 2 * len(SIDES) and len(set(SIDES)) == len(SIDES)
     assert all(a.shape == (50, 8) and np.abs(a).max() <= 1.0 for a in table.values())
+
+
+def test_track_floor_widths_approach_the_track_width_on_a_fine_grid_and_show_the_coarse_grid_gap():
+    fine = Grid(nrow=251, ncol=251)  # 0.04 m spacing
+    rows = {(r["rule"], r["track_width"]): r for r in track_floor.compare([0.8, 1.2], grid=fine)}
+    for key in [("original", 0.8), ("ours", 0.8), ("ours", 1.2)]:
+        assert key[1] - 2.5 * fine.spacing_x <= rows[key]["median"] <= key[1], rows[key]
+    assert rows[("ours", 1.2)]["median"] - rows[("ours", 0.8)]["median"] == pytest.approx(0.4, abs=fine.spacing_x)
+    # on the scene's 0.2 m grid a half-height edge at 0.4 m leaves a narrower floor than the original's rule
+    preset_width = cfg.get_preset("spiral").terrain.spiral.track_width
+    coarse = {(r["rule"], r["track_width"]): r for r in track_floor.compare([0.8, preset_width])}
+    original = coarse[("original", 0.8)]["median"]
+    assert coarse[("ours", 0.8)]["median"] < original - 0.5 * track_floor.scene_grid().spacing_x
+    # which is why the spiral preset widens its track: the floor the original had
+    assert coarse[("ours", preset_width)]["median"] == pytest.approx(original, abs=0.05)

@@ -15,6 +15,11 @@ _LOOSE_MODEL = {"servo_target_limit": 6.28}
 # kept on purpose. Centred instead (width 0.6, centre 0.5), the floor is flat only between the rows
 # at +-0.102 m and the feet stand on the walls' ramps; open-loop gaits then barely move (docs/training.md).
 _ORIGINAL_CORRIDOR = {"corridor_width": 0.62, "center": 0.510204}  # centre: the row at 0.5 + 0.5 / 49
+# The original's spiral floor: it zeroed every vertex within 0.4 m of the line (track_width 0.8) and
+# raised all others, so the floor reached the first raised vertex. Our walls put their half height at
+# track_width / 2, which at 0.8 m leaves a floor one vertex spacing narrower (median 0.46 m across
+# the track, original 0.60 m); at 0.95 m the median is 0.62 m. python -m benchmarks.track_floor.
+_ORIGINAL_SPIRAL_FLOOR = {"track_width": 0.95}
 _TRACK_REWARD = {"ctrl": 0.0, "contact": 0.0, "lateral": 0.0, "constraint": 0.05, "acceleration": 1e-5,
                  "joint_velocity": 5e-4, "stagnation": 0.1, "alive": 0.0}
 
@@ -41,7 +46,7 @@ TERRAIN_PRESETS: dict[str, dict] = {
         "goal": {"mode": "spiral", "num_checkpoints": 8, "checkpoint_radius": 0.4,
                  "spiral_start_radius": 0.5, "spiral_end_radius": 4.0, "spiral_turns": 2.0},
         # The track carves its own start disc; the original's spawn zone also cut the first wall.
-        "terrain": {"flat_spawn": {"enabled": False}},
+        "terrain": {"flat_spawn": {"enabled": False}, "spiral": _ORIGINAL_SPIRAL_FLOOR},
     },
     "mixed": {
         "name": "mixed", "scene": "terrain",
