@@ -1,7 +1,7 @@
 """Does a trained policy's gait carry over to another task? Its deterministic rollouts in another env config.
 
 ``python -m benchmarks.transfer_probe RUN_DIR --config configs/train_turn.yaml [--set key=value ...]
-[--episodes 3] [--steps 1000] [--out FILE.md]``
+[--episodes 3] [--steps 1000] [--start-checkpoint K] [--out FILE.md]``
 
 Loads RUN_DIR's latest checkpoint (its observation layout must fit the config's), plays its mean
 action for ``--steps`` env steps in the env of ``--config`` (with ``--set`` overrides) from the
@@ -10,7 +10,9 @@ final distance, the spiral checkpoints collected (the current checkpoint's index
 displacement and how large the policy's action means were (the median over steps of the mean
 |pre-tanh loc| over the 8 actions: a gait swings them, a stalled policy keeps them near 0 or at
 a constant bias). Session 10 used it to ask why the corridor's policy does not turn
-(docs/training.md).
+(docs/training.md). ``--start-checkpoint K`` (spiral goals) starts every episode on checkpoint
+K - 1 facing checkpoint K, as ``goal.track_starts`` would (``HSAEnv.reset_at_checkpoint``), to
+probe one stretch of the track.
 """
 
 from __future__ import annotations
@@ -32,11 +34,12 @@ COLUMNS = ("seed", "steps", "goal_x", "goal_y", "start_distance", "final_distanc
 class Probe:
     """A run's policy (mean action) and its pre-tanh action means, with ``env``'s jitted reset and step."""
 
-    def __init__(self, run_dir: Path, env: HSAEnv):
+    def __init__(self, run_dir: Path, env: HSAEnv, start_checkpoint: int = 0):
         config, _, self.policy, path, _ = load_policy(run_dir)
         networks, ts = load_training_state(config, path, env.observation_size, env.action_size)
         self.loc = jax.jit(lambda obs: networks.policy_network.apply(ts.normalizer, ts.params.policy, obs)[:env.action_size])
-        self.env, self.reset, self.step = env, jax.jit(env.reset), jax.jit(env.step)
+        reset = (lambda key: env.reset_at_checkpoint(key, start_checkpoint)) if start_checkpoint else env.reset
+        self.env, self.reset, self.step = env, jax.jit(reset), jax.jit(env.step)
 
 
 def probe(p: Probe, seed: int, steps: int) -> dict[str, float]:
@@ -78,12 +81,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--episodes", type=int, default=3)
     parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--start-checkpoint", type=int, default=0, metavar="K",
+                        help="spiral: start on checkpoint K - 1 facing K (default 0: the origin)")
     parser.add_argument("--out", type=Path, default=None, help="also write the table to this markdown file")
     args = parser.parse_args(argv)
     env = HSAEnv(evaluation_env_config(tcfg.load(args.config, args.overrides).env))
-    runner = Probe(args.run_dir, env)
+    runner = Probe(args.run_dir, env, args.start_checkpoint)
     rows = [probe(runner, seed, args.steps) for seed in range(args.episodes)]
-    table = markdown(rows, f"{args.run_dir} in {args.config} {' '.join(args.overrides)} ({args.steps} steps)")
+    start = f", from checkpoint {args.start_checkpoint}" if args.start_checkpoint else ""
+    table = markdown(rows, f"{args.run_dir} in {args.config} {' '.join(args.overrides)} ({args.steps} steps{start})")
     print(table, flush=True)
     if args.out:
         args.out.write_text(table)

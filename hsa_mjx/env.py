@@ -86,14 +86,35 @@ class HSAEnv(BraxEnv):
 
     def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array) -> EnvState:
         """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum)."""
+        return self._reset(rng, radius_range)
+
+    def reset_at_checkpoint(self, rng: jax.Array, index: int | jax.Array) -> EnvState:
+        """Start a spiral episode at checkpoint ``index``, as ``goal.track_starts`` would draw it.
+
+        Index 0 is the original start; k > 0 stands the robot on checkpoint k - 1, facing
+        checkpoint k, its goal. A traced ``index`` is clipped to 0..num_checkpoints - 1.
+
+        Raises:
+            ValueError: the env's goal mode is not ``spiral``, or a Python ``index`` is out of range.
+        """
+        goal = self.config.goal
+        if goal.mode != "spiral":
+            raise ValueError(f"reset_at_checkpoint needs goal.mode 'spiral', got {goal.mode!r}")
+        if isinstance(index, (int, np.integer)) and not 0 <= index < goal.num_checkpoints:
+            raise ValueError(f"checkpoint index must be in 0..{goal.num_checkpoints - 1}, got {index}")
+        index = jnp.clip(jnp.asarray(index, jnp.int32), 0, goal.num_checkpoints - 1)
+        return self._reset(rng, self._radial_range, index)
+
+    def _reset(self, rng: jax.Array, radius_range: jax.Array, start_index: jax.Array | None = None) -> EnvState:
+        """The reset behind the public ones; ``start_index`` forces a track start there."""
         rng, goal_key = jax.random.split(rng)
         terrain_key = None
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
         terrain, terrain_id = self.world.draw(terrain_key)
-        if self.config.goal.track_starts:  # static; off keeps the original start and key stream
+        if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
-            index, goal_xy, move = self._track_start(start_key)
+            index, goal_xy, move = self._track_start(start_key, start_index)
         else:
             index, move = jnp.zeros((), jnp.int32), None
             goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
@@ -182,9 +203,10 @@ class HSAEnv(BraxEnv):
         """Seconds since this episode's reset (env steps x dt)."""
         return task.step_count * self.config.dt
 
-    def _track_start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, tuple]:
-        """A spiral start along the track: (checkpoint index, goal, move for ``_spawn``)."""
-        index, target, yaw = goals.track_start(key, self._checkpoints, self.config.goal.track_starts, self._origin)
+    def _track_start(self, key: jax.Array, index: jax.Array | None) -> tuple[jax.Array, jax.Array, tuple]:
+        """A spiral start along the track (drawn, or at ``index``): (index, goal, move for ``_spawn``)."""
+        index, target, yaw = goals.track_start(key, self._checkpoints, self.config.goal.track_starts,
+                                               self._origin, index)
         return index, self._checkpoints[index], (self._origin, target, yaw)
 
     def _spawn(self, terrain: jax.Array, move: tuple | None = None) -> mjx.Data:

@@ -85,15 +85,17 @@ def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
     return checkpoints[0]
 
 
-def track_start(rng: jax.Array, checkpoints: jax.Array, max_index: int,
-                origin: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+def track_start(rng: jax.Array, checkpoints: jax.Array, max_index: int, origin: jax.Array,
+                index: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
     """A spiral episode's start along the track: (checkpoint index, robot xy, yaw).
 
-    The index k is uniform in 0..``max_index`` (static). k = 0 is the original start: ``origin``
-    (the spawn pose's position), yaw 0. For k > 0 the robot stands on checkpoint k - 1, facing
-    checkpoint k, which is its goal, as if it had just collected the ones before.
+    The index k is uniform in 0..``max_index`` (static), or ``index`` when given (``rng`` is then
+    unused). k = 0 is the original start: ``origin`` (the spawn pose's position), yaw 0. For k > 0
+    the robot stands on checkpoint k - 1, facing checkpoint k, which is its goal, as if it had
+    just collected the ones before.
     """
-    index = jax.random.randint(rng, (), 0, max_index + 1)
+    if index is None:
+        index = jax.random.randint(rng, (), 0, max_index + 1)
     previous = checkpoints[jnp.maximum(index - 1, 0)]
     start = jnp.where(index > 0, previous, origin)
     ahead = checkpoints[index] - previous

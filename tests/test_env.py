@@ -196,3 +196,8 @@ def test_optional_observation_entries(jit_single):
         physics=physics.replace(qvel=physics.qvel.at[7].set(jnp.nan))))
     out = step(poisoned, jnp.zeros(8))
     assert float(out.metrics["termination/non_finite"]) == 1.0 and np.all(np.isfinite(out.obs))
+
+
+def test_reset_at_checkpoint_needs_spiral_goals(env):
+    with pytest.raises(ValueError, match="reset_at_checkpoint needs goal.mode 'spiral', got 'random'"):
+        env.reset_at_checkpoint(jax.random.PRNGKey(0), 1)

@@ -123,6 +123,15 @@ def test_spiral_track_starts_stand_the_robot_on_its_track_facing_the_next_checkp
     labels = observation.observation_labels(env.config.observation)
     ahead = np.asarray(start.obs[:, labels.index("goal_dir_ahead")])
     np.testing.assert_allclose(ahead[index > 0], 1.0, atol=1e-5)  # facing the goal checkpoint
+    # reset_at_checkpoint: the same start at a chosen checkpoint (benchmarks.transfer_probe --start-checkpoint)
+    chosen = np.array([0, 4, 19])
+    at = jax.jit(jax.vmap(env.reset_at_checkpoint))(jax.random.split(jax.random.PRNGKey(5), 3), jnp.asarray(chosen))
+    np.testing.assert_array_equal(np.asarray(at.pipeline_state.task.checkpoint_index), chosen)
+    np.testing.assert_allclose(np.asarray(at.pipeline_state.task.goal_xy), checkpoints[chosen], atol=1e-6)
+    at_xy = np.asarray(at.pipeline_state.physics.xpos[:, env.index.block_body, :2].mean(axis=1))
+    np.testing.assert_allclose(at_xy[1:], checkpoints[chosen[1:] - 1], atol=1e-5)
+    with pytest.raises(ValueError, match=r"checkpoint index must be in 0\.\.19, got 20"):
+        env.reset_at_checkpoint(jax.random.PRNGKey(0), 20)
 
 
 @pytest.mark.parametrize("preset", ["corridor", "spiral"])

@@ -60,6 +60,16 @@ def test_track_start_zero_is_the_original_start_and_others_face_the_next_checkpo
     ahead = np.asarray(checkpoints)[index[later]] - start[later]
     np.testing.assert_allclose(np.stack([np.cos(yaw[later]), np.sin(yaw[later])], 1),
                                ahead / np.linalg.norm(ahead, axis=1, keepdims=True), atol=1e-5)
+    # a given index gives the start a draw of that index gives, whatever the key
+    for k in (0, 3, 5, 12):
+        given = goals.track_start(jax.random.PRNGKey(k), checkpoints, 5, origin, jnp.asarray(k))
+        drawn = int(np.argmax(index == k)) if k <= 5 else None
+        assert int(given[0]) == k
+        if drawn is not None:
+            np.testing.assert_allclose(np.asarray(given[1]), start[drawn], atol=1e-6)
+            np.testing.assert_allclose(float(given[2]), yaw[drawn], atol=1e-6)
+        else:  # beyond max_index: only the explicit form reaches it
+            np.testing.assert_allclose(np.asarray(given[1]), np.asarray(checkpoints)[k - 1], atol=1e-6)
 
 
 @pytest.mark.parametrize("overrides, match", [
