@@ -19,6 +19,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from benchmarks.run_info import print_table
 from hsa_mjx import observation
 from hsa_mjx.env import HSAEnv
 from train.evaluate import evaluation_env_config, load_policy, load_training_state
@@ -64,12 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.steps < 1 or args.every < 1:
         raise ValueError(f"--steps and --every must be >= 1, got {args.steps} and {args.every}")
-    table = markdown(windup(args.run_dir, args.steps, args.every),
-                     f"{args.run_dir}: mean action from the origin, {args.steps} steps")
-    print(table, flush=True)
-    if args.out:
-        args.out.write_text(table)
-    return 0
+    rows = windup(args.run_dir, args.steps, args.every)
+    return print_table(markdown(rows, f"{args.run_dir}: mean action from the origin, {args.steps} steps"), args.out)
 
 
 if __name__ == "__main__":

@@ -99,6 +99,14 @@ def write_table_result(out: Path, table: str, rows: list[dict], started: float) 
     return info
 
 
+def print_table(table: str, out: Path | None) -> int:
+    """Print a markdown ``table``, also write it to ``out`` when given; return 0 (a CLI's exit code)."""
+    print(table, flush=True)
+    if out:
+        out.write_text(table)
+    return 0
+
+
 def markdown_rows(rows: list[dict], head: list[str]) -> str:
     """A markdown table of ``rows`` with the columns ``head`` (one row per dict)."""
     lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]

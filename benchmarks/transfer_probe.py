@@ -23,6 +23,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from benchmarks.run_info import print_table
 from hsa_mjx.env import HSAEnv
 from train import config as tcfg
 from train.evaluate import evaluation_env_config, load_policy, load_training_state
@@ -89,11 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     runner = Probe(args.run_dir, env, args.start_checkpoint)
     rows = [probe(runner, seed, args.steps) for seed in range(args.episodes)]
     start = f", from checkpoint {args.start_checkpoint}" if args.start_checkpoint else ""
-    table = markdown(rows, f"{args.run_dir} in {args.config} {' '.join(args.overrides)} ({args.steps} steps{start})")
-    print(table, flush=True)
-    if args.out:
-        args.out.write_text(table)
-    return 0
+    title = f"{args.run_dir} in {args.config} {' '.join(args.overrides)} ({args.steps} steps{start})"
+    return print_table(markdown(rows, title), args.out)
 
 
 if __name__ == "__main__":

@@ -199,3 +199,17 @@ def test_transfer_probe_plays_a_run_in_another_env_config(run_dir, tmp_path):
                                values[:, col["start_distance"]] - values[:, col["final_distance"]], atol=2e-3)
     assert np.all((values[:, col["steps"]] >= 1) & (values[:, col["steps"]] <= 6))
     assert np.all(values[:, col["checkpoints"]] == 0)  # radial goals: no spiral checkpoints
+
+
+def test_hinge_windup_reports_the_hinge_angles_against_the_normaliser(run_dir, tmp_path):
+    from benchmarks import hinge_windup
+    rows = hinge_windup.windup(run_dir, steps=6, every=3)
+    assert [r["step"] for r in rows] == [3, 6] or rows[-1]["done"] == 1.0, rows
+    for r in rows:
+        assert r["angles"].shape == (8,) and np.all(np.isfinite(r["angles"])) and np.isfinite(r["max_z"])
+    assert np.any(np.abs(rows[-1]["angles"]) > 1e-4)  # the servos moved the hinges off their spawn angles
+    out = tmp_path / "windup.md"
+    assert hinge_windup.main([str(run_dir), "--steps", "3", "--every", "3", "--out", str(out)]) == 0
+    assert out.read_text().splitlines()[4].startswith("| 3 | ")
+    with pytest.raises(ValueError, match="--steps and --every must be >= 1"):
+        hinge_windup.main([str(run_dir), "--every", "0"])
