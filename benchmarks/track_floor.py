@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from hsa_mjx.model import scene_path
-from hsa_mjx.terrain.generators import spiral, spiral_track_distance
+from hsa_mjx.terrain.generators import spiral, spiral_extension, spiral_track_distance
 from hsa_mjx.terrain.grid import Grid, surface_height, to_hfield_data
 from hsa_mjx.terrain.params import SpiralParams
 
@@ -49,8 +49,7 @@ def ours(params: SpiralParams, grid: Grid) -> jax.Array:
 def original_rule(params: SpiralParams, grid: Grid) -> jax.Array:
     """Heightfield data of the original's rule on our line: vertices within ``track_width / 2`` at 0."""
     x, y = (jnp.asarray(v, jnp.float32) for v in grid.mesh())
-    extension = params.track_width / max(params.end_radius, params.track_width)
-    carved = (spiral_track_distance(params, x, y, extension) <= 0.5 * params.track_width) | (
+    carved = (spiral_track_distance(params, x, y, spiral_extension(params)) <= 0.5 * params.track_width) | (
         jnp.hypot(x, y) <= params.start_radius)
     return to_hfield_data(jnp.where(carved, 0.0, ORIGINAL_WALL), grid)
 

@@ -205,11 +205,15 @@ def spiral_track_distance(p: SpiralParams, x: jax.Array, y: jax.Array, extension
     return jnp.min(jnp.where(on_track, jnp.abs(r[..., None] - centre), jnp.inf), axis=-1)
 
 
+def spiral_extension(p: SpiralParams) -> float:
+    """How far (rad) the track runs past both ends of the line: about one track width."""
+    return p.track_width / max(p.end_radius, p.track_width)
+
+
 def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
     """Walls everywhere except the spiral track (the checkpoint path) and a start disc of radius r0."""
     ramp = max(grid.spacing_x, grid.spacing_y)
-    extension = p.track_width / max(p.end_radius, p.track_width)
-    track = soft_edge(spiral_track_distance(p, x, y, extension), 0.5 * p.track_width, ramp)
+    track = soft_edge(spiral_track_distance(p, x, y, spiral_extension(p)), 0.5 * p.track_width, ramp)
     start = soft_edge(jnp.hypot(x, y), p.start_radius, ramp)
     return p.wall_height * jnp.minimum(track, start)
 
