@@ -5,7 +5,8 @@
 Plays RUN_DIR's latest policy (its mean action) for ``--steps`` env steps from the origin in the
 run's own env (evaluation settings, ``train.evaluate.evaluation_env_config``) and reports, every
 ``--every`` steps, the spiral checkpoint index, the eight actuated hinge angles (rad) and the
-largest of them in units of the observation normaliser (|angle - mean| / std). With incremental
+largest of the observed hinge values in units of the observation normaliser (|value - mean| / std;
+the raw angles, or their wrapped or sin/cos form under ``observation.hinge_angles``). With incremental
 servo targets over a +-3141.5 rad range the hinges wind up without bound, so an episode longer
 than any the batch trained through shows the policy angles it never saw (docs/training.md,
 session 13).
@@ -30,8 +31,8 @@ def windup(run_dir: Path, steps: int, every: int) -> list[dict]:
     config, _, policy, path, _ = load_policy(run_dir)
     env = HSAEnv(evaluation_env_config(config.env))
     _, ts = load_training_state(config, path, env.observation_size, env.action_size)
-    labels = observation.observation_labels(config.env.observation)
-    columns = [labels.index(f"hinge_angle_{i}") for i in range(8)]
+    labels = observation.observation_labels(config.env.observation)  # raw, wrapped or sin/cos slots
+    columns = [i for i, name in enumerate(labels) if name.startswith(("hinge_angle_", "hinge_sin_", "hinge_cos_"))]
     mean, std = (np.asarray(v)[columns] for v in (ts.normalizer.mean, ts.normalizer.std))
     step = jax.jit(lambda s, k: env.step(s, policy(s.obs, k)[0]))
     state, rows = jax.jit(env.reset)(jax.random.PRNGKey(0)), []
@@ -40,7 +41,8 @@ def windup(run_dir: Path, steps: int, every: int) -> list[dict]:
         if t % every == 0 or float(state.done):
             angles = np.asarray(observation.joint_positions(state.pipeline_state.physics, env.index))
             rows.append({"step": t, "index": int(state.metrics["checkpoint_index"]), "angles": angles,
-                         "max_z": float(np.max(np.abs(angles - mean) / std)), "done": float(state.done)})
+                         "max_z": float(np.max(np.abs(np.asarray(state.obs)[columns] - mean) / std)),
+                         "done": float(state.done)})
             if float(state.done):
                 break
     return rows

@@ -17,7 +17,7 @@ from typing import Any, Mapping
 import yaml
 
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
-from hsa_mjx.terrain.params import TerrainConfig, validate_terrain
+from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_terrain
 from hsa_mjx.terrain.presets import TERRAIN_PRESETS
 
 SCENES = ("flat", "terrain")
@@ -25,6 +25,7 @@ INTEGRATORS = ("euler", "implicitfast", "rk4")
 SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
+HINGE_ANGLE_MODES = ("raw", "wrapped", "sincos")  # observation.hinge_angles
 MIXED = "mixed"  # terrain_type of a batch drawing from several types (terrain.types)
 TERRAIN_TYPES = GENERATOR_TYPES + (MIXED,)
 
@@ -131,6 +132,9 @@ class ObservationConfig:
     # > 0 appends a gait clock, (sin, cos) of 2 pi t / clock_period_s with t the episode time:
     # a phase signal from which a periodic gait is a plain function of the observation. 0 = off.
     clock_period_s: float = 0.0
+    # How the 8 actuated hinge angles enter: "raw" (the original: unbounded, they wind up over long
+    # episodes), "wrapped" (into [-pi, pi): same size) or "sincos" (sin then cos: 8 more values).
+    hinge_angles: str = "raw"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,6 +166,7 @@ _CHOICES = {
     ("physics", "solver"): SOLVERS,
     ("physics", "cone"): CONES,
     ("goal", "mode"): GOAL_MODES,
+    ("observation", "hinge_angles"): HINGE_ANGLE_MODES,
 }
 _POSITIVE = {
     ("physics", "timestep"), ("physics", "iterations"), ("physics", "ls_iterations"),
@@ -300,28 +305,8 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
     """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
-    merged = _merge(to_dict(base or EnvConfig()), _sync_terrain_keys(dict(data or {})))
+    merged = _merge(to_dict(base or EnvConfig()), sync_terrain_keys(dict(data or {}), MIXED))
     return validate(_build(EnvConfig, merged))
-
-
-def _sync_terrain_keys(data: dict) -> dict:
-    """Keep ``terrain_type`` and ``terrain.types`` in step when only one of them is given.
-
-    ``terrain_type: X`` alone means ``terrain.types: [X]``; ``terrain.types`` alone sets
-    ``terrain_type`` to its single type or to ``mixed``; ``proportions`` default to uniform.
-    """
-    section = data.get("terrain")
-    section = dict(section) if isinstance(section, Mapping) else None
-    has_types = section is not None and "types" in section
-    if "terrain_type" in data and not has_types and data["terrain_type"] != MIXED:
-        section = dict(section or {}, types=[data["terrain_type"]], proportions=[1.0])
-    elif has_types and isinstance(section["types"], (list, tuple)) and section["types"]:
-        types = list(section["types"])
-        data.setdefault("terrain_type", types[0] if len(types) == 1 else MIXED)
-        section.setdefault("proportions", [1.0 / len(types)] * len(types))
-    if section is not None:
-        data["terrain"] = section
-    return data
 
 
 def _merge(base: dict, update: Mapping[str, Any]) -> dict:

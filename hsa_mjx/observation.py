@@ -1,5 +1,7 @@
 """The 24-value observation of the original, with block B's velocity read from the right dofs.
 
+``hinge_angles`` picks how the first 8 values show the actuated hinge angles: ``raw`` (the
+original), ``wrapped`` into [-pi, pi) or ``sincos`` (8 sines, then 8 cosines: 8 values more).
 Optional entries, appended in this order when enabled (``ObservationConfig``):
 ``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
 (the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock).
@@ -19,7 +21,9 @@ HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coi
 ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
 # Slot names in order: the original's 24, then each optional entry when enabled (``observe`` builds
 # them in this order). The heading frame's goal direction is (x ahead, y left).
-ORIGINAL_LABELS = (tuple(f"hinge_angle_{i}" for i in range(8)) + tuple(f"hinge_velocity_{i}" for i in range(8))
+HINGE_ANGLE_LABELS = tuple(f"hinge_angle_{i}" for i in range(8))  # raw or wrapped
+SINCOS_LABELS = tuple(f"hinge_sin_{i}" for i in range(8)) + tuple(f"hinge_cos_{i}" for i in range(8))
+ORIGINAL_LABELS = (HINGE_ANGLE_LABELS + tuple(f"hinge_velocity_{i}" for i in range(8))
                    + ("robot_x", "robot_y", "block_vx", "block_vy", "block_vz", "goal_distance", "goal_dir_x",
                       "goal_dir_y"))
 HEADING_LABELS = ("heading_cos", "heading_sin", "goal_dir_ahead", "goal_dir_left")
@@ -29,7 +33,8 @@ CLOCK_LABELS = ("clock_sin", "clock_cos")
 
 def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
     """A short name per observation slot for this observation config, in ``observe``'s order."""
-    return (ORIGINAL_LABELS + (HEADING_LABELS if config.heading else ())
+    base = ORIGINAL_LABELS if config.hinge_angles != "sincos" else SINCOS_LABELS + ORIGINAL_LABELS[8:]
+    return (base + (HEADING_LABELS if config.heading else ())
             + (SERVO_TARGET_LABELS if config.servo_targets else ()) + (CLOCK_LABELS if config.clock_period_s > 0 else ()))
 
 
@@ -46,6 +51,15 @@ def robot_xy(data: mjx.Data, index: RobotIndex) -> jax.Array:
 def joint_positions(data: mjx.Data, index: RobotIndex) -> jax.Array:
     """Angles of the 8 actuated hinges in action-slot order."""
     return data.qpos[index.joint_qpos]
+
+
+def observed_hinge_angles(angles: jax.Array, mode: str) -> jax.Array:
+    """The hinge angles as the observation shows them: ``raw``, ``wrapped`` into [-pi, pi) or ``sincos``."""
+    if mode == "wrapped":
+        return jnp.mod(angles + jnp.pi, 2.0 * jnp.pi) - jnp.pi
+    if mode == "sincos":
+        return jnp.concatenate([jnp.sin(angles), jnp.cos(angles)])
+    return angles
 
 
 def joint_velocities(data: mjx.Data, index: RobotIndex) -> jax.Array:
@@ -101,7 +115,7 @@ def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
     parts = [
-        joint_positions(data, index),
+        observed_hinge_angles(joint_positions(data, index), config.hinge_angles),
         joint_velocities(data, index),
         position,
         base_velocity(data, index),

@@ -81,7 +81,8 @@ def test_observation_section_is_opt_in_and_checked():
     assert all(not preset.observation.heading for preset in cfg.PRESETS.values())
     on = cfg.from_dict({"observation": {"heading": True}})
     assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
-    assert cfg.to_dict(on)["observation"] == {"heading": True, "servo_targets": False, "clock_period_s": 0.0}
+    assert cfg.to_dict(on)["observation"] == {"heading": True, "servo_targets": False, "clock_period_s": 0.0,
+                                                "hinge_angles": "raw"}
     assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
     with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*'heading'"):
         cfg.from_dict({"observation": {"headng": True}})
@@ -92,3 +93,6 @@ def test_observation_section_is_opt_in_and_checked():
         cfg.from_dict({"observation": {"servo_targets": 1}})
     with pytest.raises(ValueError, match=r"observation.clock_period_s.*>= 0.*-4.0"):
         cfg.from_dict({"observation": {"clock_period_s": -4}})
+    assert all(p.observation.hinge_angles == "raw" for p in cfg.PRESETS.values())  # the original's angles
+    with pytest.raises(ValueError, match=r"observation.hinge_angles.*'wrap'.*\['raw', 'wrapped', 'sincos'\]"):
+        cfg.from_dict({"observation": {"hinge_angles": "wrap"}})

@@ -166,26 +166,30 @@ def _rotated_about_z(state, env, angle):
 
 
 def test_optional_observation_entries(jit_single):
-    """heading (unit heading, goal direction rotated by -yaw), servo targets and gait clock; sanitised like the rest.
+    """sin/cos hinge angles, heading (unit heading, goal direction rotated by -yaw), servo targets and gait clock.
 
-    One env with all three options (one compile): slots 24-27 heading, 28-35 targets, 36-37 clock.
+    One env with all four options (one compile): slots 0-15 sin/cos, 16-31 the original's other 16,
+    32-35 heading, 36-43 targets, 44-45 clock; sanitised like the rest.
     """
     env = hsa_mjx.make_env("flat", observation__heading=True, observation__servo_targets=True,
-                           observation__clock_period_s=1.0)
+                           observation__clock_period_s=1.0, observation__hinge_angles="sincos")
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     start = reset(jax.random.PRNGKey(0))
-    assert env.observation_size == 38 == start.obs.shape[0]
-    np.testing.assert_allclose(start.obs[:24], jit_single[0](jax.random.PRNGKey(0)).obs, atol=1e-6)
-    np.testing.assert_allclose(start.obs[28:], np.r_[np.zeros(8), 0.0, 1.0], atol=1e-6)  # targets 0, phase 0
+    assert env.observation_size == 46 == start.obs.shape[0]
+    np.testing.assert_allclose(start.obs[16:32], jit_single[0](jax.random.PRNGKey(0)).obs[8:], atol=1e-6)
+    np.testing.assert_allclose(start.obs[36:], np.r_[np.zeros(8), 0.0, 1.0], atol=1e-6)  # targets 0, phase 0
     action = jnp.linspace(-1.0, 1.0, 8)
     moved = step(step(start, action), action)  # two steps: 0.04 s of a 1 s clock, targets 2 x 0.1785 x a
-    np.testing.assert_allclose(moved.obs[28:36], 2 * env.config.control.max_increment * np.asarray(action), atol=1e-6)
-    np.testing.assert_allclose(moved.obs[28:36], moved.pipeline_state.physics.ctrl[env.index.servo_ids], atol=0)
-    np.testing.assert_allclose(moved.obs[36:38], [np.sin(2 * np.pi * 0.04), np.cos(2 * np.pi * 0.04)], atol=1e-5)
+    angles = np.asarray(moved.pipeline_state.physics.qpos[env.index.joint_qpos])
+    assert np.abs(angles).max() > 0.02  # the hinges moved (slots 8-15 hold cosines, not the velocities)
+    np.testing.assert_allclose(moved.obs[:16], np.r_[np.sin(angles), np.cos(angles)], atol=1e-5)
+    np.testing.assert_allclose(moved.obs[36:44], 2 * env.config.control.max_increment * np.asarray(action), atol=1e-6)
+    np.testing.assert_allclose(moved.obs[36:44], moved.pipeline_state.physics.ctrl[env.index.servo_ids], atol=0)
+    np.testing.assert_allclose(moved.obs[44:46], [np.sin(2 * np.pi * 0.04), np.cos(2 * np.pi * 0.04)], atol=1e-5)
     turned = step(_rotated_about_z(start, env, 2.0), jnp.zeros(8))
     for state in (start, turned):
         obs, yaw = np.asarray(state.obs), _yaw(state.pipeline_state.physics, env)
-        heading, body_goal, world_goal = obs[24:26], obs[26:28], obs[22:24]
+        heading, body_goal, world_goal = obs[32:34], obs[34:36], obs[30:32]
         np.testing.assert_allclose(heading, [np.cos(yaw), np.sin(yaw)], atol=1e-5)
         np.testing.assert_allclose([np.linalg.norm(heading), np.linalg.norm(body_goal)], 1.0, atol=1e-5)
         rotation = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # by -yaw

@@ -145,6 +145,30 @@ def test_optional_observation_entries_come_after_the_original_in_a_fixed_order()
     np.testing.assert_array_equal(no_heading[24:], full[28:36])
 
 
+def test_hinge_angle_modes_wrap_or_expand_only_the_first_eight_values():
+    angles = jnp.array([0.0, 1.0, -1.0, 3.0, 4.0, -4.0, 601.0, -298.5])  # wound up, as in a long episode
+    wrapped = np.asarray(observation.observed_hinge_angles(angles, "wrapped"))
+    assert np.all((wrapped >= -np.pi) & (wrapped < np.pi))
+    np.testing.assert_allclose(wrapped[:3], [0.0, 1.0, -1.0], atol=1e-6)  # already in range: unchanged
+    np.testing.assert_allclose(np.cos(wrapped), np.cos(np.asarray(angles)), atol=1e-4)  # the same angle
+    np.testing.assert_allclose(np.sin(wrapped), np.sin(np.asarray(angles)), atol=1e-4)
+    sincos = np.asarray(observation.observed_hinge_angles(angles, "sincos"))
+    np.testing.assert_allclose(sincos, np.concatenate([np.sin(angles), np.cos(angles)]), atol=1e-6)
+    data, index = _fake_robot((-0.2, 0.0), (0.2, 0.0))
+    data.qpos = data.qpos.at[index.joint_qpos].add(100.0)  # hinge angles 107..114 rad
+    goal, raw_config = jnp.array([0.0, 3.0]), ObservationConfig(heading=True)
+    raw = observation.observe(data, goal, index, raw_config)
+    for mode, size in (("wrapped", 28), ("sincos", 36)):
+        config = ObservationConfig(heading=True, hinge_angles=mode)
+        obs = observation.observe(data, goal, index, config)
+        assert obs.shape == (observation.observation_size(config),) == (size,)
+        np.testing.assert_array_equal(obs[size - 20:], raw[8:])  # everything after the angles is unchanged
+        labels = observation.observation_labels(config)
+        assert len(labels) == len(set(labels)) == size and labels[size - 20] == "hinge_velocity_0"
+    np.testing.assert_allclose(observation.observe(data, goal, index, ObservationConfig(hinge_angles="wrapped"))[:8],
+                               np.mod(np.arange(107.0, 115.0) + np.pi, 2 * np.pi) - np.pi, atol=1e-4)
+
+
 def test_gait_clock_is_periodic_and_exact_late_in_long_episodes():
     period = 4.0
     times = jnp.array([0.0, 1.0, 2.0, 3.0, 4.0, 159.5, 160.0])  # up to the spiral's 8,000 steps x 0.02 s

@@ -33,7 +33,7 @@ def test_default_and_shipped_configs_validate():
     for name in ("train_corridor", "train_spiral"):
         track = tcfg.to_dict(tcfg.load(f"configs/{name}.yaml"))
         assert track["env"]["observation"] == loose["env"]["observation"] == {
-            "heading": True, "servo_targets": True, "clock_period_s": 4.0}
+            "heading": True, "servo_targets": True, "clock_period_s": 4.0, "hinge_angles": "raw"}
         assert not track["env"]["terrain"]["per_env"]  # one shared track (exact: test_terrain_env)
         assert track["env"]["control"]["servo_target_limit"] == loose["env"]["control"]["servo_target_limit"] == 6.28
         assert all(track["ppo"][k] == loose["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)

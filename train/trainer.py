@@ -125,7 +125,7 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
            for k in checkpoint.COMPATIBLE_PPO_KEYS if getattr(src.ppo, k) != getattr(config.ppo, k)]
     if observation_size(src.env.observation) != observation_size(config.env.observation):
         bad.append(f"observation size ({observation_size(src.env.observation)} vs {observation_size(config.env.observation)}: "
-                   f"env.observation: heading, servo_targets, clock_period_s)")
+                   f"env.observation: heading, servo_targets, clock_period_s, hinge_angles)")
     if bad:
         raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
     return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import Any, Mapping
 
 TERRAIN_TYPES = (
     "wavy", "perlin", "stairs", "flat", "incline", "craters", "poles", "flat_with_incline",
@@ -269,3 +269,23 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
         _fail("flat_spawn.center", "must be fractions of the field in [0, 1]", spawn.center)
     _check_generators(config)
     return config
+
+
+def sync_terrain_keys(data: dict, mixed: str) -> dict:
+    """Keep ``terrain_type`` and ``terrain.types`` in step when only one of them is given.
+
+    ``terrain_type: X`` alone means ``terrain.types: [X]``; ``terrain.types`` alone sets
+    ``terrain_type`` to its single type or to the ``mixed`` name; ``proportions`` default to uniform.
+    """
+    section = data.get("terrain")
+    section = dict(section) if isinstance(section, Mapping) else None
+    has_types = section is not None and "types" in section
+    if "terrain_type" in data and not has_types and data["terrain_type"] != mixed:
+        section = dict(section or {}, types=[data["terrain_type"]], proportions=[1.0])
+    elif has_types and isinstance(section["types"], (list, tuple)) and section["types"]:
+        types = list(section["types"])
+        data.setdefault("terrain_type", types[0] if len(types) == 1 else mixed)
+        section.setdefault("proportions", [1.0 / len(types)] * len(types))
+    if section is not None:
+        data["terrain"] = section
+    return data
