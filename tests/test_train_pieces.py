@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hsa_mjx.observation import observation_size
 from train import checkpoint, compat, evaluate
 from train import config as tcfg
 
@@ -52,7 +53,9 @@ def test_default_and_shipped_configs_validate():
     assert nostiff["env"]["goal"] == spiral["env"]["goal"] and nostiff["env"]["terrain"] == spiral["env"]["terrain"]
     assert nostiff["env"]["physics"] == spiral["env"]["physics"]
     assert nostiff["env"]["control"]["servo_target_limit"] == flat_heading["env"]["control"]["servo_target_limit"] == 3141.5
-    assert nostiff["env"]["observation"] == flat_heading["env"]["observation"]
+    # the same 28 slots (so --init-from fits), the hinge angles wrapped (docs/training.md, session 14)
+    assert nostiff["env"]["observation"] == {**flat_heading["env"]["observation"], "hinge_angles": "wrapped"}
+    assert observation_size(tcfg.load("configs/train_spiral_nostiff.yaml").env.observation) == 28
     assert all(nostiff["ppo"][k] == flat_heading["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
     assert all(nostiff["ppo"][k] == spiral["ppo"][k] for k in nostiff["ppo"])
     # evaluation defaults to the goals each was trained on
