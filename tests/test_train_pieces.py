@@ -266,3 +266,25 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     assert float(rs.update(fresh, shifted).mean[0]) == pytest.approx(2.5, abs=0.05)  # half-way after as many samples
     assert float(rs.update(old, shifted).mean[0]) < 0.1
     assert restart_count(old, 10**9) is old  # never more samples than it had
+
+
+def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
+    """Three hand-made spiral episodes: 2 checkpoints and a time-out, 5 then qacc_limit, 0 and a time-out."""
+    from hsa_mjx import termination
+    episodes, steps, dt = 3, 4, 0.02
+    alive = np.array([[1, 1, 1, 1], [1, 1, 0, 0], [1, 1, 1, 1]], float)
+    checkpoint_index = np.array([[0, 1, 2, 2], [3, 5, 0, 0], [0, 0, 0, 0]], float)  # episode 2 reset after its end
+    reasons = np.zeros((episodes, steps, len(termination.REASONS)))
+    reasons[1, 1, termination.REASONS.index("qacc_limit")] = 1.0
+    done = np.zeros((episodes, steps))
+    done[1, 1] = 1.0
+    traces = {"alive": alive, "checkpoint": checkpoint_index, "reasons": reasons, "done": done,
+              "xy": np.zeros((episodes, steps, 2)), "start_xy": np.zeros((episodes, 2)),
+              "distance": np.ones((episodes, steps)), "start_distance": np.ones(episodes),
+              "success": np.zeros((episodes, steps))}
+    result = evaluate.summarize(traces, dt, checkpoints=True)
+    assert result["checkpoints_per_episode"] == [2, 5, 0]  # read at each episode's own last step
+    assert result["mean_checkpoints_collected"] == pytest.approx(7 / 3)
+    assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
+    assert "checkpoints_per_episode" not in evaluate.summarize(traces, dt)  # goals without checkpoints
+    json.dumps(result)  # eval.json stays plain JSON

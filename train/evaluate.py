@@ -15,6 +15,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -95,8 +96,8 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
     return jax.jit(jax.vmap(one))(keys)
 
 
-def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, float]:
-    """Success rate, mean final distance and mean speed over the evaluated episodes."""
+def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
+    """Success rate, mean final distance and mean speed over the evaluated episodes (spiral: checkpoints per episode)."""
     alive = traces["alive"].astype(bool)
     length = alive.sum(axis=1)
     last = np.maximum(length - 1, 0)
@@ -109,7 +110,9 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
     reasons = traces["reasons"][rows, last] > 0.5  # (episodes, reasons)
     ends = {f"termination/{r}": float(np.mean(ended & reasons[:, i])) for i, r in enumerate(termination.REASONS)}
     # net progress towards the goal; with spiral checkpoints the goal moves, so count those instead
-    progress = {"mean_checkpoints_collected": float(traces["checkpoint"][rows, last].mean())} if checkpoints \
+    collected = traces["checkpoint"][rows, last]
+    progress = {"mean_checkpoints_collected": float(collected.mean()),
+                "checkpoints_per_episode": [int(c) for c in collected]} if checkpoints \
         else {"mean_progress_m": float(np.mean(traces["start_distance"] - final_distance))}
     return {"episodes": int(alive.shape[0]), "success_rate": float(success.mean()),
             "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
