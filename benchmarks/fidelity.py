@@ -17,7 +17,7 @@ timesteps) separate integration effects from MJX's, and ``mjx_reference`` checks
 port at the reference settings.
 
     python -m benchmarks.fidelity [--settings NAME ...] [--gaits NAME ...] [--duration 10]
-                                  [--out benchmarks/results/fidelity.json]
+                                  [--out benchmarks/results/fidelity/NAME.json]
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ import numpy as np
 import hsa_mjx
 from benchmarks import gaits as gait_lib
 from benchmarks.run_info import run_info
-from benchmarks.self_collision import robot_self_collision_model
 from hsa_mjx import control
 from hsa_mjx.config import EnvConfig, TerminationConfig, get_preset, with_overrides
 from hsa_mjx.model import RobotIndex, load_mj_model, load_robot
@@ -81,9 +80,8 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "euler_dt2ms_newton4_ls8": {**_DT2, **_FAST},
 }
 # The settings the training configs use and the throughput harness defaults to, per scene:
-# implicitfast at the original 1 ms (explicit Euler blows up under trained gaits:
-# benchmarks/policy_stability.py, docs/training.md) with the fewest Newton iterations that pass
-# every gait (benchmarks/results/fidelity_cpu.json, fidelity_terrain_cpu.json; every larger
+# implicitfast at the original 1 ms (explicit Euler blows up under trained gaits: docs/training.md)
+# with the fewest Newton iterations that pass every gait (benchmarks/results/fidelity/; every larger
 # timestep failed); the plane's is guarded by tests/test_fidelity.py.
 SHIPPED_BY_SCENE = {"flat": "implicitfast_dt1ms_newton4_ls8", "terrain": "implicitfast_dt1ms_newton8_ls8"}
 SHIPPED = SHIPPED_BY_SCENE["flat"]
@@ -154,6 +152,17 @@ def reference_start(scene: str = "flat") -> tuple[RobotIndex, np.ndarray]:
     env = hsa_mjx.make_env(config)
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     return env.index, np.asarray(state.pipeline_state.physics.qpos, np.float64)
+
+
+def robot_self_collision_model(config: EnvConfig) -> mujoco.MjModel:
+    """The shipped model with every robot geom (not the floor, not the see-through discs) colliding."""
+    model = load_mj_model(config)
+    floor = model.geom("floor").id
+    for g in range(model.ngeom):
+        if g != floor and model.geom_type[g] != mujoco.mjtGeom.mjGEOM_CYLINDER:
+            model.geom_contype[g] = 3
+            model.geom_conaffinity[g] = 3
+    return model
 
 
 def reference_run(actions: np.ndarray, scene: str = "flat", all_contacts: bool = False, lift_m: float = 0.0,
@@ -348,7 +357,7 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="C MuJoCo diagnostic settings (none: skip)")
     parser.add_argument("--scene", choices=("flat", "terrain"), default="flat",
                         help="flat: the plane (the guard); terrain: the flat-data heightfield")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fidelity.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fidelity/fidelity.json"))
     args = parser.parse_args(argv)
     rows = run_fidelity(args.settings, args.gaits, args.duration, not args.no_contact_check, args.c_variants,
                         args.scene)

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import importlib.metadata
-import json
 import os
 import platform
 import shlex
 import subprocess
 import sys
-import time
-from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 
@@ -87,40 +83,3 @@ def _module_name() -> str:
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")
-
-
-def write_table_result(out: Path, table: str, rows: list[dict], started: float) -> dict[str, Any]:
-    """Print ``table``; write ``out``.json (provenance and rows) and ``out``.md (table, date, device, command)."""
-    print(table)
-    info = {**run_info(), "wall_s": round(time.perf_counter() - started, 1)}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps({"meta": info, "rows": rows}, indent=1))
-    out.with_suffix(".md").write_text(table + f"\n\n{info['date']}, {info['device']}, command `{info['command']}`\n")
-    return info
-
-
-def print_table(table: str, out: Path | None) -> int:
-    """Print a markdown ``table``, also write it to ``out`` when given; return 0 (a CLI's exit code)."""
-    print(table, flush=True)
-    if out:
-        out.write_text(table)
-    return 0
-
-
-def markdown_rows(rows: list[dict], head: list[str]) -> str:
-    """A markdown table of ``rows`` with the columns ``head`` (one row per dict)."""
-    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
-    lines += ["| " + " | ".join(str(r[k]) for k in head) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def gait_sweep_cli(argv: list[str] | None, prog: str, doc: str, default_out: str,
-                   sweep: Callable[[float], list[dict]], caption: Callable[[float], str], head: list[str]) -> None:
-    """The command line of an open-loop gait sweep: ``--seconds`` per gait, ``--out`` the result's stem."""
-    p = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--seconds", type=float, default=20.0)
-    p.add_argument("--out", type=Path, default=Path(default_out))
-    args = p.parse_args(argv)
-    tic = time.perf_counter()
-    rows = sweep(args.seconds)
-    write_table_result(args.out, caption(args.seconds) + "\n\n" + markdown_rows(rows, head), rows, tic)

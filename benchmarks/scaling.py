@@ -25,7 +25,7 @@ device ratio) are relative to the smallest k measured. Results go to ``--out-dir
 
     python -m benchmarks.scaling [--config FILE] [--envs-per-device N] [--devices 1,2,4] [--steps K]
         [--repeats R] [--epochs E] [--iterations-per-epoch I] [--no-split] [--budget-s S] [--tag TAG]
-        [--out-dir benchmarks/results] [--compile-cache DIR]
+        [--out-dir benchmarks/results/scaling] [--compile-cache DIR]
 """
 
 from __future__ import annotations
@@ -266,7 +266,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--budget-s", type=float, default=300.0, help="start no new measurement after this many s")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--tag", default="", help="output names scaling_<tag>.* (default: the device name)")
-    p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results"))
+    p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results/scaling"))
     p.add_argument("--compile-cache", type=Path, default=None, help="JAX persistent compilation cache dir")
     return p.parse_args(argv)
 

@@ -19,7 +19,7 @@ median is reported. Results go to ``--out-dir`` as JSON (rewritten after every r
 run keeps what it measured), a markdown table and a log-log plot.
 
     python -m benchmarks.throughput [--batches 1024,4096,16384,65536] [--terrains flat,heightfield]
-        [--settings NAME ...] [--steps K] [--repeats R] [--out-dir benchmarks/results] [--quick]
+        [--settings NAME ...] [--steps K] [--repeats R] [--out-dir benchmarks/results/throughput] [--quick]
 """
 
 from __future__ import annotations
@@ -274,7 +274,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
     p.add_argument("--baseline-seconds", type=float, default=None, help="C MuJoCo baseline duration (default 2)")
     p.add_argument("--budget-s", type=float, default=480.0, help="start no new measurement after this many s")
-    p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results"))
+    p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results/throughput"))
     p.add_argument("--append", action="store_true", help="merge into an existing results file")
     p.add_argument("--tag", default="", help="suffix of the output file names (e.g. stability)")
     p.add_argument("--compile-cache", type=Path, default=None, help="JAX persistent compilation cache dir")

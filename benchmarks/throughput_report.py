@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 ROW_KEY = ("terrain", "settings", "batch", "full_step")
-TARGETS = {"flat": 300_000, "heightfield": 100_000}  # issue 5: env-steps/s with 16k+ envs
+TARGETS = {"flat": 300_000, "heightfield": 100_000}  # the project's speed targets: env-steps/s with 16k+ envs
 
 
 def slug(text: str) -> str:

@@ -126,7 +126,7 @@ def test_brax_training_wrappers_run_unchanged(env):
 
 
 def test_vmapped_step_over_1024_envs_on_cpu(env):
-    """The issue's acceptance check: jit(vmap(step)) over 1024 envs runs on the CPU.
+    """jit(vmap(step)) over 1024 envs runs on the CPU.
 
     Before hsa_mjx.cpu_linalg this hung forever on a 2-core machine (jaxlib's batched LAPACK
     Cholesky deadlocks its thread pool); the test would then hit the pytest timeout.

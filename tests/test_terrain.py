@@ -164,6 +164,22 @@ def test_corridor_has_the_requested_width(axis, width):
         assert profile[len(across) // 2] == 0.0 and profile[0] == pytest.approx(params.wall_height)
 
 
+def test_spiral_preset_has_the_originals_floor():
+    """The original zeroed every vertex within 0.4 m of the line; our half-height edge at 0.4 m leaves
+    fewer floor vertices on the scene's 0.2 m grid, which the preset's 0.95 m track makes up for."""
+    from hsa_mjx.terrain.generators import spiral, spiral_extension, spiral_track_distance
+    x, y = (jnp.asarray(v, jnp.float32) for v in GRID.mesh())
+    preset = cfg.get_preset("spiral").terrain.spiral
+    original = dataclasses.replace(preset, track_width=0.8)
+    distance = spiral_track_distance(original, x, y, spiral_extension(original))
+    original_floor = int(jnp.sum((distance <= 0.4) | (jnp.hypot(x, y) <= original.start_radius)))
+
+    def floor(params) -> int:
+        return int(jnp.sum(spiral(jax.random.PRNGKey(0), params, GRID, x, y) < 0.01))
+    assert floor(original) < 0.85 * original_floor  # the generator's 0.8 m default: a floor one vertex narrower
+    assert floor(preset) == pytest.approx(original_floor, rel=0.05)
+
+
 @pytest.mark.parametrize("num_checkpoints", [8, 20])
 def test_spiral_track_passes_through_its_checkpoints(num_checkpoints):
     goal = cfg.GoalConfig(mode="spiral", num_checkpoints=num_checkpoints)

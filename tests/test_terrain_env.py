@@ -123,7 +123,7 @@ def test_spiral_track_starts_stand_the_robot_on_its_track_facing_the_next_checkp
     labels = observation.observation_labels(env.config.observation)
     ahead = np.asarray(start.obs[:, labels.index("goal_dir_ahead")])
     np.testing.assert_allclose(ahead[index > 0], 1.0, atol=1e-5)  # facing the goal checkpoint
-    # reset_at_checkpoint: the same start at a chosen checkpoint (benchmarks.transfer_probe --start-checkpoint)
+    # reset_at_checkpoint: the same start at a chosen checkpoint (to probe a policy on one stretch of track)
     chosen = np.array([0, 4, 19])
     at = jax.jit(jax.vmap(env.reset_at_checkpoint))(jax.random.split(jax.random.PRNGKey(5), 3), jnp.asarray(chosen))
     np.testing.assert_array_equal(np.asarray(at.pipeline_state.task.checkpoint_index), chosen)

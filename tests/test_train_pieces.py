@@ -16,58 +16,42 @@ from train import config as tcfg
 
 def test_default_and_shipped_configs_validate():
     assert tcfg.from_dict({}).run.num_envs == 1024
-    for name in ("train_quickstart_cpu", "train_flat", "train_flat_heading", "train_flat_loose"):
+    for name in ("train_quickstart_cpu", "train_flat"):
         config = tcfg.load(f"configs/{name}.yaml")
         assert config.curriculum.enabled and config.env.goal.mode == "radial"
         assert tcfg.from_dict(tcfg.to_dict(config)) == config  # round trip
-    plain = tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
-    heading = tcfg.to_dict(tcfg.load("configs/train_flat_heading.yaml"))
-    assert not plain["env"]["observation"]["heading"] and heading["env"]["observation"]["heading"]
-    assert checkpoint.incompatibilities(plain, heading) == ["env.observation.heading"]  # resume refuses
+    flat = tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
+    assert flat["env"]["observation"]["heading"]
+    plain = tcfg.to_dict(tcfg.from_dict({**flat, "env": {**flat["env"], "observation": {"heading": False}}}))
+    assert checkpoint.incompatibilities(plain, flat) == ["env.observation.heading"]  # resume refuses
     for name, goal_mode in (("train_corridor", "random"), ("train_spiral", "spiral")):
         config = tcfg.validate(tcfg.load(f"configs/{name}.yaml"))
         assert config.env.scene == "terrain" and config.env.goal.mode == goal_mode
         assert not config.curriculum.enabled  # the curriculum needs radial goals
         assert (config.env.physics.integrator, config.env.physics.iterations) == ("implicitfast", 8)
-    # the track tasks can start from train_flat_loose's networks: same observation, same servo range
-    loose = tcfg.to_dict(tcfg.load("configs/train_flat_loose.yaml"))
-    for name in ("train_corridor", "train_spiral"):
-        track = tcfg.to_dict(tcfg.load(f"configs/{name}.yaml"))
-        assert track["env"]["observation"] == loose["env"]["observation"] == {
-            "heading": True, "servo_targets": True, "clock_period_s": 4.0, "hinge_angles": "raw"}
-        assert not track["env"]["terrain"]["per_env"]  # one shared track (exact: test_terrain_env)
-        assert track["env"]["control"]["servo_target_limit"] == loose["env"]["control"]["servo_target_limit"] == 6.28
-        assert all(track["ppo"][k] == loose["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
-    # the turning task (goals beside the robot) shares them too, and the track tasks' PPO iteration size
-    turn = tcfg.validate(tcfg.load("configs/train_turn.yaml"))
-    assert turn.env.goal.mode == "radial" and turn.env.goal.radial_bearing_deg == (60.0, 120.0)
-    assert not turn.curriculum.enabled and turn.env.terrain_type == "flat"
-    turn_d, corridor = tcfg.to_dict(turn), tcfg.to_dict(tcfg.load("configs/train_corridor.yaml"))
-    assert turn_d["env"]["observation"] == loose["env"]["observation"]
-    assert turn_d["env"]["control"]["servo_target_limit"] == 6.28
-    assert all(turn_d["ppo"][k] == corridor["ppo"][k] for k in turn_d["ppo"])
-    # the spiral on the NoStiff servo range: the spiral task, and train_flat_heading's networks and observation
-    nostiff, spiral = (tcfg.to_dict(tcfg.validate(tcfg.load(f"configs/{n}.yaml")))
-                       for n in ("train_spiral_nostiff", "train_spiral"))
-    flat_heading = tcfg.to_dict(tcfg.load("configs/train_flat_heading.yaml"))
-    assert nostiff["env"]["goal"] == spiral["env"]["goal"] and nostiff["env"]["terrain"] == spiral["env"]["terrain"]
-    assert nostiff["env"]["physics"] == spiral["env"]["physics"]
-    assert nostiff["env"]["control"]["servo_target_limit"] == flat_heading["env"]["control"]["servo_target_limit"] == 3141.5
-    # the same 28 slots (so --init-from fits), the hinge angles wrapped (docs/training.md, session 14)
-    assert nostiff["env"]["observation"] == {**flat_heading["env"]["observation"], "hinge_angles": "wrapped"}
-    assert observation_size(tcfg.load("configs/train_spiral_nostiff.yaml").env.observation) == 28
-    assert all(nostiff["ppo"][k] == flat_heading["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
-    assert all(nostiff["ppo"][k] == spiral["ppo"][k] for k in nostiff["ppo"])
+        assert not config.env.terrain.per_env  # one shared track (exact: test_terrain_env)
+    corridor = tcfg.to_dict(tcfg.load("configs/train_corridor.yaml"))
+    assert corridor["env"]["observation"] == {"heading": True, "servo_targets": True, "clock_period_s": 4.0,
+                                              "hinge_angles": "raw"}
+    assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
+    # the spiral starts from a flat run's networks: the flat task's servo range and 28 observation slots
+    spiral = tcfg.to_dict(tcfg.load("configs/train_spiral.yaml"))
+    assert spiral["env"]["control"]["servo_target_limit"] == flat["env"]["control"]["servo_target_limit"] == 3141.5
+    assert spiral["env"]["observation"] == {**flat["env"]["observation"], "hinge_angles": "wrapped"}
+    assert observation_size(tcfg.load("configs/train_spiral.yaml").env.observation) == 28
+    assert all(spiral["ppo"][k] == flat["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
+    assert (spiral["env"]["goal"]["num_checkpoints"], spiral["env"]["goal"]["track_starts"]) == (20, 19)
+    assert all(spiral["ppo"][k] == corridor["ppo"][k] for k in spiral["ppo"])  # the track tasks' PPO settings
     # evaluation defaults to the goals each was trained on
+    assert evaluate.default_goal_range(tcfg.load("configs/train_flat.yaml")) == (1.5, 4.5)
+    turn = tcfg.from_dict({"env": {"goal": {"radial_range": [0.8, 1.2]}}, "curriculum": {"enabled": False}})
     assert evaluate.default_goal_range(turn) == (0.8, 1.2)
-    assert evaluate.default_goal_range(tcfg.load("configs/train_flat_loose.yaml")) == (1.5, 4.5)
 
 
 def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
-    for name in ("train_flat", "train_flat_heading", "train_flat_loose", "train_quickstart_cpu", "train_corridor",
-                 "train_spiral", "train_spiral_nostiff"):
+    for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_spiral"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name

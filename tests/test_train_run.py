@@ -177,39 +177,3 @@ def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, caps
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--run-dir", str(tmp_path / "x"),
                  "--init-from", str(tmp_path / "missing")]) == 2
     assert "run.init_from" in capsys.readouterr().err and not (tmp_path / "x").exists()
-
-
-def test_transfer_probe_plays_a_run_in_another_env_config(run_dir, tmp_path):
-    import yaml
-    from benchmarks import transfer_probe
-    other = json.loads(json.dumps(TINY))
-    other["env"]["goal"]["radial_bearing_deg"] = [90.0, 90.0]  # the same networks, goals beside the robot
-    config = tmp_path / "other.yaml"
-    config.write_text(yaml.safe_dump(other))
-    out = tmp_path / "probe.md"
-    assert transfer_probe.main([str(run_dir), "--config", str(config), "--episodes", "2", "--steps", "6",
-                                "--out", str(out)]) == 0
-    rows = [line.split("|")[1:-1] for line in out.read_text().splitlines()[4:]]
-    assert len(rows) == 2 and all(len(r) == len(transfer_probe.COLUMNS) for r in rows)
-    values = np.array([[float(v) for v in r] for r in rows])
-    col = {c: i for i, c in enumerate(transfer_probe.COLUMNS)}
-    assert np.all(np.isfinite(values))
-    assert np.allclose(np.abs(values[:, col["goal_x"]]), 0.0, atol=1e-2)  # goals at 90 degrees: x = 0
-    np.testing.assert_allclose(values[:, col["progress_m"]],
-                               values[:, col["start_distance"]] - values[:, col["final_distance"]], atol=2e-3)
-    assert np.all((values[:, col["steps"]] >= 1) & (values[:, col["steps"]] <= 6))
-    assert np.all(values[:, col["checkpoints"]] == 0)  # radial goals: no spiral checkpoints
-
-
-def test_hinge_windup_reports_the_hinge_angles_against_the_normaliser(run_dir, tmp_path):
-    from benchmarks import hinge_windup
-    rows = hinge_windup.windup(run_dir, steps=6, every=3)
-    assert [r["step"] for r in rows] == [3, 6] or rows[-1]["done"] == 1.0, rows
-    for r in rows:
-        assert r["angles"].shape == (8,) and np.all(np.isfinite(r["angles"])) and np.isfinite(r["max_z"])
-    assert np.any(np.abs(rows[-1]["angles"]) > 1e-4)  # the servos moved the hinges off their spawn angles
-    out = tmp_path / "windup.md"
-    assert hinge_windup.main([str(run_dir), "--steps", "3", "--every", "3", "--out", str(out)]) == 0
-    assert out.read_text().splitlines()[4].startswith("| 3 | ")
-    with pytest.raises(ValueError, match="--steps and --every must be >= 1"):
-        hinge_windup.main([str(run_dir), "--every", "0"])

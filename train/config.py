@@ -48,7 +48,7 @@ class PPOConfig:
     # normalised observations are clipped to +-observation_clip, as the original's VecNormalize
     # (clip_obs 10). Without it, dimensions that barely vary over a fresh run's first unroll (every
     # env starts in the same pose) later normalise to hundreds or more and the first updates' value
-    # loss reaches 1e7-1e12 (docs/training.md, session 7). 0 (the default) = no clip, so that
+    # loss reaches 1e7-1e12 (docs/training.md). 0 (the default) = no clip, so that
     # checkpoints written before the key existed load and evaluate exactly as they were trained.
     observation_clip: float = 0.0
     normalize_advantage: bool = True

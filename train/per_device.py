@@ -2,7 +2,7 @@
 
 Why: on the H200s (jaxlib 0.11.2) every ``pmap`` of MJX's Newton solver over two or more GPUs
 crashes XLA's GPU compiler, while the same collection compiles for one GPU and the learning step
-(networks, no MJX) compiles under ``pmap`` (``benchmarks/results/multi_gpu_h200/``). So:
+(networks, no MJX) compiles under ``pmap`` (docs/scaling.md). So:
 
 - each GPU gets its own env copy (model and data on that GPU) and its own jitted collection
   (``PPOLearner._collect``); JAX's persistent compilation cache ignores which GPU a program is

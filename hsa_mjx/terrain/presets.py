@@ -13,12 +13,12 @@ _LOOSE_MODEL = {"servo_target_limit": 6.28}
 # 0.102, 0.306) and full-height walls from the next row on. A grid of 50 vertices has no row at
 # y = 0, so a floor of three rows cannot be centred on the robot: the original's +0.102 m offset is
 # kept on purpose. Centred instead (width 0.6, centre 0.5), the floor is flat only between the rows
-# at +-0.102 m and the feet stand on the walls' ramps; open-loop gaits then barely move (docs/training.md).
+# at +-0.102 m and the feet stand on the walls' ramps; open-loop gaits then barely move (docs/terrain.md).
 _ORIGINAL_CORRIDOR = {"corridor_width": 0.62, "center": 0.510204}  # centre: the row at 0.5 + 0.5 / 49
 # The original's spiral floor: it zeroed every vertex within 0.4 m of the line (track_width 0.8) and
 # raised all others, so the floor reached the first raised vertex. Our walls put their half height at
 # track_width / 2, which at 0.8 m leaves a floor one vertex spacing narrower (median 0.46 m across
-# the track, original 0.60 m); at 0.95 m the median is 0.62 m. python -m benchmarks.track_floor.
+# the track, original 0.60 m); at 0.95 m the median is 0.62 m (docs/terrain.md).
 _ORIGINAL_SPIRAL_FLOOR = {"track_width": 0.95}
 _TRACK_REWARD = {"ctrl": 0.0, "contact": 0.0, "lateral": 0.0, "constraint": 0.05, "acceleration": 1e-5,
                  "joint_velocity": 5e-4, "stagnation": 0.1, "alive": 0.0}
