@@ -8,15 +8,29 @@ Public entry points:
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hsa_mjx.cpu_linalg import use_xla_linalg_on_cpu
-from hsa_mjx.config import PRESETS, EnvConfig, get_preset, load_config, with_overrides
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.types import EnvState, SimState, TaskState
+if TYPE_CHECKING:
+    from hsa_mjx.config import PRESETS, EnvConfig, get_preset, load_config, with_overrides
+    from hsa_mjx.env import HSAEnv
+    from hsa_mjx.types import EnvState, SimState, TaskState
 
 __version__ = "0.1.0"
+# Public names, imported on first use: ``import hsa_mjx.policy`` (numpy only) must not import JAX.
+_LAZY = {"PRESETS": "hsa_mjx.config", "EnvConfig": "hsa_mjx.config", "get_preset": "hsa_mjx.config",
+         "load_config": "hsa_mjx.config", "with_overrides": "hsa_mjx.config", "HSAEnv": "hsa_mjx.env",
+         "EnvState": "hsa_mjx.types", "SimState": "hsa_mjx.types", "TaskState": "hsa_mjx.types"}
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name's module on first access."""
+    if name not in _LAZY:
+        raise AttributeError(f"module 'hsa_mjx' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value
 
 
 def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) -> HSAEnv:
@@ -32,6 +46,8 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) 
         ValueError: unknown preset, config key or value (the message lists the valid options).
         FileNotFoundError: a config path or the robot asset is missing.
     """
+    from hsa_mjx.config import EnvConfig, get_preset, load_config, with_overrides
+    from hsa_mjx.env import HSAEnv
     if isinstance(name_or_config, EnvConfig):
         config = name_or_config
     elif isinstance(name_or_config, Path) or str(name_or_config).endswith((".yaml", ".yml")):
@@ -56,7 +72,6 @@ def _register_gymnasium() -> None:
 
 
 _register_gymnasium()
-use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
 
 __all__ = ["make_env", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",
            "PRESETS", "__version__"]

@@ -15,6 +15,9 @@ import numpy as np
 from mujoco import mjx
 
 from hsa_mjx.config import EnvConfig
+from hsa_mjx.cpu_linalg import use_xla_linalg_on_cpu
+
+use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
 
 ASSET_DIR = Path(__file__).resolve().parent.parent / "assets"
 SCENE_FILES = {"flat": "scene_flat.xml", "terrain": "scene_terrain.xml"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -66,3 +67,28 @@ def terrain_batch(terrain_env):
     """(reset, step, step trace counter) of the mixed-terrain env, vmapped over a batch."""
     counter = TraceCounter(terrain_env.step)
     return jax.jit(jax.vmap(terrain_env.reset)), jax.jit(jax.vmap(counter)), counter
+
+
+# A tiny PPO run with the curriculum: 80 env steps, checkpoints at 40 and 80 (tests/test_train_run.py
+# resumes it to 160 steps; tests that only read it must not depend on which checkpoint is the latest).
+TINY_RUN = {
+    "env": {"preset": "flat", "goal": {"mode": "radial"}, "physics": {"iterations": 4, "ls_iterations": 8},
+            "termination": {"max_episode_steps": 15}},
+    # success_threshold 0: every full window widens the range, so the wiring is visible in 80 steps
+    "curriculum": {"enabled": True, "window_size": 4, "min_episodes": 4, "success_threshold": 0.0,
+                   "failure_threshold": 0.0},
+    "ppo": {"unroll_length": 5, "batch_size": 4, "num_minibatches": 2, "num_updates_per_batch": 1,
+            "policy_hidden_sizes": [8], "value_hidden_sizes": [8]},
+    "run": {"num_timesteps": 80, "num_envs": 4, "checkpoint_every": 40, "seed": 1},
+}
+
+
+@pytest.fixture(scope="session")
+def tiny_run_dir(tmp_path_factory):
+    """The run directory of ``TINY_RUN``, trained once per session on the CPU."""
+    from train import config as tcfg
+    from train.trainer import train
+    path = tmp_path_factory.mktemp("run")
+    summary = train(tcfg.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
+    assert summary["env_steps"] == 80
+    return path

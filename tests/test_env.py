@@ -134,7 +134,7 @@ def test_vmapped_step_over_1024_envs_on_cpu(env):
     import jax
     import jax.numpy as jnp
     from hsa_mjx import cpu_linalg
-    assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx
+    assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
     n = 1024
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), n))
     actions = jax.random.uniform(jax.random.PRNGKey(8), (n, env.action_size), minval=-1.0, maxval=1.0)

@@ -9,19 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from conftest import TINY_RUN as TINY
 from train import checkpoint
 from train import config as tcfg
-
-TINY = {
-    "env": {"preset": "flat", "goal": {"mode": "radial"}, "physics": {"iterations": 4, "ls_iterations": 8},
-            "termination": {"max_episode_steps": 15}},
-    # success_threshold 0: every full window widens the range, so the wiring is visible in 80 steps
-    "curriculum": {"enabled": True, "window_size": 4, "min_episodes": 4, "success_threshold": 0.0,
-                   "failure_threshold": 0.0},
-    "ppo": {"unroll_length": 5, "batch_size": 4, "num_minibatches": 2, "num_updates_per_batch": 1,
-            "policy_hidden_sizes": [8], "value_hidden_sizes": [8]},
-    "run": {"num_timesteps": 80, "num_envs": 4, "checkpoint_every": 40, "seed": 1},
-}
 
 
 def tiny(**run) -> tcfg.TrainConfig:
@@ -31,12 +21,8 @@ def tiny(**run) -> tcfg.TrainConfig:
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    from train.trainer import train
-    path = tmp_path_factory.mktemp("run")
-    summary = train(tiny(), path, quiet=True)
-    assert summary["env_steps"] == 80
-    return path
+def run_dir(tiny_run_dir):
+    return tiny_run_dir  # trained once per session (tests/conftest.py)
 
 
 def records(path):

@@ -12,6 +12,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 SERVO_LABELS = ("1A", "2A", "3A", "4A", "1C", "2C", "3C", "4C")
+# Frames per GIF at most: offscreen rendering without a GPU (Mesa's llvmpipe) takes 0.3 s a frame on
+# a 2-core machine, so a 1,000-step episode at every 2nd step would take minutes (a 9th: 35 s).
+GIF_FRAMES = 120
 
 
 def _episode(traces: dict, key: str, episode: int = 0) -> np.ndarray:
@@ -91,14 +94,17 @@ def plot_trajectories(traces: dict, path: Path) -> Path:
     return path
 
 
-def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480)) -> Path:
-    """Render episode 0 offscreen (``track`` camera) to an animated GIF."""
+def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480),
+               max_frames: int = GIF_FRAMES) -> Path:
+    """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
+    ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
     from PIL import Image
     model = env.robot.mj_model
     data = mujoco.MjData(model)
     qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")
+    every = max(every, -(-len(qpos) // max_frames))
     frames = []
     with mujoco.Renderer(model, *size) as renderer:
         for t in range(0, len(qpos), every):

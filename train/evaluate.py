@@ -1,32 +1,46 @@
-"""Evaluate a trained run: ``python -m train.evaluate RUN_DIR [--episodes N] [--video]``.
+"""Evaluate a trained run or a shipped policy on the device.
 
-Loads the run's config and latest checkpoint, runs N episodes at once on the device with the
-deterministic policy (its mean action; ``--stochastic`` samples as in training; each env plays
-exactly one episode), prints success rate, mean final distance, mean speed and how the episodes
-ended (termination reasons, ``not_finished`` at the step cap), and writes the diagnostic plots
-(and optionally a GIF/MP4) into
-``RUN_DIR/eval/``.
+``python -m train.evaluate RUN_DIR [--episodes N] [--video]``: loads the run's config and latest
+checkpoint and runs N episodes at once with the deterministic policy (its mean action;
+``--stochastic`` samples as in training; each env plays exactly one episode).
+``python -m train.evaluate --policy NAME_OR_DIR [--episodes N] [--video]``: the same for a policy
+directory (``policies/<NAME>`` or a path; ``hsa_mjx/policy.py``), its env rebuilt from its
+``policy.json`` and its network run from its ``policy.npz``; defaults sized for a CPU (4 episodes
+of at most 1,000 steps).
+
+Prints success rate, mean final distance, mean speed and how the episodes ended (termination
+reasons, ``not_finished`` at the step cap), and writes eval.json, the diagnostic plots (and with
+``--video`` a GIF) into ``--out`` (default ``RUN_DIR/eval/`` or ``runs/eval_<NAME>/``).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
-import numpy as np
+# --video renders offscreen; mujoco picks its GL backend when first imported (below, via hsa_mjx.env)
+os.environ.setdefault("MUJOCO_GL", "egl")
 
-from hsa_mjx import curriculum as cur
-from hsa_mjx import observation, termination
-from hsa_mjx.config import EnvConfig
-from hsa_mjx.env import HSAEnv
-from train import checkpoint
-from train import config as tcfg
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from hsa_mjx import curriculum as cur  # noqa: E402
+from hsa_mjx import observation, termination  # noqa: E402
+from hsa_mjx import policy as pol  # noqa: E402
+from hsa_mjx.config import EnvConfig  # noqa: E402
+from hsa_mjx.env import HSAEnv  # noqa: E402
+from train import checkpoint  # noqa: E402
+from train import config as tcfg  # noqa: E402
+
+POLICIES_DIR = Path(__file__).resolve().parent.parent / "policies"
+CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
 
 def evaluation_env_config(config: EnvConfig) -> EnvConfig:
@@ -65,16 +79,23 @@ def default_goal_range(config: tcfg.TrainConfig) -> tuple[float, float]:
     return tuple(config.env.goal.radial_range)
 
 
-def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int) -> dict[str, jax.Array]:
-    """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...)."""
+def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int,
+            params: Any = None) -> dict[str, jax.Array]:
+    """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...).
+
+    ``policy(obs, key) -> (action, extras)``; with ``params`` (a pytree with a leading episode
+    axis) ``policy(params_i, obs, key)`` instead, so that one compiled rollout plays several
+    parameter sets (e.g. a policy against a zero policy).
+    """
     idx = env.index
 
-    def one(key):
+    def one(key, p):
+        act = policy if params is None else functools.partial(policy, p)
         state = env.reset_with_goal_range(key, goal_range)
 
         def step(carry, k_act):
             s, alive = carry
-            action, _ = policy(s.obs, k_act)
+            action, _ = act(s.obs, k_act)
             ns = env.step(s, action)
             ns = jax.tree.map(lambda new, old: jnp.where(alive, new, old), ns, s)
             data = ns.pipeline_state.physics
@@ -93,7 +114,7 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
         traces["start_distance"] = state.metrics["distance_to_goal"]
         return traces
 
-    return jax.jit(jax.vmap(one))(keys)
+    return jax.jit(jax.vmap(one, in_axes=(0, None if params is None else 0)))(keys, params)
 
 
 def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
@@ -121,52 +142,116 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
             "not_finished": float(np.mean(~ended))}
 
 
+def shipped_policy_apply(policy: pol.NumpyPolicy):
+    """``apply(params, obs, key) -> (action, {})``: the policy file's deterministic forward in JAX."""
+    net = policy.meta["network"]
+
+    def apply(params: dict, obs: jax.Array, key: jax.Array):
+        return pol.forward(params, obs, net["activation"], net["output"], float(net["observation_clip"]), xp=jnp), {}
+
+    return apply
+
+
+def resolve_policy(name_or_dir: str) -> Path:
+    """A policy directory: a path, or the name of a folder under ``policies/`` (the error lists them)."""
+    path = Path(name_or_dir)
+    if (path / pol.META_FILE).is_file():
+        return path
+    if (POLICIES_DIR / name_or_dir / pol.META_FILE).is_file():
+        return POLICIES_DIR / name_or_dir
+    available = sorted(p.name for p in POLICIES_DIR.glob("*") if (p / pol.META_FILE).is_file())
+    raise FileNotFoundError(f"no policy {name_or_dir!r}: not a directory with {pol.META_FILE} and not one of "
+                            f"the shipped policies {available} (in {POLICIES_DIR})")
+
+
+def load_shipped_policy(directory: Path):
+    """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json,
+    the network from its policy.npz."""
+    policy = pol.load_policy(directory)
+    try:
+        config = tcfg.from_dict(policy.meta["config"])
+    except (KeyError, ValueError) as err:
+        raise ValueError(f"policy {directory}: its {pol.META_FILE} holds no usable training config ({err})") from err
+    env = HSAEnv(evaluation_env_config(config.env))
+    if (env.observation_size, env.action_size) != (policy.observation_size, policy.action_size):
+        raise ValueError(f"policy {directory} maps {policy.observation_size} observations to {policy.action_size} "
+                         f"actions; its env has {env.observation_size} and {env.action_size}")
+    params = jax.tree.map(jnp.asarray, policy.params)
+    return config, env, functools.partial(shipped_policy_apply(policy), params), policy
+
+
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line's arguments."""
     parser = argparse.ArgumentParser(prog="python -m train.evaluate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run_dir", help="a run directory written by python -m train")
-    parser.add_argument("--episodes", type=int, default=16)
-    parser.add_argument("--steps", type=int, default=0, help="max steps per episode (0: the env's max_episode_steps)")
+    parser.add_argument("run_dir", nargs="?", help="a run directory written by python -m train")
+    parser.add_argument("--policy", default=None, metavar="NAME_OR_DIR",
+                        help="evaluate a policy directory instead: a folder name under policies/ or a path")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help=f"episodes (default 16 for a run, {CPU_EPISODES} for --policy)")
+    parser.add_argument("--steps", type=int, default=None, help="max steps per episode (default: the env's "
+                        f"max_episode_steps for a run, at most {CPU_STEPS} for --policy)")
     parser.add_argument("--goal-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
                         help="radial goal distance range (default: the curriculum's target range, or "
                              "the env's goal.radial_range when the curriculum is off)")
     parser.add_argument("--stochastic", action="store_true",
-                        help="sample actions from the policy as in training (default: its mean action)")
-    parser.add_argument("--video", action="store_true", help="render the first episode to eval/episode.gif")
+                        help="sample actions from the policy as in training (default: its mean action; "
+                             "run directories only)")
+    parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
+    parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
     parser.add_argument("--seed", type=int, default=1)
     return parser.parse_args(argv)
+
+
+def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, Any, dict, Path]:
+    """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
+    if (args.run_dir is None) == (args.policy is None):
+        raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
+    if args.episodes is not None and args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.policy is not None:
+        if args.stochastic:
+            raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
+        directory = resolve_policy(args.policy)
+        config, env, policy, shipped = load_shipped_policy(directory)
+        out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
+        header = {"policy_dir": str(directory), "source": shipped.meta.get("source", {}),
+                  "step": shipped.meta.get("source", {}).get("env_steps")}
+        return config, env, policy, header, out
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory not found: {run_dir}")
+    config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic)
+    return config, env, policy, {"checkpoint": str(path), "step": step}, Path(args.out) if args.out else run_dir / "eval"
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m train.evaluate``."""
     args = parse_args(argv)
     try:
-        if args.episodes < 1:
-            raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-        run_dir = Path(args.run_dir)
-        if not run_dir.is_dir():
-            raise FileNotFoundError(f"run directory not found: {run_dir}")
-        config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic)
+        config, env, policy, header, out = load_subject(args)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    shipped = args.policy is not None
+    episodes = args.episodes or (CPU_EPISODES if shipped else 16)
+    steps = args.steps or (min(CPU_STEPS, config.env.termination.max_episode_steps) if shipped
+                           else config.env.termination.max_episode_steps)
     goal_range = args.goal_range or default_goal_range(config)
-    steps = args.steps or config.env.termination.max_episode_steps
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), args.episodes)
+    keys = jax.random.split(jax.random.PRNGKey(args.seed), episodes)
     traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
     traces = {k: np.asarray(v) for k, v in traces.items()}
     radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
-    result = {"checkpoint": str(path), "step": step, "goal_range": list(goal_range) if radial else None,
+    result = {**header, "goal_range": list(goal_range) if radial else None,
               "policy": "stochastic" if args.stochastic else "deterministic", "max_steps": steps,
               **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral")}
-    out = run_dir / "eval"
-    out.mkdir(exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     from train import diagnostics
     written = diagnostics.write_all(traces, env, out, video=args.video)
     result["files"] = [str(p) for p in written]
     (out / "eval.json").write_text(json.dumps(result, indent=1))
     for key, value in result.items():
-        if key != "files":
+        if key not in ("files", "source"):
             print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
     print(f"wrote {len(written)} files to {out}")
     return 0

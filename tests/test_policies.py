@@ -1,0 +1,105 @@
+"""Shipped policies (policies/<task>/): each beats a zero policy on its task; ``train.evaluate --policy``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hsa_mjx import policy as pol
+from train import evaluate
+
+SHIPPED = sorted(p.name for p in evaluate.POLICIES_DIR.glob("*") if (p / pol.META_FILE).is_file())
+EPISODES, STEPS = 2, 250  # per policy; the trained corridor policy closes about 0.07 m in 250 steps
+MARGIN_M = 0.02
+
+
+def goal_progress(traces: dict) -> np.ndarray:
+    """Metres each episode closed on its current goal, summed over its steps (the steps where a spiral's
+    goal moves on to the next checkpoint are left out, so progress along the track counts)."""
+    distance = np.concatenate([traces["start_distance"][:, None], traces["distance"]], axis=1)
+    goal_index = np.concatenate([traces["checkpoint"][:, :1], traces["checkpoint"]], axis=1)
+    closed = distance[:, :-1] - distance[:, 1:]
+    same_goal = goal_index[:, 1:] == goal_index[:, :-1]
+    return np.sum(np.where(same_goal & traces["alive"].astype(bool), closed, 0.0), axis=1)
+
+
+def test_policies_folder_documents_every_shipped_policy():
+    assert "corridor" in SHIPPED
+    readme = (evaluate.POLICIES_DIR / "README.md").read_text()
+    for name in SHIPPED:
+        assert f"policies/{name}" in readme, name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_policy_beats_a_zero_policy(name):
+    """The policy and a zero policy (the same network with zero weights) from the same starts and
+    goals, in one compiled rollout: every trained episode must close more distance on its goal."""
+    import jax
+    import jax.numpy as jnp
+    config, env, _, policy = evaluate.load_shipped_policy(evaluate.POLICIES_DIR / name)
+    trained = jax.tree.map(jnp.asarray, policy.params)
+    zero = {**trained, "kernels": tuple(jnp.zeros_like(k) for k in trained["kernels"]),
+            "biases": tuple(jnp.zeros_like(b) for b in trained["biases"])}
+    params = jax.tree.map(lambda a, b: jnp.stack([a] * EPISODES + [b] * EPISODES), trained, zero)
+    keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
+    goal_range = jnp.asarray(evaluate.default_goal_range(config), jnp.float32)
+    traces = jax.device_get(evaluate.rollout(env, evaluate.shipped_policy_apply(policy),
+                                             jnp.concatenate([keys, keys]), goal_range, STEPS, params=params))
+    traces = {k: np.asarray(v) for k, v in traces.items()}
+    assert np.all(traces["action"][EPISODES:] == 0.0) and np.any(traces["action"][:EPISODES] != 0.0)
+    np.testing.assert_allclose(traces["goal"][:EPISODES, 0], traces["goal"][EPISODES:, 0])  # same goals
+    progress = goal_progress(traces)
+    assert progress[:EPISODES].min() > progress[EPISODES:].max() + MARGIN_M, progress
+
+
+def test_goal_progress_leaves_out_goal_switches():
+    traces = {"start_distance": np.array([2.0]), "distance": np.array([[1.9, 1.8, 3.0, 2.9, 2.9]]),
+              "checkpoint": np.array([[0, 0, 1, 1, 1]]), "alive": np.array([[1, 1, 1, 1, 0]])}
+    np.testing.assert_allclose(goal_progress(traces), [0.3])  # 0.2 to checkpoint 0, then 0.1 to checkpoint 1
+
+
+def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
+    assert evaluate.main(["--policy", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "no policy 'nope'" in err and "'corridor'" in err  # lists the shipped ones
+    assert evaluate.main(["--policy", "corridor", "--stochastic"]) == 2
+    assert evaluate.main([]) == 2 and evaluate.main([str(tiny_run_dir), "--policy", "corridor"]) == 2
+    assert evaluate.main(["--policy", "corridor", "--episodes", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--stochastic needs a RUN_DIR" in err and "either a RUN_DIR or --policy" in err and "--episodes" in err
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / pol.META_FILE).write_text(json.dumps({"format": pol.FORMAT, "format_version": 99}))
+    assert evaluate.main(["--policy", str(broken)]) == 2
+    assert "format version 99" in capsys.readouterr().err
+
+
+def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys):
+    from train import export
+    assert export.main([str(tiny_run_dir), "--format", "npz", "--out", str(tmp_path / "tiny")]) == 0
+    out = tmp_path / "eval"
+    assert evaluate.main(["--policy", str(tmp_path / "tiny"), "--episodes", "2", "--steps", "12",
+                          "--out", str(out)]) == 0
+    assert f"wrote 4 files to {out}" in capsys.readouterr().out
+    result = json.loads((out / "eval.json").read_text())
+    assert result["policy_dir"] == str(tmp_path / "tiny") and result["policy"] == "deterministic"
+    assert result["episodes"] == 2 and result["max_steps"] == 12 and result["step"] >= 80
+    assert result["source"]["run"] == str(tiny_run_dir) and result["mean_final_distance"] > 0
+    for name in ("actions.png", "joints.png", "constraint.png", "trajectories.png"):
+        assert (out / name).stat().st_size > 5_000
+
+
+def test_gif_frames_are_capped(env, tmp_path):
+    from PIL import Image
+    from train import diagnostics
+    steps = 12
+    qpos = np.tile(env.robot.mj_model.qpos0, (1, steps, 1))
+    qpos[0, :, env.index.joint_qpos] += np.linspace(0.0, 3.0, steps)[None, :]  # distinct frames: GIF merges repeats
+    traces = {"alive": np.ones((1, steps)), "qpos": qpos, "goal": np.zeros((1, steps, 2))}
+    for cap, frames in ((diagnostics.GIF_FRAMES, 6), (4, 4)):  # every 2nd step; every 3rd for 4 frames
+        path = diagnostics.render_gif(traces, env, tmp_path / f"{cap}.gif", max_frames=cap)
+        with Image.open(path) as gif:
+            assert gif.n_frames == frames and gif.size == (480, 360)

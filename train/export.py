@@ -1,0 +1,145 @@
+"""Export a run's deterministic policy: ``python -m train.export RUN_DIR --format npz|onnx [--out DIR]``.
+
+Reads the run's latest checkpoint (or ``--checkpoint PATH``) and writes its deterministic policy,
+observation normaliser included, as a policy directory (``hsa_mjx/policy.py`` describes the format):
+
+- ``--format npz``: ``policy.npz`` + ``policy.json``, run with ``hsa_mjx.policy.load_policy`` (numpy
+  only) or ``python -m train.evaluate --policy DIR``; the format of the shipped ``policies/<task>/``.
+- ``--format onnx``: ``policy.onnx`` (input ``observation`` (batch, obs), output ``action``) + the
+  same ``policy.json``; needs the ``onnx`` package (``pip install -e .[export]``).
+
+Default output: ``RUN_DIR/export_<format>/``. A corrupt or incompatible run directory is refused
+(exit code 2, ``error: ...``) before anything is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from hsa_mjx import policy as pol
+from train import checkpoint
+from train import config as tcfg
+
+FORMATS = ("npz", "onnx")
+ONNX_FILE = "policy.onnx"
+
+
+def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[tcfg.TrainConfig, Path, int]:
+    """(config, checkpoint path, step) of a run's latest or given checkpoint; errors name the problem."""
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory not found: {run_dir}")
+    path = checkpoint_path or checkpoint.latest(run_dir)
+    if not path.is_dir():
+        raise FileNotFoundError(f"checkpoint directory not found: {path}")
+    meta = checkpoint.read_meta(path)
+    try:
+        config = tcfg.from_dict(meta["config"])
+    except ValueError as err:
+        raise ValueError(f"checkpoint {path} was written with a config this code cannot build: {err}") from err
+    return config, path, int(meta["step"])
+
+
+def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
+    """The deterministic policy's float32 arrays (normaliser as applied, dense layers) of a TrainingState."""
+    tree = ts.params.policy["params"]
+    if config.ppo.distribution_type == "tanh_normal":  # one MLP; its last layer outputs (mean, scale)
+        dense = [tree[f"hidden_{i}"] for i in range(len(tree))]
+        last = dict(dense[-1])
+        dense[-1] = {"kernel": np.asarray(last["kernel"])[:, :action_size],
+                     "bias": np.asarray(last["bias"])[:action_size]}
+    else:  # hidden MLP, then a mean layer (the std is a separate parameter)
+        dense = [tree["MLP_0"][f"hidden_{i}"] for i in range(len(tree["MLP_0"]))] + [tree["Dense_0"]]
+    n_obs = np.asarray(dense[0]["kernel"]).shape[0]
+    if config.ppo.normalize_observations:
+        mean, std = ts.normalizer.mean, ts.normalizer.std
+    else:
+        mean, std = np.zeros(n_obs), np.ones(n_obs)
+    f32 = lambda x: np.asarray(x, np.float32)  # noqa: E731
+    return {"obs_mean": f32(mean), "obs_std": f32(std), "kernels": tuple(f32(d["kernel"]) for d in dense),
+            "biases": tuple(f32(d["bias"]) for d in dense)}
+
+
+def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPolicy:
+    """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
+    from hsa_mjx import observation
+    from hsa_mjx.model import SERVOS
+    ppo = config.ppo
+    params = policy_params(config, ts, len(SERVOS))
+    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.ppo.make_networks
+    meta = pol.describe(params, ppo.activation, ppo.distribution_type, clip,
+                        list(observation.observation_labels(config.env.observation)))
+    meta.update(config=tcfg.to_dict(config), source=source)
+    pol.check(params, meta, Path(source.get("checkpoint", "")))
+    return pol.NumpyPolicy(params=params, meta=meta)
+
+
+def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol.NumpyPolicy:
+    """The deterministic policy of a run's latest (or given) checkpoint, with its provenance."""
+    from hsa_mjx.model import SERVOS
+    from hsa_mjx.observation import observation_size
+    from train.evaluate import load_training_state
+    config, path, step = read_checkpoint(run_dir, checkpoint_path)
+    _, ts = load_training_state(config, path, observation_size(config.env.observation), len(SERVOS))
+    source = {"run": str(run_dir), "checkpoint": str(path), "step": step, "env_steps": step,
+              "exported": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    return to_numpy_policy(config, ts, source)
+
+
+def write(policy: pol.NumpyPolicy, out: Path, fmt: str) -> Path:
+    """Write ``policy`` into directory ``out`` in format ``fmt`` (atomically)."""
+    if fmt == "npz":
+        return pol.save_policy(out, policy.params, policy.meta)
+    from train import onnx_policy
+    model = onnx_policy.build(policy)
+    return pol.write_directory(out, {ONNX_FILE: model.SerializeToString(),
+                                     pol.META_FILE: json.dumps(policy.meta, indent=1).encode()})
+
+
+def check_output(out: Path, fmt: str) -> None:
+    """Refuse an unusable output directory or a missing ONNX package before loading anything."""
+    pol.check_output(out)
+    if fmt == "onnx":
+        try:
+            import onnx  # noqa: F401
+        except ImportError as err:
+            raise ValueError("--format onnx needs the onnx package: pip install -e .[export]") from err
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line's arguments."""
+    parser = argparse.ArgumentParser(prog="python -m train.export", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dir", help="a run directory written by python -m train")
+    parser.add_argument("--checkpoint", default=None, help="a checkpoint directory (default: the run's latest)")
+    parser.add_argument("--format", required=True, choices=FORMATS)
+    parser.add_argument("--out", default=None, help="output directory (default: RUN_DIR/export_<format>)")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m train.export``."""
+    args = parse_args(argv)
+    run_dir = Path(args.run_dir)
+    out = Path(args.out) if args.out else run_dir / f"export_{args.format}"
+    try:
+        check_output(out, args.format)
+        policy = load_numpy_policy(run_dir, Path(args.checkpoint) if args.checkpoint else None)
+        policy.meta["source"]["command"] = " ".join(["python -m train.export", *(argv or sys.argv[1:])])
+        written = write(policy, out, args.format)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    src = policy.meta["source"]
+    print(f"exported the deterministic policy of {src['checkpoint']} ({src['env_steps']:,} env steps) "
+          f"as {args.format} to {written}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
