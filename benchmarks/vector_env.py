@@ -10,6 +10,9 @@ Every mode makes one Python call per env step of the whole batch, as a Gymnasium
 - ``vector_jax_nocheck``: the same with ``check_finite=False`` (no host round trip at all).
 - ``vector_numpy``: the default ``make_vec`` env (``NumpyOutput``) on numpy actions: actions sent
   to the device, every output (obs, reward, flags, the info arrays) copied back as numpy.
+- ``vector_torch``: the JAX-output env in Gymnasium's ``JaxToTorch`` (torch tensors through
+  DLPack, on the GPU when torch sees one) on torch actions; left out, with a message, where torch
+  is not installed (it is no dependency of this package).
 
 Physics: the shipped setting of the scene (``benchmarks.fidelity.SHIPPED_BY_SCENE``) unless
 ``--setting`` names another. Per batch and mode: one warm-up call (the compile), then ``--repeats``
@@ -37,7 +40,7 @@ from benchmarks.run_info import device_kind, markdown_rows, write_table_result
 from hsa_mjx.adapters.gymnasium_vector import HSAVectorEnv, NumpyOutput
 from hsa_mjx.training_env import AutoResetEnv
 
-MODES = ("jit_step", "vector_jax", "vector_jax_nocheck", "vector_numpy")
+MODES = ("jit_step", "vector_jax", "vector_jax_nocheck", "vector_numpy", "vector_torch")
 HEAD = ["batch", "mode", "env_steps_per_s", "ms_per_step", "vs_jit_step", "first_call_s", "steps", "repeats"]
 ACTION_SETS = 4  # distinct random action batches, cycled
 
@@ -79,8 +82,33 @@ def mode_steps(envs: HSAVectorEnv, seed: int = 0) -> dict[str, Callable[[int], A
             return envs.step(device[i % ACTION_SETS])
         return step
 
-    return {"jit_step": jit_step, "vector_jax": vector(True), "vector_jax_nocheck": vector(False),
-            "vector_numpy": lambda i: numpy_envs.step(host[i % ACTION_SETS])}
+    steps = {"jit_step": jit_step, "vector_jax": vector(True), "vector_jax_nocheck": vector(False),
+             "vector_numpy": lambda i: numpy_envs.step(host[i % ACTION_SETS])}
+    torch_step = torch_steps(envs, host)
+    if torch_step is not None:
+        steps["vector_torch"] = torch_step
+    return steps
+
+
+def torch_steps(envs: HSAVectorEnv, host: list[np.ndarray]) -> Callable[[int], Any] | None:
+    """The ``vector_torch`` step (Gymnasium's JaxToTorch around the JAX-output env), or None without torch."""
+    try:
+        import torch
+        from gymnasium.wrappers.vector import JaxToTorch
+    except ImportError as err:
+        print(f"vector_torch left out: {err}", flush=True)
+        return None
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    torch_envs = JaxToTorch(envs, device=device)
+    actions = [torch.as_tensor(a, device=device) for a in host]
+
+    def step(i: int) -> Any:
+        envs.check_finite = True
+        out = torch_envs.step(actions[i % ACTION_SETS])
+        if device == "cuda":
+            torch.cuda.synchronize()
+        return None
+    return step
 
 
 def measure_batch(batch: int, overrides: dict[str, Any], steps: int, repeats: int, modes: tuple[str, ...]

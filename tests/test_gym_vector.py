@@ -125,6 +125,9 @@ def test_jax_outputs_and_device_actions(vector_env):
     assert isinstance(obs, jax.Array) and obs.dtype == jnp.float32 and isinstance(info["goal"], jax.Array)
     obs, reward, terminated, truncated, info = env.step(jnp.asarray(_actions(2)))
     assert all(isinstance(x, jax.Array) for x in (obs, reward, terminated, truncated, info["final_obs"]))
+    env.step(jax.device_put(_actions(3), jax.devices()[0]))  # committed to a device (as DLPack imports are)
+    vector_env.step(_actions(4))  # numpy
+    assert env._step_fn._cache_size() == 1  # one compiled step whatever the kind of actions
     with pytest.raises(ValueError, match="non-finite"):
         env.step(jnp.full(ACTION_SHAPE, jnp.nan))
     with pytest.raises(ValueError, match="dtype int32"):

@@ -34,6 +34,7 @@ from hsa_mjx.adapters.gymnasium import pick_camera
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.model import local_device
 from hsa_mjx.termination import REASONS
 from hsa_mjx.training_env import AutoResetEnv, BatchState
 from hsa_mjx.types import EnvState
@@ -105,6 +106,10 @@ class HSAVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._batch = AutoResetEnv(self.env)
+        # Every array passed to the jitted calls is committed to this device: a mix of committed
+        # arrays (device_put, DLPack from torch) and uncommitted ones (jnp.asarray) would compile
+        # the step once more.
+        self._device = local_device()
         self._reset_fn = jax.jit(self._reset_outputs)
         self._step_fn = jax.jit(self._step_outputs)
         self._state: BatchState | None = None
@@ -118,7 +123,7 @@ class HSAVectorEnv(VectorEnv):
         if options:
             raise ValueError(f"unknown reset option(s) {sorted(options)}; this vector env takes no options")
         seeds = self._seeds(seed)
-        self._state, obs, info = self._reset_fn(jnp.asarray(seeds, jnp.uint32))
+        self._state, obs, info = self._reset_fn(jax.device_put(np.asarray(seeds, np.uint32), self._device))
         return obs, self._info(info)
 
     def step(self, actions: Any):
@@ -126,7 +131,7 @@ class HSAVectorEnv(VectorEnv):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
         actions = check_actions(actions, self.action_space.shape, self.check_finite)
-        self._state, out = self._step_fn(self._state, jnp.asarray(actions))
+        self._state, out = self._step_fn(self._state, jax.device_put(actions, self._device))
         obs, reward, terminated, truncated, info, *final = out
         return obs, reward, terminated, truncated, self._info(info, *final)
 
