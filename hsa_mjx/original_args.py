@@ -57,7 +57,10 @@ def _servo_limit(name: str, value: Any) -> tuple[float]:
 
 def _goal_xy(name: str, value: Any) -> tuple[str, tuple[float, float]]:
     """``goal_position`` [x, y] or [x, y, z] -> a fixed goal at (x, y)."""
-    xyz = np.asarray(value, dtype=float) if np.ndim(value) == 1 else np.zeros(0)
+    try:
+        xyz = np.asarray(value, dtype=float) if np.ndim(value) == 1 else np.zeros(0)
+    except (TypeError, ValueError):
+        xyz = np.zeros(0)
     if xyz.shape not in ((2,), (3,)) or not np.all(np.isfinite(xyz)):
         raise ValueError(f"{name} must be a list [x, y] or [x, y, z] of finite numbers, got {value!r}")
     return "fixed", (float(xyz[0]), float(xyz[1]))
@@ -75,7 +78,7 @@ def _spiral(key: str) -> OriginalArg:
 
 _VIEWER = "a setting of the original's viewer with no counterpart in this renderer"
 ORIGINAL_ARGS: dict[str, OriginalArg] = {
-    "xml_file": OriginalArg(("control.servo_target_limit",), convert=lambda n, v: _servo_limit(n, v),
+    "xml_file": OriginalArg(("control.servo_target_limit",), convert=_servo_limit,
                             note="one asset here; the two loadable models differ only in their servo "
                                  "range (Loose 6.28, NoStiff 3141.5 rad); the other two are refused"),
     "frame_skip": _same("control.frame_skip"),
@@ -113,7 +116,7 @@ ORIGINAL_ARGS: dict[str, OriginalArg] = {
                                 "the original, also without terrain). A type other than flat/spiral without "
                                 "a heightfield: with enable_terrain=False a warning (the original drew no "
                                 "terrain; here the plane keeps the flat goal rule), without it an error"),
-    "goal_position": OriginalArg(("goal.mode", "goal.position"), "terrain", convert=_goal_xy,
+    "goal_position": OriginalArg(("goal.mode", "goal.position"), "terrain",
                                  note="a fixed goal at (x, y); the original overwrote it at every reset (so its "
                                       "goals were random); z is the marker height, ignored. Ignored with a "
                                       "warning when terrain_type='spiral' (the checkpoints are the goals)"),

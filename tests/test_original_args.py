@@ -119,6 +119,7 @@ def test_the_issue_example_and_coupled_terrain_arguments():
     ({"xml_file": "hsaModel.xml"}, "could not load it either"),
     ({"xml_file": "robot.xml"}, "hsaLooseModel.xml"),
     ({"goal_position": [1.0]}, r"goal_position must be a list \[x, y\]"),
+    ({"goal_position": ["a", "b"]}, "goal_position must be a list"),
 ])
 def test_bad_original_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
