@@ -119,7 +119,12 @@ def measure_batch(batch: int, overrides: dict[str, Any], steps: int, repeats: in
     for mode, step in mode_steps(envs).items():
         if mode not in modes:
             continue
-        first, runs = timed_runs(step, steps, repeats)
+        try:
+            first, runs = timed_runs(step, steps, repeats)
+        except Exception as err:  # noqa: BLE001  (a failing mode, e.g. a DLPack hand-off, is recorded, not fatal)
+            rows.append({"batch": batch, "mode": mode, "error": f"{type(err).__name__}: {err}"[:300]})
+            print(rows[-1], flush=True)
+            continue
         seconds = statistics.median(runs)
         rate = batch * steps / seconds
         base = rate if mode == "jit_step" else base
@@ -159,11 +164,13 @@ def main(argv: list[str] | None = None) -> None:
     setting = args.setting or SHIPPED_BY_SCENE[args.scene]
     overrides = {"scene": args.scene, **{k.replace(".", "__"): v for k, v in SETTINGS[setting].items()}}
     tic = time.perf_counter()
-    rows = [row for batch in batches for row in measure_batch(batch, overrides, args.steps, args.repeats, modes)]
     caption = (f"Gymnasium vector env against the jitted batched step: {args.scene} scene, physics "
                f"`{setting}`, one Python call per env step, median of {args.repeats} runs of {args.steps} steps.")
-    write_table_result(args.out or default_out(), caption + "\n\n" + markdown_rows(rows, HEAD), rows, tic)
-
+    rows: list[dict[str, Any]] = []
+    for batch in batches:  # the results are rewritten after every batch: a run cut short keeps them
+        rows += measure_batch(batch, overrides, args.steps, args.repeats, modes)
+        table = markdown_rows([{k: r.get(k, "-") for k in HEAD + ["error"]} for r in rows], HEAD + ["error"])
+        write_table_result(args.out or default_out(), caption + "\n\n" + table, rows, tic)
 
 if __name__ == "__main__":
     main()
