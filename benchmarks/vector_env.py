@@ -17,16 +17,18 @@ Every mode makes one Python call per env step of the whole batch, as a Gymnasium
 Physics: the shipped setting of the scene (``benchmarks.fidelity.SHIPPED_BY_SCENE``) unless
 ``--setting`` names another. Per batch and mode: one warm-up call (the compile), then ``--repeats``
 runs of ``--steps`` steps; the median is reported. Results: ``--out``.json (rows and provenance:
-date, device, versions, command) and ``--out``.md.
+date, device, versions, command, git commit) and ``--out``.md, rewritten after every batch.
 
-    python -m benchmarks.vector_env --batches 4096,16384 [--steps 100] [--repeats 3]
-        [--scene flat|terrain] [--setting NAME] [--out benchmarks/results/vector_env_<device>]
+    python -m benchmarks.vector_env --batches 4096,16384 [--steps 100] [--repeats 3] [--scene flat|terrain]
+        [--setting NAME] [--modes ...] [--out benchmarks/results/throughput/vector_env_<device>]
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import json
+import os
 import statistics
 import time
 from pathlib import Path
@@ -36,7 +38,8 @@ import jax
 import numpy as np
 
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
-from benchmarks.run_info import device_kind, markdown_rows, write_table_result
+from benchmarks.run_info import run_info
+from benchmarks.throughput_report import slug
 from hsa_mjx.adapters.gymnasium_vector import HSAVectorEnv, NumpyOutput
 from hsa_mjx.training_env import AutoResetEnv
 
@@ -140,8 +143,27 @@ def measure_batch(batch: int, overrides: dict[str, Any], steps: int, repeats: in
 
 
 def default_out() -> Path:
-    """benchmarks/results/vector_env_<device> (e.g. vector_env_nvidia_h200)."""
-    return Path("benchmarks/results") / f"vector_env_{device_kind().lower().replace(' ', '_')}"
+    """benchmarks/results/throughput/vector_env_<device> (e.g. vector_env_nvidia_h200)."""
+    return Path("benchmarks/results/throughput") / f"vector_env_{slug(jax.devices()[0].device_kind)}"
+
+
+def markdown(caption: str, rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
+    """The caption, a table of ``rows`` (an ``error`` column where a mode failed) and the provenance line."""
+    head = HEAD + (["error"] if any("error" in r for r in rows) else [])
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    lines += ["| " + " | ".join(str(r.get(k, "-")) for k in head) + " |" for r in rows]
+    return "\n".join([caption, "", *lines, "", f"{meta['date']}, {meta['device']}, command `{meta['command']}`", ""])
+
+
+def write_results(out: Path, caption: str, rows: list[dict[str, Any]], started: float) -> None:
+    """``out``.json (provenance and rows) and ``out``.md, each written to a temporary file and renamed."""
+    meta = {**run_info(), "wall_s": round(time.perf_counter() - started, 1)}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    texts = {".json": json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n", ".md": markdown(caption, rows, meta)}
+    for suffix, text in texts.items():
+        tmp = out.with_suffix(suffix + ".tmp")
+        tmp.write_text(text)
+        os.replace(tmp, out.with_suffix(suffix))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -169,8 +191,8 @@ def main(argv: list[str] | None = None) -> None:
     rows: list[dict[str, Any]] = []
     for batch in batches:  # the results are rewritten after every batch: a run cut short keeps them
         rows += measure_batch(batch, overrides, args.steps, args.repeats, modes)
-        table = markdown_rows([{k: r.get(k, "-") for k in HEAD + ["error"]} for r in rows], HEAD + ["error"])
-        write_table_result(args.out or default_out(), caption + "\n\n" + table, rows, tic)
+        write_results(args.out or default_out(), caption, rows, tic)
+    print(markdown(caption, rows, run_info()), flush=True)
 
 if __name__ == "__main__":
     main()
