@@ -2,8 +2,11 @@
 
 Public entry points:
     make_env(name_or_config, **overrides) -> HSAEnv   (Brax ``Env``: jittable reset/step)
+    build_config(name_or_config, **overrides) -> EnvConfig   (what make_env builds, without building it)
     load_config(path) -> EnvConfig
     gymnasium.make("hsa_mjx/HSA-v0", ...)              (single env, registered on import)
+    gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=N, vectorization_mode="vector_entry_point", ...)
+                                                       (N envs stepped in one jitted call on the device)
 """
 
 from __future__ import annotations
@@ -13,9 +16,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from hsa_mjx.config import PRESETS, EnvConfig, get_preset, load_config, with_overrides
+    from hsa_mjx.config import EnvConfig
     from hsa_mjx.env import HSAEnv
-    from hsa_mjx.types import EnvState, SimState, TaskState
+
 
 __version__ = "0.1.0"
 # Public names, imported on first use: ``import hsa_mjx.policy`` (numpy only) must not import JAX.
@@ -39,15 +42,28 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) 
     Args:
         name_or_config: a preset name (see ``hsa_mjx.PRESETS``), a path to a YAML config, or an
             :class:`EnvConfig`.
-        **overrides: dotted config keys with ``__`` for dots, e.g. ``reward__forward=3.0`` or
-            ``goal__mode="fixed"``, applied over the chosen config.
+        **overrides: applied over the chosen config: dotted config keys with ``__`` for dots, e.g.
+            ``reward__forward=3.0`` or ``goal__mode="fixed"``, and/or the original ``hsa_gym``
+            ``HSAEnv`` arguments by their names, e.g. ``frame_skip=20`` or ``enable_terrain=True``
+            (``hsa_mjx.original_args``; the table is in docs/environment.md).
 
     Raises:
-        ValueError: unknown preset, config key or value (the message lists the valid options).
+        ValueError: unknown preset, argument, config key or value (the message lists the valid
+            options), or an original argument and the config key it maps to both given.
         FileNotFoundError: a config path or the robot asset is missing.
     """
-    from hsa_mjx.config import EnvConfig, get_preset, load_config, with_overrides
     from hsa_mjx.env import HSAEnv
+    return HSAEnv(build_config(name_or_config, **overrides))
+
+
+def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False,
+                 **overrides: Any) -> EnvConfig:
+    """The :class:`EnvConfig` that ``make_env`` builds its env from (same arguments; nothing compiled).
+
+    ``renderer``: the caller renders, so the original's viewer arguments are not warned about.
+    """
+    from hsa_mjx import original_args
+    from hsa_mjx.config import EnvConfig, get_preset, load_config, with_overrides
     if isinstance(name_or_config, EnvConfig):
         config = name_or_config
     elif isinstance(name_or_config, Path) or str(name_or_config).endswith((".yaml", ".yml")):
@@ -56,9 +72,17 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) 
         config = get_preset(name_or_config)
     else:
         raise ValueError(f"make_env expects a preset name, a YAML path or an EnvConfig, got {name_or_config!r}")
-    if overrides:
-        config = with_overrides(config, **overrides)
-    return HSAEnv(config)
+    original, keys = original_args.split_arguments(overrides)
+    given = original_args.flatten(keys)
+    mapped, source = original_args.config_from_original(original, config, given, renderer)
+    if not (given or mapped):
+        return config
+    try:
+        return with_overrides(config, **given, **mapped)
+    except ValueError as err:  # name the original argument behind a refused key
+        named = [f"'{key}' comes from the original argument {name}={original[name]!r}"
+                 for key, name in source.items() if f"'{key}'" in str(err)]
+        raise ValueError("; ".join([str(err), *named])) from None
 
 
 def _register_gymnasium() -> None:
@@ -68,10 +92,11 @@ def _register_gymnasium() -> None:
     except ImportError:  # the adapter is optional
         return
     if "hsa_mjx/HSA-v0" not in gymnasium.registry:
-        gymnasium.register(id="hsa_mjx/HSA-v0", entry_point="hsa_mjx.adapters.gymnasium:HSAGymEnv")
+        gymnasium.register(id="hsa_mjx/HSA-v0", entry_point="hsa_mjx.adapters.gymnasium:HSAGymEnv",
+                           vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env")
 
 
 _register_gymnasium()
 
-__all__ = ["make_env", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",
+__all__ = ["make_env", "build_config", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",
            "PRESETS", "__version__"]

@@ -95,6 +95,17 @@ class AutoResetEnv:
 
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
         """Step every env; reset the finished ones with fresh goals; update curriculum and totals."""
+        return self.step_with_final(state, actions)[0]
+
+    def step_with_final(self, state: BatchState, actions: jax.Array, reset_metrics: bool = False
+                        ) -> tuple[BatchState, EnvState, EpisodeAccumulator]:
+        """``step``, also returning what the auto-reset replaces.
+
+        Returns (new batch state, every env's state after the step and before the auto-reset:
+        the terminal state where it finished, the sums of the episode that step ended or
+        continued). ``reset_metrics`` (static) also gives the reset envs their fresh episodes'
+        metrics (zero rewards, no reasons, the new goal distance) instead of the terminal ones.
+        """
         nxt = jax.vmap(self.env.step)(state.env, actions)
         done = nxt.done > 0
         episode = EpisodeAccumulator(
@@ -102,11 +113,11 @@ class AutoResetEnv:
             terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
         totals = self._add_totals(state.totals, nxt, episode, done)
         cstate = self._update_curriculum(state.curriculum, nxt.metrics["termination/goal_reached"] > 0, done)
-        env_state = self._reset_done(nxt, done, cstate)
+        env_state = self._reset_done(nxt, done, cstate, reset_metrics)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
-        episode = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
+        running = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
                                      terms={k: keep(v) for k, v in episode.terms.items()})
-        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=totals)
+        return BatchState(env=env_state, curriculum=cstate, episode=running, totals=totals), nxt, episode
 
     def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
                            done: jax.Array) -> cur.CurriculumState:
@@ -118,14 +129,16 @@ class AutoResetEnv:
             done = jax.lax.all_gather(done, self.axis_name)
         return cur.update(cstate, success, done, self.curriculum)
 
-    def _reset_done(self, nxt: EnvState, done: jax.Array, cstate: cur.CurriculumState) -> EnvState:
+    def _reset_done(self, nxt: EnvState, done: jax.Array, cstate: cur.CurriculumState,
+                    reset_metrics: bool = False) -> EnvState:
         """Replace finished envs by fresh episodes drawn from their own keys (skipped if none ended)."""
         def fresh(state: EnvState) -> EnvState:
             keys = jax.vmap(lambda k: jax.random.split(k)[1])(state.pipeline_state.task.rng)
             new = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, self._goal_range(cstate))
             pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            metrics = jax.tree.map(pick, new.metrics, state.metrics) if reset_metrics else state.metrics
             return state.replace(pipeline_state=jax.tree.map(pick, new.pipeline_state, state.pipeline_state),
-                                 obs=pick(new.obs, state.obs))
+                                 obs=pick(new.obs, state.obs), metrics=metrics)
         return jax.lax.cond(jnp.any(done), fresh, lambda s: s, nxt)
 
     @staticmethod

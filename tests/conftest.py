@@ -92,3 +92,20 @@ def tiny_run_dir(tmp_path_factory):
     summary = train(tcfg.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
     assert summary["env_steps"] == 80
     return path
+
+
+VECTOR_ENVS = 8
+VECTOR_EPISODE_STEPS = 6  # short episodes: every few steps each env truncates and auto-resets
+
+
+@pytest.fixture(scope="session")
+def vector_env():
+    """The Gymnasium vector env (numpy outputs) of ``VECTOR_ENVS`` flat envs, compiled once."""
+    import gymnasium
+
+    import hsa_mjx  # noqa: F401  (registers hsa_mjx/HSA-v0)
+    envs = gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=VECTOR_ENVS, vectorization_mode="vector_entry_point",
+                              render_mode="rgb_array", width=96, height=72,
+                              termination__max_episode_steps=VECTOR_EPISODE_STEPS)
+    yield envs
+    envs.close()

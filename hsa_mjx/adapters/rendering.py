@@ -1,0 +1,146 @@
+"""Frames of one env's state: the MJX state copied into C MuJoCo data and drawn offscreen or in a viewer.
+
+Shared by the single Gymnasium env and the vector env (which renders one chosen env of its batch).
+"""
+
+from __future__ import annotations
+
+import os
+
+import gymnasium
+import jax
+import mujoco
+import numpy as np
+
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.terrain.grid import HFIELD_NAME
+from hsa_mjx.types import EnvState
+
+RENDER_MODES = ("human", "rgb_array")
+DEFAULT_CAMERA = "track"
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def check_render_mode(render_mode: str | None) -> str | None:
+    """Return ``render_mode`` or raise ValueError listing the supported ones."""
+    if render_mode not in (None, *RENDER_MODES):
+        raise ValueError(f"render_mode {render_mode!r} is not supported; use one of {[None, *RENDER_MODES]}")
+    return render_mode
+
+
+def check_camera(model: mujoco.MjModel, camera: str | int | None) -> str | int:
+    """A camera of ``model`` by name or id (-1: MuJoCo's free camera); None means ``"track"``."""
+    names = [model.camera(i).name for i in range(model.ncam)]
+    if camera is None:
+        return DEFAULT_CAMERA
+    if isinstance(camera, str) and camera in names:
+        return camera
+    if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool) and -1 <= camera < model.ncam:
+        return int(camera)
+    raise ValueError(f"unknown camera {camera!r}; cameras of the robot asset: {names} "
+                     f"(or an id in -1..{model.ncam - 1}, -1 being MuJoCo's free camera)")
+
+
+class StateRenderer:
+    """Draws a single env's :class:`EnvState` with C MuJoCo.
+
+    Args:
+        env: the env whose model is drawn.
+        render_mode: ``"rgb_array"`` (offscreen ``mujoco.Renderer``) or ``"human"`` (passive viewer;
+            needs a display, else a one-time warning and nothing is shown).
+        width, height: size of ``rgb_array`` frames.
+        camera: camera name or id in the asset (None: ``"track"``, which follows the robot).
+    """
+
+    def __init__(self, env: HSAEnv, render_mode: str, width: int, height: int, camera: str | int | None):
+        self.env, self.render_mode = env, check_render_mode(render_mode)
+        self.camera = check_camera(env.robot.mj_model, camera)
+        self._width, self._height = width, height
+        self._renderer: mujoco.Renderer | None = None
+        self._viewer = None
+        self._warned_no_display = False
+        self._data = mujoco.MjData(env.robot.mj_model)
+        self._hfield_stale = False  # the C model's heightfield lags the drawn env's terrain
+
+    def render(self, state: EnvState) -> np.ndarray | None:
+        """``rgb_array``: an (H, W, 3) uint8 frame; ``human``: update the viewer window (None)."""
+        data = self._sync(state)
+        if self.render_mode == "rgb_array":
+            self._upload_terrain()
+            if self._renderer is None:  # a new renderer uploads the current heightfield itself
+                self._renderer = mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
+            self._renderer.update_scene(data, camera=self.camera)
+            return self._renderer.render()
+        return self._render_human(data)
+
+    def _sync(self, state: EnvState) -> mujoco.MjData:
+        """Copy the MJX state (and its terrain) into the C data used for drawing."""
+        physics = jax.device_get(state.pipeline_state.physics)
+        data = self._data
+        data.qpos[:] = physics.qpos
+        data.qvel[:] = physics.qvel
+        data.mocap_pos[:] = physics.mocap_pos
+        self._sync_terrain(state)
+        mujoco.mj_forward(self.env.robot.mj_model, data)
+        return data
+
+    def _sync_terrain(self, state: EnvState) -> None:
+        """Copy this episode's own terrain (per-env terrain lives in the state) into the C model."""
+        if not self.env.world.per_env:
+            return
+        model = self.env.robot.mj_model
+        terrain = np.asarray(jax.device_get(state.pipeline_state.task.terrain), np.float32)
+        adr = model.hfield_adr[self._hfield_id()]
+        if np.array_equal(model.hfield_data[adr:adr + terrain.size], terrain):
+            return
+        model.hfield_data[adr:adr + terrain.size] = terrain
+        self._hfield_stale = True
+
+    def _hfield_id(self) -> int:
+        """Id of the terrain heightfield in the C model."""
+        return self.env.robot.mj_model.hfield(HFIELD_NAME).id
+
+    def _upload_terrain(self) -> None:
+        """Send a changed heightfield to the GPU copies held by the renderer and the viewer."""
+        if not self._hfield_stale:
+            return
+        if self._renderer is not None:
+            context = getattr(self._renderer, "_mjr_context", None)
+            if context is None:  # a renderer without an accessible context: rebuild it
+                self._renderer.close()
+                self._renderer = None
+            else:
+                gl_context = getattr(self._renderer, "_gl_context", None)
+                if gl_context is not None:
+                    gl_context.make_current()
+                mujoco.mjr_uploadHField(self.env.robot.mj_model, context, self._hfield_id())
+        if self._viewer is not None:
+            self._viewer.update_hfield(self._hfield_id())
+        self._hfield_stale = False
+
+    def _render_human(self, data: mujoco.MjData) -> None:
+        if not _has_display():
+            if not self._warned_no_display:
+                gymnasium.logger.warn("render_mode='human' needs a display (DISPLAY is unset): "
+                                      "nothing is shown; use render_mode='rgb_array' for frames")
+                self._warned_no_display = True
+            return None
+        if self._viewer is None:
+            import mujoco.viewer
+            self._viewer = mujoco.viewer.launch_passive(self.env.robot.mj_model, data)
+            self._hfield_stale = False
+        self._upload_terrain()
+        self._viewer.sync()
+        return None
+
+    def close(self) -> None:
+        """Release the renderer and viewer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
