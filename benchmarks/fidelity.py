@@ -78,6 +78,10 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "implicitfast_dt4ms": {**_IMPLICIT, **_DT4},
     "implicitfast_dt4ms_newton4_ls8": {**_IMPLICIT, **_DT4, **_FAST},
     "euler_dt2ms_newton4_ls8": {**_DT2, **_FAST},
+    # The shipped settings on MJX's Warp implementation (MuJoCo Warp; every other setting runs on JAX)
+    "warp_implicitfast_dt1ms_newton4_ls8": {**_IMPLICIT, **_FAST, "physics.backend": "warp"},
+    "warp_implicitfast_dt1ms_newton8_ls8": {**_IMPLICIT, "physics.iterations": 8, "physics.ls_iterations": 8,
+                                            "physics.backend": "warp"},
 }
 # The settings the training configs use and the throughput harness defaults to, per scene:
 # implicitfast at the original 1 ms (explicit Euler blows up under trained gaits: docs/training.md)
@@ -110,8 +114,10 @@ class Run:
 
 
 def fidelity_config(overrides: dict[str, Any] | None = None, scene: str = "flat") -> EnvConfig:
-    """Flat preset on ``scene``, fixed goal, the given physics overrides; checks the control period."""
-    config = with_overrides(get_preset("flat"), **{"goal.mode": "fixed", "scene": scene, **(overrides or {})})
+    """Flat preset on ``scene``, fixed goal, the JAX backend unless the overrides name another, the given
+    physics overrides; checks the control period."""
+    config = with_overrides(get_preset("flat"), **{"goal.mode": "fixed", "scene": scene, "physics.backend": "jax",
+                                                   **(overrides or {})})
     if not np.isclose(config.dt, CONTROL_DT):
         raise ValueError(f"timestep x frame_skip must stay {CONTROL_DT} s, got {config.dt}")
     return config
@@ -221,7 +227,7 @@ def mjx_rollout_fn(env: hsa_mjx.HSAEnv) -> Callable:
 
 def mjx_runs(overrides: dict[str, Any], actions: np.ndarray, scene: str = "flat") -> tuple[list[Run], float, float]:
     """Play each gait (actions (gaits, steps, 8)) through the env; return runs, compile s, run s."""
-    env = hsa_mjx.make_env(fidelity_config(overrides, scene))
+    env = hsa_mjx.make_env(fidelity_config(overrides, scene), num_envs=actions.shape[0])
     fn = mjx_rollout_fn(env)
     tic = time.perf_counter()
     compiled = fn.lower(jnp.asarray(actions)).compile()

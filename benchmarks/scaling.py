@@ -118,7 +118,7 @@ class Bench:
 
     def __init__(self, config: tcfg.TrainConfig, devices: list, seed: int = 0):
         self.config, self.devices = config, devices
-        self.env = HSAEnv(config.env)
+        self.env = HSAEnv(config.env, num_envs=config.run.num_envs // len(devices))
         self.learner = make_learner(config, self.env, devices)
         self.per_device = isinstance(self.learner, PerDeviceLearner)
         self.key = jax.random.PRNGKey(seed)
@@ -205,7 +205,8 @@ def measure_count(args: argparse.Namespace, base: tcfg.TrainConfig, k: int, over
     """Env loop and PPO epochs at ``k`` devices (each skipped once past the budget); the row and its bench."""
     config = scaled_config(base, args.envs_per_device, k, args.iterations_per_epoch)
     bench = Bench(config, jax.local_devices()[:k], args.seed)
-    row = {"devices": k, "multi_device": bench.strategy, "envs_per_device": args.envs_per_device,
+    row = {"devices": k, "multi_device": bench.strategy, "physics_backend": bench.env.physics_backend,
+           "envs_per_device": args.envs_per_device,
            "num_envs": config.run.num_envs,
            "batch_size": config.ppo.batch_size, "iterations_per_epoch": args.iterations_per_epoch,
            **report.provenance(info)}

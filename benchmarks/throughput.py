@@ -1,6 +1,6 @@
-"""Throughput harness: the full env step against the bare physics loop, over batch sizes and terrains.
+"""Throughput harness: the full env step against the bare physics loop, over backends, batch sizes and terrains.
 
-For every (terrain, physics setting, batch) it measures, in one process:
+For every (physics backend, terrain, physics setting, batch) it measures, in one process:
 
 - **env**: K env steps per call of the training batch step (``hsa_mjx.training_env.AutoResetEnv``
   with the goal curriculum: physics, observation, reward, termination, auto-reset, curriculum)
@@ -18,8 +18,14 @@ Timing: one warm-up call, then ``--repeats`` calls each ended by ``block_until_r
 median is reported. Results go to ``--out-dir`` as JSON (rewritten after every row, so a killed
 run keeps what it measured), a markdown table and a log-log plot.
 
-    python -m benchmarks.throughput [--batches 1024,4096,16384,65536] [--terrains flat,heightfield]
-        [--settings NAME ...] [--steps K] [--repeats R] [--out-dir benchmarks/results/throughput] [--quick]
+The terrains: ``flat`` is the plane scene; ``heightfield`` the terrain scene with per-env terrain
+on: every env draws its own tile at each reset from a pool of all random and deterministic types
+but the spiral (``HEIGHTFIELD_TYPES``). ``--backends jax,warp`` measures MJX's JAX and Warp
+implementations side by side (each row records its backend).
+
+    python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
+        [--terrains flat,heightfield] [--settings NAME ...] [--steps K] [--repeats R]
+        [--out-dir benchmarks/results/throughput] [--quick]
 """
 
 from __future__ import annotations
@@ -35,15 +41,21 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 import hsa_mjx
 from benchmarks import throughput_report as report
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
+from hsa_mjx import backend as backends
 from hsa_mjx import control
+from hsa_mjx.backend import mjx
+from hsa_mjx.terrain import TERRAIN_TYPES
 
-TERRAINS: dict[str, dict[str, Any]] = {"flat": {"scene": "flat"}, "heightfield": {"scene": "terrain"}}
+HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
+TERRAINS: dict[str, dict[str, Any]] = {
+    "flat": {"scene": "flat"},
+    "heightfield": {"scene": "terrain", "terrain.types": HEIGHTFIELD_TYPES},
+}
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
 ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200
 QUICK = {"batches": (8,), "steps": 2, "repeats": 2, "baseline_s": 0.5}
@@ -60,9 +72,11 @@ class Timed:
     last: dict[str, float]  # the last timed call's counters
 
 
-def bench_env(terrain: str, setting: str) -> hsa_mjx.HSAEnv:
-    """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics."""
-    return hsa_mjx.make_env("flat", **{"goal.mode": "radial", **TERRAINS[terrain], **SETTINGS[setting]})
+def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int = 1) -> hsa_mjx.HSAEnv:
+    """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics,
+    on ``backend``, sized for batches of ``num_envs`` (Warp's shared contact buffer)."""
+    return hsa_mjx.make_env("flat", num_envs=num_envs, **{"goal.mode": "radial", "physics.backend": backend,
+                                                         **TERRAINS[terrain], **SETTINGS[setting]})
 
 
 def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
@@ -101,27 +115,16 @@ def env_loop(env: hsa_mjx.HSAEnv, wrapper: Any | None, steps: int) -> tuple[Call
     return reset, run
 
 
-def physics_model_fn(env: hsa_mjx.HSAEnv) -> Callable[[jax.Array], mjx.Model]:
-    """terrain -> the MJX model an env steps with (its own heightfield when terrain is per env)."""
-    world, model = getattr(env, "world", None), env.robot.mjx_model
-    if world is None:
-        return lambda terrain: model
-    return lambda terrain: world.model_for(model, terrain)
-
-
-def ceiling_start(env: hsa_mjx.HSAEnv, keys: jax.Array) -> tuple[mjx.Data, jax.Array]:
-    """Physics state and terrain field of freshly reset envs (the env's own reset pose)."""
-    sim = jax.jit(jax.vmap(env.reset))(keys).pipeline_state
-    terrain = getattr(sim.task, "terrain", None)
-    return sim.physics, (terrain if terrain is not None else jnp.zeros((keys.shape[0], 1)))
+def ceiling_start(env: hsa_mjx.HSAEnv, keys: jax.Array) -> mjx.Data:
+    """Physics state of freshly reset envs (the env's own reset pose, each on its own terrain tile)."""
+    return jax.jit(jax.vmap(env.reset))(keys).pipeline_state.physics
 
 
 def ceiling_loop(env: hsa_mjx.HSAEnv, steps: int) -> Callable:
-    """run((data, terrain), key): ``steps`` env steps of bare ``mjx.step`` substeps per env, vmapped."""
-    model_for, servos, ctl = physics_model_fn(env), env.index.servo_ids, env.config.control
+    """run(data, key): ``steps`` env steps of bare ``mjx.step`` substeps per env, vmapped."""
+    model, servos, ctl = env.robot.mjx_model, env.index.servo_ids, env.config.control
 
-    def one_env(data: mjx.Data, terrain: jax.Array, key: jax.Array) -> mjx.Data:
-        model = model_for(terrain)
+    def one_env(data: mjx.Data, key: jax.Array) -> mjx.Data:
 
         def env_step(data, k):
             start = data.ctrl[servos]
@@ -138,11 +141,10 @@ def ceiling_loop(env: hsa_mjx.HSAEnv, steps: int) -> Callable:
         data, _ = jax.lax.scan(env_step, data, jax.random.split(key, steps))
         return data
 
-    def run(carry: tuple[mjx.Data, jax.Array], key: jax.Array) -> tuple[tuple, dict[str, jax.Array]]:
-        data, terrain = carry
-        data = jax.vmap(one_env)(data, terrain, jax.random.split(key, terrain.shape[0]))
+    def run(data: mjx.Data, key: jax.Array) -> tuple[mjx.Data, dict[str, jax.Array]]:
+        data = jax.vmap(one_env)(data, jax.random.split(key, data.qpos.shape[0]))
         bad = ~jnp.all(jnp.isfinite(data.qpos), axis=-1)
-        return (data, terrain), {"non_finite_envs": jnp.sum(bad).astype(jnp.float32)}
+        return data, {"non_finite_envs": jnp.sum(bad).astype(jnp.float32)}
 
     return run
 
@@ -265,6 +267,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     names = lambda s: tuple(v for v in s.split(",") if v)  # noqa: E731
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--batches", type=ints, default=None, help=f"comma list (default {DEFAULT_BATCHES})")
+    p.add_argument("--backends", type=names, default=("auto",),
+                   help=f"comma list of physics backends {list(backends.BACKENDS)} (default auto)")
     p.add_argument("--terrains", type=names, default=tuple(TERRAINS), help=f"comma list of {sorted(TERRAINS)}")
     p.add_argument("--settings", nargs="+", default=None,
                    help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
@@ -289,6 +293,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     bad = sorted(set(args.terrains) - set(TERRAINS)) + sorted(set(args.settings or ()) - set(SETTINGS))
     if bad:
         p.error(f"unknown terrain/setting {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}")
+    try:
+        args.backends = tuple(dict.fromkeys(backends.resolve(b) for b in args.backends))
+    except ValueError as err:
+        p.error(str(err))
     return args
 
 
@@ -310,29 +318,37 @@ def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
-    """Measure every (terrain, setting, batch) until the time budget runs out; write after each row."""
+    """Measure every (backend, terrain, setting, batch) until the time budget runs out; write after each row."""
     rows = report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
     start = time.perf_counter()
     for terrain in args.terrains:
         for setting in settings_for(terrain, args.settings):
-            env = bench_env(terrain, setting)
-            wrapper, note = batch_wrapper(env)
-            baseline = cpu_baseline(env, args.baseline_seconds)
-            for batch in args.batches:
-                if time.perf_counter() - start > args.budget_s:
-                    print(f"skipped {terrain}/{setting}/{batch}: past --budget-s {args.budget_s}", flush=True)
-                    continue
-                measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
-                row = {"terrain": terrain, "settings": setting, "overrides": SETTINGS[setting],
-                       "full_step": wrapper is not None, "full_step_note": note,
-                       **measured, **baseline, **_row_meta(info)}
-                rows = report.upsert(rows, row)
-                out(rows)
-                print(f"{terrain:11s} {setting} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
-                      f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
-                      f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
-                      f"NaN/M {row['nan_terminations_per_million_env_steps']}", flush=True)
+            baseline = cpu_baseline(bench_env(terrain, setting, "jax"), args.baseline_seconds)
+            for backend in args.backends:
+                for batch in args.batches:
+                    if time.perf_counter() - start > args.budget_s:
+                        print(f"skipped {backend}/{terrain}/{setting}/{batch}: past --budget-s {args.budget_s}",
+                              flush=True)
+                        continue
+                    rows = report.upsert(rows, _row(args, info, terrain, setting, backend, batch, baseline))
+                    out(rows)
     return rows
+
+
+def _row(args: argparse.Namespace, info: dict[str, Any], terrain: str, setting: str, backend: str, batch: int,
+         baseline: dict[str, float]) -> dict[str, Any]:
+    """One measured row (printed as it is done)."""
+    env = bench_env(terrain, setting, backend, batch)
+    wrapper, note = batch_wrapper(env)
+    measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
+    row = {"terrain": terrain, "settings": setting, "physics_backend": env.physics_backend,
+           "overrides": SETTINGS[setting], "full_step": wrapper is not None, "full_step_note": note,
+           **measured, **baseline, **_row_meta(info)}
+    print(f"{backend:4s} {terrain:11s} {setting} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
+          f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
+          f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
+          f"NaN/M {row['nan_terminations_per_million_env_steps']}", flush=True)
+    return row
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -345,6 +361,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     meta = {**info, "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
             "repeats": args.repeats,
             "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
+            "backends": list(args.backends),
             "terrains": {t: TERRAINS[t] for t in args.terrains}}
     rows = run_matrix(args, info, lambda rows: report.write_all(args.out_dir, args.stem, rows, meta))
     paths = report.write_all(args.out_dir, args.stem, rows, meta)

@@ -147,19 +147,21 @@ def default_out() -> Path:
     return Path("benchmarks/results/throughput") / f"vector_env_{slug(jax.devices()[0].device_kind)}"
 
 
-def markdown(caption: str, rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
+def markdown(caption: str, rows: list[dict[str, Any]], meta: dict[str, Any], columns: list[str] = HEAD) -> str:
     """The caption, a table of ``rows`` (an ``error`` column where a mode failed) and the provenance line."""
-    head = HEAD + (["error"] if any("error" in r for r in rows) else [])
+    head = columns + (["error"] if any("error" in r for r in rows) else [])
     lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
     lines += ["| " + " | ".join(str(r.get(k, "-")) for k in head) + " |" for r in rows]
     return "\n".join([caption, "", *lines, "", f"{meta['date']}, {meta['device']}, command `{meta['command']}`", ""])
 
 
-def write_results(out: Path, caption: str, rows: list[dict[str, Any]], started: float) -> None:
+def write_results(out: Path, caption: str, rows: list[dict[str, Any]], started: float,
+                  columns: list[str] = HEAD) -> None:
     """``out``.json (provenance and rows) and ``out``.md, each written to a temporary file and renamed."""
     meta = {**run_info(), "wall_s": round(time.perf_counter() - started, 1)}
     out.parent.mkdir(parents=True, exist_ok=True)
-    texts = {".json": json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n", ".md": markdown(caption, rows, meta)}
+    texts = {".json": json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n",
+             ".md": markdown(caption, rows, meta, columns)}
     for suffix, text in texts.items():
         tmp = out.with_suffix(suffix + ".tmp")
         tmp.write_text(text)

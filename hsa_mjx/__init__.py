@@ -36,12 +36,14 @@ def __getattr__(name: str) -> Any:
     return value
 
 
-def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) -> HSAEnv:
+def make_env(name_or_config: str | Path | EnvConfig = "flat", num_envs: int = 1, **overrides: Any) -> HSAEnv:
     """Build an :class:`HSAEnv`.
 
     Args:
         name_or_config: a preset name (see ``hsa_mjx.PRESETS``), a path to a YAML config, or an
             :class:`EnvConfig`.
+        num_envs: how many envs ``reset``/``step`` will be vmapped over (sizes the contact buffer
+            the envs of a batch share on the Warp backend; the JAX backend ignores it).
         **overrides: applied over the chosen config: dotted config keys with ``__`` for dots, e.g.
             ``reward__forward=3.0`` or ``goal__mode="fixed"``, and/or the original ``hsa_gym``
             ``HSAEnv`` arguments by their names, e.g. ``frame_skip=20`` or ``enable_terrain=True``
@@ -53,7 +55,7 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", **overrides: Any) 
         FileNotFoundError: a config path or the robot asset is missing.
     """
     from hsa_mjx.env import HSAEnv
-    return HSAEnv(build_config(name_or_config, **overrides))
+    return HSAEnv(build_config(name_or_config, **overrides), num_envs=num_envs)
 
 
 def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False,

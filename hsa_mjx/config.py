@@ -21,6 +21,7 @@ from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_te
 from hsa_mjx.terrain.presets import TERRAIN_PRESETS
 
 SCENES = ("flat", "terrain")
+BACKENDS = ("jax", "warp", "auto")  # physics.backend (hsa_mjx.backend)
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
@@ -41,6 +42,13 @@ class PhysicsConfig:
     ls_iterations: int = 50
     tolerance: float = 1e-8
     cone: str = "pyramidal"
+    # MJX implementation: "jax", "warp" (MuJoCo Warp, needs warp-lang) or "auto" (warp on a CUDA GPU
+    # when warp-lang imports, else jax). Results record the one used.
+    backend: str = "auto"
+    # Warp only: each env's share of the contact buffer all envs of a batch share, and its constraint
+    # rows (the JAX implementation allocates every candidate contact statically and ignores both).
+    contacts_per_env: int = 48
+    constraints_per_env: int = 192
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,11 +173,13 @@ _CHOICES = {
     ("physics", "integrator"): INTEGRATORS,
     ("physics", "solver"): SOLVERS,
     ("physics", "cone"): CONES,
+    ("physics", "backend"): BACKENDS,
     ("goal", "mode"): GOAL_MODES,
     ("observation", "hinge_angles"): HINGE_ANGLE_MODES,
 }
 _POSITIVE = {
     ("physics", "timestep"), ("physics", "iterations"), ("physics", "ls_iterations"),
+    ("physics", "contacts_per_env"), ("physics", "constraints_per_env"),
     ("control", "frame_skip"), ("control", "servo_target_limit"),
     ("termination", "max_episode_steps"), ("termination", "qvel_limit"),
     ("termination", "qacc_limit"), ("goal", "success_radius"), ("goal", "num_checkpoints"),

@@ -5,22 +5,23 @@ Wiring only: control, physics, observation, reward, termination and goals live i
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from brax.envs.base import Env as BraxEnv
-from mujoco import mjx
+from hsa_mjx.backend import mjx
 
-from hsa_mjx import control, goals, observation, physics, pose, reward, termination
+from hsa_mjx import backend, control, goals, observation, physics, pose, reward, termination
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.model import RobotModel, compiled_forward, load_robot, local_device
 from hsa_mjx.terrain.world import TerrainWorld
 from hsa_mjx.types import EnvState, SimState, TaskState
 
 GOAL_MARKER_Z = 0.1
+Simulate = Callable[[mjx.Data, jax.Array], tuple[mjx.Data, termination.SubstepStats]]
 
 
 class HSAEnv(BraxEnv):
@@ -32,30 +33,36 @@ class HSAEnv(BraxEnv):
     ``state.done`` is 1.0 when the episode terminated (``metrics["termination/<reason>"]``) or was
     truncated at ``max_episode_steps`` (``info["truncation"]``).
 
-    On the terrain scene each env draws its own terrain at every reset (``config.terrain``:
-    types, proportions, generator parameters; ``per_env: false`` shares one), spawns resting on
-    it, and measures block heights from the ground under each block (see ``docs/terrain.md``).
+    On the terrain scene each env draws its own terrain tile at every reset from the run's pool
+    (``config.terrain``: types, proportions, generator parameters, tiles per type; ``per_env:
+    false`` shares one), spawns resting on it, and measures block heights from the ground under
+    each block (see ``docs/terrain.md``).
+
+    Args:
+        config: the environment config.
+        asset_dir: where the scene XMLs are (default: the repository's ``assets/``).
+        num_envs: how many envs ``reset``/``step`` will be vmapped over. Only the Warp backend
+            uses it: the envs of a batch share one contact buffer of
+            ``physics.contacts_per_env * num_envs`` slots (the batch wrappers check it).
     """
 
-    def __init__(self, config: EnvConfig, asset_dir: Path | None = None):
-        self.config = config
+    def __init__(self, config: EnvConfig, asset_dir: Path | None = None, num_envs: int = 1):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        self.config, self.num_envs = config, int(num_envs)
         self.robot: RobotModel = load_robot(config, asset_dir)
         self.index = self.robot.index
-        self.world = TerrainWorld(config.scene, config.terrain, self.robot.mj_model, self.index.block_body)
-        self.robot = dataclasses.replace(self.robot, mjx_model=self.world.bake(self.robot.mjx_model))
+        self.world = TerrainWorld(config.terrain, self.robot.pool, self.robot.mj_model, self.index.block_body)
         self.weights = reward.RewardWeights.from_config(config.reward)
         self._init_static_arrays()
 
     def _init_static_arrays(self) -> None:
         """Precompute the reset state and static addresses once."""
         cfg, model = self.config, self.robot.mjx_model
-        data = mjx.make_data(model, device=local_device())
+        data = backend.make_data(self.robot.mj_model, self.robot.backend, local_device(), self.num_envs,
+                                 cfg.physics.contacts_per_env, cfg.physics.constraints_per_env)
         qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
         self._data0 = compiled_forward(model, data.replace(qpos=qpos))
-        pyramidal = cfg.physics.cone == "pyramidal"
-        slots = self.index.foot_contacts
-        self._foot_efc = physics.foot_contact_efc(self._data0, slots, 4 if pyramidal else 3)
-        self._foot_friction = jnp.asarray(np.asarray(self._data0._impl.contact.friction)[slots][..., :2])
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
@@ -73,7 +80,13 @@ class HSAEnv(BraxEnv):
 
     @property
     def backend(self) -> str:
+        """Brax's pipeline name (always ``"mjx"``); ``physics_backend`` says which MJX implementation."""
         return "mjx"
+
+    @property
+    def physics_backend(self) -> str:
+        """The MJX implementation this env runs on: ``"jax"`` or ``"warp"`` (``physics.backend`` resolved)."""
+        return self.robot.backend
 
     @property
     def dt(self) -> float:
@@ -111,7 +124,7 @@ class HSAEnv(BraxEnv):
         terrain_key = None
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
-        terrain, terrain_id = self.world.draw(terrain_key)
+        tile, terrain_id = self.world.draw(terrain_key)
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)
@@ -119,7 +132,7 @@ class HSAEnv(BraxEnv):
             index, move = jnp.zeros((), jnp.int32), None
             goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
         goal_xy = self.world.place_goal(goal_xy, terrain_id)
-        data = self._with_goal_marker(self._spawn(terrain, move), goal_xy, terrain)
+        data = self._with_goal_marker(self._spawn(tile, move), goal_xy, tile)
         position = observation.robot_xy(data, self.index)
         distance, _ = observation.goal_vector(position, goal_xy)
         window = self.config.reward.stagnation_window
@@ -127,7 +140,7 @@ class HSAEnv(BraxEnv):
             goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=index,
             prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
-            step_count=jnp.zeros((), jnp.int32), rng=rng, terrain=terrain, terrain_id=terrain_id)
+            step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id)
         obs = observation.observe(data, goal_xy, self.index, self.config.observation)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
@@ -139,7 +152,7 @@ class HSAEnv(BraxEnv):
     def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
         """Replace the current goal (non-spiral modes); progress terms restart from it."""
         sim: SimState = state.pipeline_state
-        data = self._with_goal_marker(sim.physics, goal_xy, sim.task.terrain)
+        data = self._with_goal_marker(sim.physics, goal_xy, sim.task.tile)
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
         obs = observation.observe(data, goal_xy, self.index, self.config.observation, self._episode_time(task))
@@ -147,43 +160,56 @@ class HSAEnv(BraxEnv):
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Advance one env step (``frame_skip`` physics steps) with a normalised action."""
+        return self.step_with(self._simulate, state, action)
+
+    def step_with(self, simulate: Simulate, state: EnvState, action: jax.Array) -> EnvState:
+        """``step`` with another physics engine: ``simulate(data, targets (frame_skip, 8)) ->
+        (data, SubstepStats)`` runs the substeps (e.g. ``hsa_mjx.host_physics``: C MuJoCo for one
+        env on a CPU); control, observation, reward and termination are this env's own."""
         cfg, idx = self.config, self.index
-        sim: SimState = state.pipeline_state
-        task, data = sim.task, sim.physics
+        data = state.pipeline_state.physics
         action, bad_action = control.sanitize_action(jnp.asarray(action, jnp.float32))
         start = data.ctrl[idx.servo_ids]
         end = control.next_targets(start, action, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
-        before, heading_before = observation.robot_xy(data, idx), observation.heading(data, idx)
-        model = self.world.model_for(self.robot.mjx_model, task.terrain)  # this env's own heightfield
-        new_data, stats = physics.simulate(model, data, targets, idx)
+        before = (observation.robot_xy(data, idx), observation.heading(data, idx))
+        new_data, stats = simulate(data, targets)
+        return self._outcome(state, action, bad_action, before, new_data, stats)
+
+    def _simulate(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, termination.SubstepStats]:
+        """The substeps on this env's MJX model (JAX or Warp implementation)."""
+        return physics.simulate(self.robot.mjx_model, data, targets, self.index)
+
+    def _outcome(self, state: EnvState, action: jax.Array, bad_action: jax.Array, before: tuple,
+                 new_data: mjx.Data, stats: termination.SubstepStats) -> EnvState:
+        """Everything after the physics: goal, observation, termination, reward, metrics."""
+        cfg, idx = self.config, self.index
+        task, data = state.pipeline_state.task, state.pipeline_state.physics
         after = observation.robot_xy(new_data, idx)
-        velocity = jnp.clip((after - before) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
+        velocity = jnp.clip((after - before[0]) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
         task, collected, completed = self._update_goal(task, after)
-        new_data = self._with_goal_marker(new_data, task.goal_xy, task.terrain)
+        new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = observation.goal_vector(after, task.goal_xy)
         steps = task.step_count + 1
         obs = observation.observe(new_data, task.goal_xy, idx, cfg.observation, steps * cfg.dt)
-        ground = self.world.ground(task.terrain, new_data.xpos[idx.block_body, :2])
+        ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
                                               cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
         failed = termination.any_reason(reasons)
         success = completed if cfg.goal.mode == "spiral" else distance < cfg.goal.success_radius
-        success = success & jnp.logical_not(failed)
-        reasons["goal_reached"] = success
+        reasons["goal_reached"] = success = success & jnp.logical_not(failed)
         terminated = failed | success
         task, progress, full = self._record_position(task, after)
         inputs = reward.RewardInputs(
             velocity=velocity, goal_direction=direction, action=action, prev_action=task.prev_action,
             joint_pos=observation.joint_positions(new_data, idx),
             joint_vel=observation.joint_velocities(new_data, idx), prev_joint_vel=task.prev_joint_vel,
-            foot_force=physics.foot_forces(new_data, self._foot_efc, self._foot_friction,
-                                           cfg.physics.cone == "pyramidal"),
+            foot_force=physics.foot_forces(new_data, idx.foot_sensors),
             distance=distance, prev_distance=task.prev_distance, stagnation_progress=progress,
             history_full=full, checkpoint_collected=collected,
             spiral_complete=completed & success, goal_reached=success & (cfg.goal.mode != "spiral"),
-            failed=failed, terminated=terminated, heading_before=heading_before,
+            failed=failed, terminated=terminated, heading_before=before[1],
             heading_after=observation.heading(new_data, idx), dt=cfg.dt,
             rectified_forward=cfg.reward.forward_rectified,
             constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())))
@@ -209,21 +235,25 @@ class HSAEnv(BraxEnv):
                                                self._origin, index)
         return index, self._checkpoints[index], (self._origin, target, yaw)
 
-    def _spawn(self, terrain: jax.Array, move: tuple | None = None) -> mjx.Data:
-        """The reset state: on terrain both blocks are lifted to rest on this env's surface;
-        ``move`` = (centre, target, yaw) turns and shifts the robot first (``hsa_mjx.pose``)."""
+    def _spawn(self, tile: jax.Array, move: tuple | None = None) -> mjx.Data:
+        """The reset state: on terrain the floor is moved to put this env's tile under the origin and
+        both blocks are lifted to rest on it; ``move`` = (centre, target, yaw) turns and shifts the
+        robot first (``hsa_mjx.pose``)."""
         if not self.world.enabled and move is None:
             return self._data0
-        qpos = self._data0.qpos
+        data = self._data0
+        qpos = data.qpos
         if self.world.enabled:
-            qpos = qpos.at[self.index.block_qpos + 2].set(self.world.spawn_height(terrain, move))
+            qpos = qpos.at[self.index.block_qpos + 2].set(self.world.spawn_height(tile, move))
+            floor = data.mocap_pos.at[self.index.terrain_mocap].set(self.world.floor_position(tile))
+            data = data.replace(mocap_pos=floor)
         if move is not None:
             qpos = pose.move_free_joints(qpos, self.index.block_qpos, *move)
-        return mjx.kinematics(self.robot.mjx_model, self._data0.replace(qpos=qpos))
+        return mjx.kinematics(self.robot.mjx_model, data.replace(qpos=qpos))
 
-    def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array, terrain: jax.Array) -> mjx.Data:
+    def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array, tile: jax.Array) -> mjx.Data:
         """Place this env's goal marker above the ground at the goal (a mocap body; purely visual)."""
-        z = self.world.ground(terrain, goal_xy) + GOAL_MARKER_Z
+        z = self.world.ground(tile, goal_xy) + GOAL_MARKER_Z
         marker = jnp.concatenate([goal_xy, z[None]])
         return data.replace(mocap_pos=data.mocap_pos.at[self.index.goal_mocap].set(marker))
 
@@ -250,7 +280,7 @@ class HSAEnv(BraxEnv):
     def _sanitize(self, old: mjx.Data, new: mjx.Data, obs: jax.Array, total: jax.Array,
                   non_finite: jax.Array) -> tuple[mjx.Data, jax.Array, jax.Array]:
         """Keep non-finite values away from learners: last finite physics, zeroed obs, finite reward."""
-        data = jax.tree.map(lambda a, b: jnp.where(non_finite, a, b), old, new)
+        data = backend.select(non_finite, old, new)
         obs = jnp.where(jnp.isfinite(obs), obs, 0.0)
         total = jnp.where(jnp.isfinite(total), total, -self.weights.termination)
         return data, obs, total

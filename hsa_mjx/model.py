@@ -1,7 +1,9 @@
 """The robot model: load the MuJoCo asset once, apply physics settings, resolve every name.
 
-Everything index-like the env needs (actuated joints, servos, blocks, foot contacts, the goal
-marker) is resolved here by name, once, into a static :class:`RobotIndex` of numpy arrays.
+Everything index-like the env needs (actuated joints, servos, blocks, foot contact sensors, the
+goal marker, the terrain's mocap body) is resolved here by name, once, into a static
+:class:`RobotIndex` of numpy arrays. On the terrain scene the asset's heightfield (one tile) is grown
+into the run's atlas of terrain tiles before compiling (``hsa_mjx.terrain.atlas``).
 """
 
 from __future__ import annotations
@@ -12,10 +14,13 @@ from pathlib import Path
 import jax
 import mujoco
 import numpy as np
-from mujoco import mjx
 
+from hsa_mjx import backend
+from hsa_mjx.backend import mjx
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.cpu_linalg import use_xla_linalg_on_cpu
+from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
+from hsa_mjx.terrain.grid import HFIELD_NAME, Grid
 
 use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
 
@@ -33,7 +38,9 @@ SERVOS = (
 )
 DISC_JOINTS = ("disc1b_hinge", "disc2b_hinge", "disc3b_hinge", "disc4b_hinge")
 FOOT_GEOMS = ("cylinder3a_con", "cylinder3c_con", "cylinder4a_con", "cylinder4c_con")
+FOOT_SENSORS = ("foot_3a_force", "foot_3c_force", "foot_4a_force", "foot_4c_force")
 BLOCKS = ("block_a", "block_b")
+TERRAIN_BODY = "terrain_frame"  # mocap body carrying the heightfield (terrain scene only)
 BLOCK_JOINTS = ("block_a_root", "block_b_root")
 GOAL_BODY = "goal_marker"
 
@@ -61,8 +68,9 @@ class RobotIndex:
     block_qpos: np.ndarray  # (2,) qpos address of each block's free joint
     block_qvel: np.ndarray  # (2,) dof address of each block's free joint
     constraint_pairs: np.ndarray  # (4, 2) action slots of (kA, kC) for units 1..4
-    foot_contacts: np.ndarray  # (4, n) contact slots of each foot's pair in MJX Data
+    foot_sensors: np.ndarray  # (4, contacts, 3) sensordata addresses of each foot's contact forces
     goal_mocap: int  # mocap index of the goal marker
+    terrain_mocap: int  # mocap index of the heightfield's body; -1 on the plane scene
 
 
 def scene_path(scene: str, asset_dir: Path | None = None) -> Path:
@@ -78,9 +86,37 @@ def scene_path(scene: str, asset_dir: Path | None = None) -> Path:
     return path
 
 
+def load_scene(config: EnvConfig, asset_dir: Path | None = None) -> tuple[mujoco.MjModel, TerrainPool | None]:
+    """The scene for ``config`` as a C MuJoCo model with the configured physics, and its terrain pool.
+
+    On the terrain scene the asset's heightfield is one tile: it becomes an atlas of the run's
+    terrain tiles (drawn from ``terrain.seed``), written into the model's ``hfield_data``.
+    """
+    spec = mujoco.MjSpec.from_file(str(scene_path(config.scene, asset_dir)))
+    pool = None
+    if config.scene == "terrain":
+        field = spec.hfield(HFIELD_NAME)
+        tile = Grid(int(field.nrow), int(field.ncol), *(float(v) for v in field.size))
+        layout = AtlasLayout.from_config(config.terrain, tile)
+        atlas = layout.grid
+        field.nrow, field.ncol = atlas.nrow, atlas.ncol
+        field.size = [atlas.half_x, atlas.half_y, atlas.z_scale, atlas.base]
+        field.userdata = [0.0] * atlas.size
+        pool = TerrainPool(config.terrain, layout)
+    model = spec.compile()
+    if pool is not None:
+        model.hfield_data[:] = pool.atlas
+    _apply_physics(model, config)
+    return model, pool
+
+
 def load_mj_model(config: EnvConfig, asset_dir: Path | None = None) -> mujoco.MjModel:
-    """Load the scene for ``config`` as a C MuJoCo model with the configured physics."""
-    model = mujoco.MjModel.from_xml_path(str(scene_path(config.scene, asset_dir)))
+    """The scene for ``config`` as a C MuJoCo model (terrain atlas included) with the configured physics."""
+    return load_scene(config, asset_dir)[0]
+
+
+def _apply_physics(model: mujoco.MjModel, config: EnvConfig) -> None:
+    """Write the ``physics`` section and the servo range into ``model``."""
     phys = config.physics
     model.opt.timestep = phys.timestep
     model.opt.integrator = _INTEGRATORS[phys.integrator]
@@ -91,7 +127,6 @@ def load_mj_model(config: EnvConfig, asset_dir: Path | None = None) -> mujoco.Mj
     model.opt.cone = _CONES[phys.cone]
     limit = config.control.servo_target_limit
     model.actuator_ctrlrange[:] = np.array([-limit, limit])
-    return model
 
 
 def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> np.ndarray:
@@ -104,18 +139,23 @@ def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> 
     return np.asarray(out, dtype=np.int32)
 
 
-def _foot_contact_slots(model: mujoco.MjModel, mjx_model: mjx.Model) -> np.ndarray:
-    """MJX allocates contacts statically: find the slots that belong to each foot pair."""
-    data = compiled_forward(mjx_model, mjx.make_data(mjx_model, device=local_device()))
-    geoms = np.asarray(data._impl.contact.geom)
-    foot_ids = _ids(model, mujoco.mjtObj.mjOBJ_GEOM, FOOT_GEOMS)
-    slots = [np.flatnonzero((geoms == g).any(axis=1)) for g in foot_ids]
-    if len({len(s) for s in slots}) != 1 or len(slots[0]) == 0:
-        raise ValueError(f"unexpected foot contact layout: {[len(s) for s in slots]} slots per foot")
-    return np.stack(slots).astype(np.int32)
+def _foot_sensor_addresses(model: mujoco.MjModel) -> np.ndarray:
+    """sensordata addresses of each foot's contact-force sensor, shaped (feet, contacts, 3)."""
+    ids = _ids(model, mujoco.mjtObj.mjOBJ_SENSOR, FOOT_SENSORS)
+    dims = set(model.sensor_dim[ids].tolist())
+    if len(dims) != 1 or next(iter(dims)) % 3:
+        raise ValueError(f"foot sensors must each give 3 force values per contact, got dims {sorted(dims)}")
+    dim = dims.pop()
+    return (model.sensor_adr[ids, None] + np.arange(dim)).reshape(len(ids), dim // 3, 3).astype(np.int32)
 
 
-def build_index(model: mujoco.MjModel, mjx_model: mjx.Model) -> RobotIndex:
+def _terrain_mocap(model: mujoco.MjModel) -> int:
+    """Mocap index of the heightfield's body, -1 when the scene has none (the plane)."""
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, TERRAIN_BODY)
+    return -1 if body < 0 else int(model.body_mocapid[body])
+
+
+def build_index(model: mujoco.MjModel) -> RobotIndex:
     """Resolve every name the env uses into static ids."""
     joints = _ids(model, mujoco.mjtObj.mjOBJ_JOINT, ACTUATED_JOINTS)
     servos = _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, SERVOS)
@@ -133,18 +173,22 @@ def build_index(model: mujoco.MjModel, mjx_model: mjx.Model) -> RobotIndex:
         block_qpos=model.jnt_qposadr[block_joints].astype(np.int32),
         block_qvel=model.jnt_dofadr[block_joints].astype(np.int32),
         constraint_pairs=np.asarray(pairs, dtype=np.int32),
-        foot_contacts=_foot_contact_slots(model, mjx_model),
+        foot_sensors=_foot_sensor_addresses(model),
         goal_mocap=int(model.body_mocapid[goal_body]),
+        terrain_mocap=_terrain_mocap(model),
     )
 
 
 @dataclasses.dataclass(frozen=True)
 class RobotModel:
-    """The loaded robot: C model (for rendering and oracles), MJX model and name index."""
+    """The loaded robot: C model (for rendering and oracles), MJX model, name index, terrain pool
+    (None on the plane) and the physics implementation the MJX model belongs to."""
 
     mj_model: mujoco.MjModel
     mjx_model: mjx.Model
     index: RobotIndex
+    pool: TerrainPool | None
+    backend: str
 
 
 def local_device() -> jax.Device:
@@ -158,7 +202,9 @@ def local_device() -> jax.Device:
 
 
 def load_robot(config: EnvConfig, asset_dir: Path | None = None) -> RobotModel:
-    """Load the asset for ``config`` once and resolve every name."""
-    mj_model = load_mj_model(config, asset_dir)
-    mjx_model = mjx.put_model(mj_model, device=local_device())
-    return RobotModel(mj_model, mjx_model, build_index(mj_model, mjx_model))
+    """Load the asset for ``config`` once, resolve every name and put it on the configured backend."""
+    device = local_device()
+    impl = backend.resolve(config.physics.backend, device)
+    mj_model, pool = load_scene(config, asset_dir)
+    mjx_model = backend.put_model(mj_model, impl, device)
+    return RobotModel(mj_model, mjx_model, build_index(mj_model), pool, impl)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
+from hsa_mjx.backend import mjx
 
 from hsa_mjx.config import ObservationConfig
 from hsa_mjx.model import RobotIndex

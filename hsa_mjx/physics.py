@@ -5,8 +5,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
+from hsa_mjx.backend import mjx
 from hsa_mjx.model import RobotIndex
 from hsa_mjx.termination import SubstepStats, merge_stats, substep_stats
 
@@ -27,23 +27,11 @@ def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array,
     return data, stats
 
 
-def foot_contact_efc(data: mjx.Data, index_slots: np.ndarray, cone_rows: int) -> np.ndarray:
-    """Static constraint-row addresses of each foot contact, shape (feet, contacts, rows)."""
-    address = np.asarray(data._impl.contact.efc_address)[index_slots]
-    return address[..., None] + np.arange(cone_rows)
-
-
-def foot_forces(data: mjx.Data, efc_rows: np.ndarray, friction: jax.Array, pyramidal: bool) -> jax.Array:
+def foot_forces(data: mjx.Data, sensors: np.ndarray) -> jax.Array:
     """Magnitude of the total contact force on each foot (N), shape (feet,).
 
-    ``efc_rows`` (feet, contacts, rows) are static addresses; ``friction`` (feet, contacts, 2) the
-    two sliding coefficients, needed to decode pyramidal rows into normal and tangent forces.
+    ``sensors`` (feet, contacts, 3) are the sensordata addresses of each foot's contact sensor: the
+    force of each of its active contacts in that contact's frame (normal, two tangents; zeros for
+    unused slots). Summed over the contacts, then the norm, from public data on either backend.
     """
-    rows = data._impl.efc_force[efc_rows]
-    if pyramidal:  # rows (p0+, p0-, p1+, p1-): normal = sum, tangent_i = (p_i+ - p_i-) * mu_i
-        normal = jnp.sum(rows, axis=-1)
-        tangent = (rows[..., 0::2] - rows[..., 1::2]) * friction
-        force = jnp.concatenate([normal[..., None], tangent], axis=-1)
-    else:
-        force = rows
-    return jnp.linalg.norm(jnp.sum(force, axis=-2), axis=-1)
+    return jnp.linalg.norm(jnp.sum(data.sensordata[sensors], axis=-2), axis=-1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 from flax import struct
-from mujoco import mjx
+from hsa_mjx.backend import mjx
 
 from hsa_mjx.config import TerminationConfig
 from hsa_mjx.model import RobotIndex

@@ -13,10 +13,10 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from hsa_mjx import backend, reward, termination
 from hsa_mjx import curriculum as cur
-from hsa_mjx import reward, termination
 from hsa_mjx.env import HSAEnv
-from hsa_mjx.types import EnvState
+from hsa_mjx.types import EnvState, SimState
 
 TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
               "nonfinite_action", "nonfinite_state", "step_reward", "step_distance", "step_checkpoint")
@@ -85,6 +85,7 @@ class AutoResetEnv:
 
     def reset(self, keys: jax.Array, curriculum_state: cur.CurriculumState | None = None) -> BatchState:
         """Reset a batch (one key per env); a given curriculum state is kept (resume)."""
+        check_batch(self.env, keys.shape[0])
         cstate = curriculum_state if curriculum_state is not None else cur.init(self.curriculum)
         goal_range = self._goal_range(cstate)
         env_state = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, goal_range)
@@ -137,8 +138,10 @@ class AutoResetEnv:
             new = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, self._goal_range(cstate))
             pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             metrics = jax.tree.map(pick, new.metrics, state.metrics) if reset_metrics else state.metrics
-            return state.replace(pipeline_state=jax.tree.map(pick, new.pipeline_state, state.pipeline_state),
-                                 obs=pick(new.obs, state.obs), metrics=metrics)
+            old, fresh_sim = state.pipeline_state, new.pipeline_state
+            sim = SimState(physics=backend.select(done, fresh_sim.physics, old.physics),
+                           task=jax.tree.map(pick, fresh_sim.task, old.task))
+            return state.replace(pipeline_state=sim, obs=pick(new.obs, state.obs), metrics=metrics)
         return jax.lax.cond(jnp.any(done), fresh, lambda s: s, nxt)
 
     @staticmethod
@@ -165,6 +168,13 @@ class AutoResetEnv:
     def drain(state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
         """Return the totals and the state with them zeroed (call between jitted chunks)."""
         return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), state.totals
+
+
+def check_batch(env: HSAEnv, batch: int) -> None:
+    """Refuse a batch larger than a Warp env's shared contact buffer was sized for (``HSAEnv(num_envs=...)``)."""
+    if env.physics_backend == "warp" and batch > env.num_envs:
+        raise ValueError(f"a batch of {batch} envs on the Warp backend needs an env built for at least that many: "
+                         f"HSAEnv(config, num_envs={batch}) (this one shares its contact buffer among {env.num_envs})")
 
 
 def summarize(totals: dict[str, float]) -> dict[str, float]:

@@ -5,13 +5,13 @@ from __future__ import annotations
 import jax
 from brax.envs.base import State as BraxState
 from flax import struct
-from mujoco import mjx
+from hsa_mjx.backend import mjx
 
 
 @struct.dataclass
 class TaskState:
     """Per-env task state (all traced arrays): the goal and bookkeeping that change every step, and
-    this episode's terrain, drawn at reset."""
+    this episode's terrain tile, drawn at reset."""
 
     goal_xy: jax.Array  # (2,) current goal (the current checkpoint on the spiral)
     checkpoints: jax.Array  # (N, 2) this env's checkpoint sequence (N static; 1 when unused)
@@ -23,7 +23,7 @@ class TaskState:
     history_count: jax.Array  # () int32, positions written since reset
     step_count: jax.Array  # () int32, env steps since reset
     rng: jax.Array  # PRNG key of this env
-    terrain: jax.Array  # (nrow * ncol,) this env's heightfield data in [0, 1]; (1,) on a plane or shared terrain
+    tile: jax.Array  # () int32, this episode's tile of the run's terrain atlas (0 on a plane or shared terrain)
     terrain_id: jax.Array  # () int32, this env's terrain type (index into hsa_mjx.terrain.TERRAIN_TYPES)
 
 

@@ -5,10 +5,11 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from mujoco import mjx
 
+from hsa_mjx import physics
+from hsa_mjx.backend import mjx
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import load_mj_model, load_robot, scene_path
+from hsa_mjx.model import FOOT_GEOMS, load_mj_model, load_robot, scene_path
 
 # Parity bound over 100 env steps (2000 physics steps, float32 MJX vs float64 C MuJoCo) under the
 # same random servo increments: measured max |dqpos| ~1e-3 rad and block error ~1.5e-4 m (CPU).
@@ -40,7 +41,8 @@ def test_index_matches_the_original_hard_coded_addresses(robot):
     np.testing.assert_array_equal(idx.joint_qpos, [7, 22, 10, 24, 20, 9, 21, 12])
     np.testing.assert_array_equal(idx.joint_qvel, [6, 20, 9, 22, 18, 8, 19, 11])
     np.testing.assert_array_equal(idx.block_qvel, [0, 12])
-    assert idx.foot_contacts.shape[0] == 4
+    assert idx.foot_sensors.shape == (4, 4, 3)  # 4 feet, up to 4 contacts each, 3 force values
+    assert len(set(idx.foot_sensors.ravel().tolist())) == 48 and idx.terrain_mocap == -1  # the plane is static
 
 
 def test_robot_collides_with_the_floor_only(robot):
@@ -54,9 +56,44 @@ def test_robot_collides_with_the_floor_only(robot):
 
 
 def test_terrain_scene_uses_world_fixed_friction_order():
-    m = load_mj_model(EnvConfig(scene="terrain"))
+    m = load_mj_model(EnvConfig(scene="terrain"))  # one flat tile: the atlas is the asset's field itself
     assert m.nhfield == 1 and tuple(m.hfield_size[0]) == (5, 5, 0.5, 0.01)
+    assert m.body_mocapid[m.body("terrain_frame").id] >= 0  # the floor moves with its mocap body
     np.testing.assert_allclose(m.pair_friction[:, :2], np.tile([0.1, 0.21], (4, 1)))
+
+
+def _c_foot_forces(m: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """|sum of contact-frame forces| of each foot's contacts with the floor, from mj_contactForce."""
+    feet, floor, out = [m.geom(name).id for name in FOOT_GEOMS], m.geom("floor").id, np.zeros(4)
+    force = np.zeros(6)
+    for f, geom in enumerate(feet):
+        total = np.zeros(3)
+        for i in range(data.ncon):
+            if set(data.contact[i].geom) == {geom, floor}:
+                mujoco.mj_contactForce(m, data, i, force)
+                total += force[:3]
+        out[f] = np.linalg.norm(total)
+    return out
+
+
+def test_foot_force_sensors_match_c_contact_forces(robot):
+    """The contact sensors give each foot's summed contact force: in C MuJoCo exactly, in MJX from the same state."""
+    m, idx = robot.mj_model, robot.index
+    data = mujoco.MjData(m)
+    data.qpos[idx.block_qpos + 2] = 0.2
+    rng, seen = np.random.default_rng(1), []
+    for t in range(600):
+        if t % 20 == 0:
+            data.ctrl[:] = np.clip(data.ctrl + 0.1785 * rng.uniform(-1, 1, 8), -3141.5, 3141.5)
+        mujoco.mj_step(m, data)
+        if t % 100 == 99:
+            mujoco.mj_forward(m, data)
+            oracle = _c_foot_forces(m, data)
+            np.testing.assert_allclose(physics.foot_forces(data, idx.foot_sensors), oracle, rtol=1e-6, atol=1e-6)
+            dx = jax.jit(mjx.forward)(robot.mjx_model, mjx.put_data(m, data))
+            np.testing.assert_allclose(physics.foot_forces(dx, idx.foot_sensors), oracle, rtol=2e-2, atol=0.2)
+            seen.append(oracle)
+    assert np.count_nonzero(np.asarray(seen) > 1.0) >= 4  # the feet carried load while compared
 
 
 def test_missing_asset_and_unknown_scene(tmp_path):

@@ -23,7 +23,7 @@ from test_train_run import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
 FAKE_DEVICES = 2
-SUBPROCESS_TIMEOUT_S = 1200  # cold compiles on a 2-core CPU take minutes
+SUBPROCESS_TIMEOUT_S = 480  # cold compiles on a 2-core CPU take minutes; a hang fails instead of stalling CI
 FACTS = "FACTS "
 # 8 envs over 2 devices, one PPO iteration (80 env steps) per epoch: 160 steps = one 15-step episode per env.
 # The solver runs to convergence (20 iterations, not TINY's 4): the pmap and per-device programs are
@@ -135,22 +135,6 @@ def _learner_facts(config_path: str, compiles: list) -> dict:
             "replicas_differing": differing, "episodes_seen": int(state.curriculum.episode_count[0])}
 
 
-def _terrain_facts() -> dict:
-    """Per-env terrain of a mixed-terrain batch reset with the trainer's keys, 2 envs per device."""
-    import jax
-    import hsa_mjx
-    from hsa_mjx.curriculum import CurriculumConfig
-    from hsa_mjx.training_env import AutoResetEnv
-    from train import distributed
-    from train.ppo import AXIS
-    env = hsa_mjx.make_env("mixed", terrain__types=["wavy", "perlin", "craters", "stairs"])
-    batch = AutoResetEnv(env, CurriculumConfig(enabled=False), axis_name=AXIS)
-    keys = distributed.env_keys(jax.random.PRNGKey(5), 2 * len(jax.local_devices()), jax.local_devices())
-    terrain = np.asarray(jax.pmap(batch.reset, axis_name=AXIS)(keys).env.pipeline_state.task.terrain)
-    cross = [float(np.abs(a - b).max()) for a in terrain[0] for b in terrain[1]]
-    return {"terrain_shape": list(terrain.shape), "terrain_cross_device_differences": cross}
-
-
 # Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
 DONE = [[[1, 1, 0, 0], [1, 0, 1, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[1, 0, 0, 1], [1, 1, 0, 0]]]
 SUCCESS = [[[1, 1, 0, 0], [1, 0, 0, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[0, 0, 0, 1], [1, 0, 0, 0]]]
@@ -183,12 +167,12 @@ def _curriculum_facts() -> dict:
             "curriculum_alone": [as_lists(a) for a in alone]}
 
 
-def scenario_two_devices(config_path: str, run_dir: str, port: str) -> dict:
-    """Train through the CLI (jax.distributed with one process), resume, refusals, per-device facts."""
+def scenario_two_devices(config_path: str, run_dir: str) -> dict:
+    """Train through the CLI on two devices of one process, resume, refusals, per-device facts."""
     compiles, saved = _compile_counter(), _record_saves()
     from train.cli import main
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
-    rc_train = main(args + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "1", "--process-id", "0"])
+    rc_train = main(args)
     saved_first = list(saved)
     rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
     facts = {"rc_train": rc_train, "rc_resume": rc_resume, "saved_first": saved_first,
@@ -200,7 +184,6 @@ def scenario_two_devices(config_path: str, run_dir: str, port: str) -> dict:
     facts["rc_per_device"] = main(["--config", config_path, "--run-dir", per_device_dir, "--quiet",
                                    "--set", "run.multi_device=per_device"])
     facts["per_device_run_dir"] = per_device_dir
-    facts.update(_terrain_facts())
     facts.update(_curriculum_facts())
     return facts
 
@@ -260,7 +243,7 @@ def two_devices(tmp_path_factory):
     """Facts of the two-device scenario and its run dir."""
     tmp = tmp_path_factory.mktemp("two_devices")
     config = _write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
-    proc = subprocess.run([sys.executable, __file__, "two_devices", config, str(tmp / "run"), str(_free_port())],
+    proc = subprocess.run([sys.executable, __file__, "two_devices", config, str(tmp / "run")],
                           cwd=ROOT, env=_subprocess_env(FAKE_DEVICES), capture_output=True, text=True,
                           timeout=SUBPROCESS_TIMEOUT_S)
     return _facts(_check(proc)), tmp / "run"
@@ -324,9 +307,6 @@ def test_envs_differ_across_devices(two_devices):
     assert goals.shape == (FAKE_DEVICES, 4, 2)
     flat = goals.reshape(-1, 2)
     assert len({tuple(np.round(g, 6)) for g in flat}) == len(flat)  # every env of every device its own goal
-    assert facts["terrain_shape"][:2] == [FAKE_DEVICES, 2] and facts["terrain_shape"][2] > 100  # per-env fields
-    differences = facts["terrain_cross_device_differences"]  # max |height difference| per (device 0, device 1) pair
-    assert len(differences) == 4 and min(differences) > 1e-3  # no env of device 0 shares a terrain with device 1
 
 
 def test_per_device_learner_trains_exactly_like_pmap(two_devices):

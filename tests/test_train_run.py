@@ -97,6 +97,16 @@ def test_evaluate_writes_summary_and_plots(run_dir):
     assert main([str(run_dir / "missing")]) == 2
 
 
+def test_a_checkpoint_evaluates_on_the_other_backend(run_dir, tmp_path):
+    """Trained on MJX's JAX implementation (the CPU's), evaluated on its Warp implementation."""
+    from train.evaluate import main
+    meta = checkpoint.read_meta(checkpoint.latest(run_dir))
+    assert meta["physics_backend"] == "jax"  # recorded with the checkpoint
+    assert main([str(run_dir), "--episodes", "2", "--steps", "6", "--backend", "warp", "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "eval.json").read_text())
+    assert result["episodes"] == 2 and result["mean_episode_steps"] > 0 and np.isfinite(result["mean_final_distance"])
+
+
 def test_auto_reset_draws_fresh_goals_from_curriculum():
     from hsa_mjx import curriculum as cur
     from hsa_mjx.env import HSAEnv

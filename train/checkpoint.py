@@ -28,6 +28,8 @@ _NAME = re.compile(r"^step_(\d{12})$")
 COMPATIBLE_SECTIONS = ("env", "curriculum")
 COMPATIBLE_PPO_KEYS = ("policy_hidden_sizes", "value_hidden_sizes", "activation", "normalize_observations",
                        "distribution_type", "noise_std_type")
+# Keys of those sections that may change on resume: which MJX implementation runs the same physics.
+FREE_KEYS = ("env.physics.backend", "env.physics.contacts_per_env", "env.physics.constraints_per_env")
 
 
 def checkpoint_dir(run_dir: str | Path) -> Path:
@@ -35,14 +37,18 @@ def checkpoint_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
-def save(run_dir: str | Path, step: int, payload: dict[str, Any], config: dict, keep: int = 3) -> Path:
-    """Write checkpoint ``step`` atomically and keep only the newest ``keep``; return its path."""
+def save(run_dir: str | Path, step: int, payload: dict[str, Any], config: dict, keep: int = 3,
+         extra: dict | None = None) -> Path:
+    """Write checkpoint ``step`` atomically and keep only the newest ``keep``; return its path.
+
+    ``extra``: more metadata for ``meta.json`` (e.g. the physics backend the run used).
+    """
     root = checkpoint_dir(run_dir)
     root.mkdir(parents=True, exist_ok=True)
     final = root / f"step_{step:012d}"
     host = jax.tree.map(np.asarray, jax.device_get(payload))
     data = serialization.msgpack_serialize(serialization.to_state_dict(host))
-    meta = {"format": FORMAT_VERSION, "step": int(step), "config": config}
+    meta = {"format": FORMAT_VERSION, "step": int(step), "config": config, **(extra or {})}
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
         (tmp / STATE_FILE).write_bytes(data)
@@ -137,7 +143,8 @@ def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) 
     problems = []
     for section in COMPATIBLE_SECTIONS:
         problems += [f"{section}.{k}" for k in _diff(saved.get(section, {}), current.get(section, {}),
-                                                     defaults.get(section, {}))]
+                                                     defaults.get(section, {}))
+                     if f"{section}.{k}" not in FREE_KEYS]
     ppo_saved, ppo_now, ppo_default = saved.get("ppo", {}), current.get("ppo", {}), defaults.get("ppo", {})
     problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k, ppo_default.get(k)) != ppo_now.get(k)]
     return problems

@@ -31,10 +31,11 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hsa_mjx import backend  # noqa: E402
 from hsa_mjx import curriculum as cur  # noqa: E402
 from hsa_mjx import observation, termination  # noqa: E402
 from hsa_mjx import policy as pol  # noqa: E402
-from hsa_mjx.config import EnvConfig  # noqa: E402
+from hsa_mjx.config import BACKENDS, EnvConfig  # noqa: E402
 from hsa_mjx.env import HSAEnv  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train import config as tcfg  # noqa: E402
@@ -43,19 +44,22 @@ POLICIES_DIR = Path(__file__).resolve().parent.parent / "policies"
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
 
-def evaluation_env_config(config: EnvConfig) -> EnvConfig:
+def evaluation_env_config(config: EnvConfig, backend: str | None = None) -> EnvConfig:
     """The env that evaluates a run: its training env, with spiral episodes started at the origin
-    as in the original (``goal.track_starts`` is a training aid)."""
-    return dataclasses.replace(config, goal=dataclasses.replace(config.goal, track_starts=0))
+    as in the original (``goal.track_starts`` is a training aid), on ``backend`` when given."""
+    physics = config.physics if backend is None else dataclasses.replace(config.physics, backend=backend)
+    return dataclasses.replace(config, goal=dataclasses.replace(config.goal, track_starts=0), physics=physics)
 
 
-def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True):
-    """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training."""
+def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True,
+                backend: str | None = None, num_envs: int = 1):
+    """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training;
+    ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer."""
     from brax.training.agents.ppo import networks as ppo_networks
     path = checkpoint_path or checkpoint.latest(run_dir)
     meta = checkpoint.read_meta(path)
     config = tcfg.from_dict(meta["config"])
-    env = HSAEnv(evaluation_env_config(config.env))
+    env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
     networks, ts = load_training_state(config, path, env.observation_size, env.action_size)
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
     return config, env, policy, path, int(meta["step"])
@@ -97,7 +101,7 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
             s, alive = carry
             action, _ = act(s.obs, k_act)
             ns = env.step(s, action)
-            ns = jax.tree.map(lambda new, old: jnp.where(alive, new, old), ns, s)
+            ns = backend.where(alive, ns, s)
             data = ns.pipeline_state.physics
             trace = {"action": action, "alive": alive, "xy": observation.robot_xy(data, idx),
                      "joint_pos": observation.joint_positions(data, idx),
@@ -164,15 +168,15 @@ def resolve_policy(name_or_dir: str) -> Path:
                             f"the shipped policies {available} (in {POLICIES_DIR})")
 
 
-def load_shipped_policy(directory: Path):
-    """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json,
-    the network from its policy.npz."""
+def load_shipped_policy(directory: Path, backend: str | None = None, num_envs: int = 1):
+    """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json (on
+    ``backend`` when given), the network from its policy.npz."""
     policy = pol.load_policy(directory)
     try:
         config = tcfg.from_dict(policy.meta["config"])
     except (KeyError, ValueError) as err:
         raise ValueError(f"policy {directory}: its {pol.META_FILE} holds no usable training config ({err})") from err
-    env = HSAEnv(evaluation_env_config(config.env))
+    env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
     if (env.observation_size, env.action_size) != (policy.observation_size, policy.action_size):
         raise ValueError(f"policy {directory} maps {policy.observation_size} observations to {policy.action_size} "
                          f"actions; its env has {env.observation_size} and {env.action_size}")
@@ -200,6 +204,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
     parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--backend", choices=BACKENDS, default=None,
+                        help="physics backend to evaluate on (default: the run's env.physics.backend)")
     return parser.parse_args(argv)
 
 
@@ -213,7 +219,7 @@ def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, An
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = resolve_policy(args.policy)
-        config, env, policy, shipped = load_shipped_policy(directory)
+        config, env, policy, shipped = load_shipped_policy(directory, args.backend, _episodes(args, True))
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {"policy_dir": str(directory), "source": shipped.meta.get("source", {}),
                   "step": shipped.meta.get("source", {}).get("env_steps")}
@@ -221,8 +227,14 @@ def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, An
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory not found: {run_dir}")
-    config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic)
+    config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic, backend=args.backend,
+                                                  num_envs=_episodes(args, False))
     return config, env, policy, {"checkpoint": str(path), "step": step}, Path(args.out) if args.out else run_dir / "eval"
+
+
+def _episodes(args: argparse.Namespace, shipped: bool) -> int:
+    """Episodes to play: as asked, else 16 for a run and CPU_EPISODES for a shipped policy."""
+    return args.episodes or (CPU_EPISODES if shipped else 16)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -234,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     shipped = args.policy is not None
-    episodes = args.episodes or (CPU_EPISODES if shipped else 16)
+    episodes = _episodes(args, shipped)
     steps = args.steps or (min(CPU_STEPS, config.env.termination.max_episode_steps) if shipped
                            else config.env.termination.max_episode_steps)
     goal_range = args.goal_range or default_goal_range(config)

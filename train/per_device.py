@@ -102,7 +102,8 @@ class PerDeviceLearner(PPOLearner):
         self.batch_envs = []
         for device in self.devices:
             with jax.default_device(device):
-                self.batch_envs.append(AutoResetEnv(HSAEnv(config.env), config.curriculum, step_curriculum=False))
+                piece = HSAEnv(config.env, num_envs=self.envs_per_device)
+                self.batch_envs.append(AutoResetEnv(piece, config.curriculum, step_curriculum=False))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated
         self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b), donate_argnums=donate)
                             for b in self.batch_envs]

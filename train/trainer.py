@@ -166,7 +166,7 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     devices = select_devices(config)
     init = None if resume else read_init_from(config)
     meta = prepare_run_dir(run_dir, config_dict, resume)
-    env = HSAEnv(config.env)
+    env = HSAEnv(config.env, num_envs=config.run.num_envs // distributed.global_device_count(devices))
     learner = make_learner(config, env, devices)
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
@@ -185,10 +185,11 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
     state = learner.reset(env_keys, cstate)
-    return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet)
+    extra = {"physics_backend": env.physics_backend}
+    return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet, extra)
 
 
-def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, quiet) -> dict:
+def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, quiet, extra) -> dict:
     """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
     main = distributed.is_main()
     logger = MetricsLogger(run_dir) if main else _NoLogger()
@@ -214,14 +215,14 @@ def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, 
                 if main and not quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
             if step - last_ckpt >= config.run.checkpoint_every:
-                _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
+                _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints, extra)
                 last_ckpt = step
         if step != last_ckpt or not checkpoint.list_checkpoints(run_dir):
-            _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints)
+            _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints, extra)
     bar.close()
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s,
-               "interrupted": stopped, "checkpoint": None, **{k: record.get(k) for k in HEADLINE}}
+               "interrupted": stopped, "checkpoint": None, **extra, **{k: record.get(k) for k in HEADLINE}}
     return _finish(run_dir, summary) if main else summary
 
 
@@ -245,9 +246,9 @@ def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) 
     return record
 
 
-def _save(run_dir: Path, step: int, ts, state, key, config_dict: dict, keep: int) -> None:
+def _save(run_dir: Path, step: int, ts, state, key, config_dict: dict, keep: int, extra: dict) -> None:
     """Checkpoint the learner (first device's copy), curriculum and rng; process 0 only."""
     if not distributed.is_main():
         return
     payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key)
-    checkpoint.save(run_dir, step, payload, config_dict, keep=keep)
+    checkpoint.save(run_dir, step, payload, config_dict, keep=keep, extra=extra)

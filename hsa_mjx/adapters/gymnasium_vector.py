@@ -96,7 +96,7 @@ class HSAVectorEnv(VectorEnv):
             raise ValueError(f"render_env must be an env index in 0..{num_envs - 1}, got {render_env!r}")
         self.render_mode = check_render_mode(render_mode)
         camera = pick_camera(camera, overrides)
-        self.env = HSAEnv(build_config(config, renderer=True, **overrides))
+        self.env = HSAEnv(build_config(config, renderer=True, **overrides), num_envs=self.num_envs)
         self._camera = check_camera(self.env.robot.mj_model, camera)
         self.render_env, self.check_finite = render_env, check_finite
         self._render_size = (width, height)

@@ -1,6 +1,8 @@
 """Frames of one env's state: the MJX state copied into C MuJoCo data and drawn offscreen or in a viewer.
 
 Shared by the single Gymnasium env and the vector env (which renders one chosen env of its batch).
+The C model holds the whole terrain atlas; copying the state's mocap positions places the floor so
+that the env's own tile lies under the robot, as in its physics.
 """
 
 from __future__ import annotations
@@ -13,7 +15,6 @@ import mujoco
 import numpy as np
 
 from hsa_mjx.env import HSAEnv
-from hsa_mjx.terrain.grid import HFIELD_NAME
 from hsa_mjx.types import EnvState
 
 RENDER_MODES = ("human", "rgb_array")
@@ -63,63 +64,26 @@ class StateRenderer:
         self._viewer = None
         self._warned_no_display = False
         self._data = mujoco.MjData(env.robot.mj_model)
-        self._hfield_stale = False  # the C model's heightfield lags the drawn env's terrain
 
     def render(self, state: EnvState) -> np.ndarray | None:
         """``rgb_array``: an (H, W, 3) uint8 frame; ``human``: update the viewer window (None)."""
         data = self._sync(state)
         if self.render_mode == "rgb_array":
-            self._upload_terrain()
-            if self._renderer is None:  # a new renderer uploads the current heightfield itself
+            if self._renderer is None:
                 self._renderer = mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
             self._renderer.update_scene(data, camera=self.camera)
             return self._renderer.render()
         return self._render_human(data)
 
     def _sync(self, state: EnvState) -> mujoco.MjData:
-        """Copy the MJX state (and its terrain) into the C data used for drawing."""
+        """Copy the MJX state (its terrain tile through the floor's mocap body) into the C data used for drawing."""
         physics = jax.device_get(state.pipeline_state.physics)
         data = self._data
         data.qpos[:] = physics.qpos
         data.qvel[:] = physics.qvel
         data.mocap_pos[:] = physics.mocap_pos
-        self._sync_terrain(state)
         mujoco.mj_forward(self.env.robot.mj_model, data)
         return data
-
-    def _sync_terrain(self, state: EnvState) -> None:
-        """Copy this episode's own terrain (per-env terrain lives in the state) into the C model."""
-        if not self.env.world.per_env:
-            return
-        model = self.env.robot.mj_model
-        terrain = np.asarray(jax.device_get(state.pipeline_state.task.terrain), np.float32)
-        adr = model.hfield_adr[self._hfield_id()]
-        if np.array_equal(model.hfield_data[adr:adr + terrain.size], terrain):
-            return
-        model.hfield_data[adr:adr + terrain.size] = terrain
-        self._hfield_stale = True
-
-    def _hfield_id(self) -> int:
-        """Id of the terrain heightfield in the C model."""
-        return self.env.robot.mj_model.hfield(HFIELD_NAME).id
-
-    def _upload_terrain(self) -> None:
-        """Send a changed heightfield to the GPU copies held by the renderer and the viewer."""
-        if not self._hfield_stale:
-            return
-        if self._renderer is not None:
-            context = getattr(self._renderer, "_mjr_context", None)
-            if context is None:  # a renderer without an accessible context: rebuild it
-                self._renderer.close()
-                self._renderer = None
-            else:
-                gl_context = getattr(self._renderer, "_gl_context", None)
-                if gl_context is not None:
-                    gl_context.make_current()
-                mujoco.mjr_uploadHField(self.env.robot.mj_model, context, self._hfield_id())
-        if self._viewer is not None:
-            self._viewer.update_hfield(self._hfield_id())
-        self._hfield_stale = False
 
     def _render_human(self, data: mujoco.MjData) -> None:
         if not _has_display():
@@ -131,8 +95,6 @@ class StateRenderer:
         if self._viewer is None:
             import mujoco.viewer
             self._viewer = mujoco.viewer.launch_passive(self.env.robot.mj_model, data)
-            self._hfield_stale = False
-        self._upload_terrain()
         self._viewer.sync()
         return None
 

@@ -133,14 +133,16 @@ class TerrainConfig:
     """Which terrains a batch uses, in which proportions, and every generator's parameters.
 
     ``types`` and ``proportions`` (summing to 1) give the distribution each env's terrain type is
-    drawn from at every reset. ``per_env: false`` generates one terrain (from ``seed``) shared by
-    every env instead. ``spawn_clearance`` is the gap left under the lowest robot geom at reset;
+    drawn from at every reset; each env then takes one of the run's ``tiles_per_type`` terrains of
+    that type (drawn once from ``seed``; deterministic types have one). ``per_env: false`` generates
+    one terrain (from ``seed``) shared by every env instead. ``spawn_clearance`` is the gap left under the lowest robot geom at reset;
     ``edge_margin`` how far inside the field's edge the robot must stay.
     """
 
     types: tuple[str, ...] = ("flat",)
     proportions: tuple[float, ...] = (1.0,)
     per_env: bool = True
+    tiles_per_type: int = 16
     seed: int = 0
     spawn_clearance: float = 0.003
     edge_margin: float = 0.3
@@ -262,6 +264,8 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     """Check the mixture, the spawn settings and every generator's parameters (ValueError)."""
     _check_mixture(config)
     _check_sign(config, "", non_negative=("spawn_clearance", "edge_margin"))
+    if not 1 <= config.tiles_per_type <= 256:
+        _fail("tiles_per_type", "must be between 1 and 256", config.tiles_per_type)
     spawn = config.flat_spawn
     if spawn.radius < 0:
         _fail("flat_spawn.radius", "must be >= 0 (a fraction of the field width)", spawn.radius)

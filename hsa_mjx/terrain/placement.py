@@ -1,9 +1,10 @@
 """Where the robot meets the terrain: its footprint, the spawn height that rests it on the surface,
-the ground under each block, and goals kept on a corridor's centre line."""
+and goals kept on a corridor's centre line."""
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ import mujoco
 import numpy as np
 
 from hsa_mjx.pose import move_points
-from hsa_mjx.terrain.grid import Grid, surface_height
+from hsa_mjx.terrain.grid import Grid
 from hsa_mjx.terrain.params import CorridorParams
 
 SAMPLES_PER_AXIS = 4  # footprint points per geom along x and y
@@ -63,20 +64,15 @@ class Footprint:
                     drops.append(block_z[0] - lo[2])
         return cls(np.asarray(points, np.float32), np.asarray(drops, np.float32))
 
-    def spawn_height(self, data: jax.Array, grid: Grid, clearance: float,
+    def spawn_height(self, ground: Callable[[jax.Array], jax.Array], clearance: float,
                      move: tuple[jax.Array, jax.Array, jax.Array] | None = None) -> jax.Array:
-        """Block-origin z that leaves ``clearance`` under the robot's lowest point, robot level;
-        ``move`` = (centre, target, yaw) for a robot moved as by ``pose.move_points``."""
+        """Block-origin z that leaves ``clearance`` under the robot's lowest point, robot level, on the
+        surface ``ground(xy) -> z``; ``move`` = (centre, target, yaw) for a robot moved as by
+        ``pose.move_points``."""
         points = jnp.asarray(self.points)
         if move is not None:
             points = move_points(points, *move)
-        ground = surface_height(data, grid, points)
-        return jnp.max(ground + self.drop) + clearance
-
-
-def block_ground(data: jax.Array, grid: Grid, block_xy: jax.Array) -> jax.Array:
-    """Surface height under each block origin, shape (2,)."""
-    return surface_height(data, grid, block_xy)
+        return jnp.max(ground(points) + self.drop) + clearance
 
 
 def onto_line(goal_xy: jax.Array, point: jax.Array, direction: jax.Array, limit: float) -> jax.Array:

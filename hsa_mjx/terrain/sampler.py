@@ -91,6 +91,11 @@ class TerrainSampler:
             heights = jax.lax.switch(index, self._branches, k_gen)
         return apply_flat_spawn(heights, self.grid, self.config.flat_spawn, self.levels[index]), index
 
+    def type_data(self, index: int, key: jax.Array) -> jax.Array:
+        """Heightfield data (nrow * ncol,) in [0, 1] of the ``index``-th configured type (a static index)."""
+        heights = apply_flat_spawn(self._branches[index](key), self.grid, self.config.flat_spawn, self.levels[index])
+        return to_hfield_data(heights, self.grid)
+
     def sample(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
         """Heightfield data (nrow * ncol,) in [0, 1] and the type id (index into ``TERRAIN_TYPES``)."""
         heights, index = self.heights(key)

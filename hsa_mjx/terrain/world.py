@@ -1,9 +1,10 @@
-"""The env's ground as one object: a plane, one terrain shared by every env, or a terrain per env.
+"""The env's ground as one object: a plane, or this episode's tile of the run's terrain atlas.
 
-The env keeps each env's heightfield data in its ``TaskState.terrain``; this class turns it into
-the MJX model used for that env's physics, the spawn height, the ground under the blocks, the
-field bounds and terrain-consistent goals. With a plane or a shared terrain the per-env field is
-a (1,) placeholder and everything reads the shared data (a constant) instead.
+Each env keeps the index of its tile in ``TaskState.tile``. This class draws it at reset, puts the
+floor's mocap body where that tile lies under the world origin, and answers everything the env
+asks of the ground in the tile's own coordinates: the spawn height, the surface under the blocks,
+the field bounds and terrain-consistent goals. On the plane scene the tile is a placeholder 0 and
+the ground is z = 0.
 """
 
 from __future__ import annotations
@@ -12,81 +13,74 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-from hsa_mjx.terrain.grid import Grid, inside, surface_height
+from hsa_mjx.terrain.atlas import TerrainPool
+from hsa_mjx.terrain.grid import inside, surface_height
 from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
 from hsa_mjx.terrain.placement import Footprint, corridor_line, onto_line
-from hsa_mjx.terrain.sampler import TerrainSampler
 
-PLACEHOLDER = (1,)  # TaskState.terrain on a plane or with a shared terrain
 FLAT_ID = TERRAIN_TYPES.index("flat")
 CORRIDOR_ID = TERRAIN_TYPES.index("corridor")
 
 
 class TerrainWorld:
-    """Static terrain set-up of one env (config, grid, sampler, footprint) and its pure helpers.
+    """Static terrain set-up of one env (pool, footprint, corridor line) and its pure helpers.
 
     Args:
-        scene: ``"flat"`` (a plane: no terrain) or ``"terrain"`` (the heightfield scene).
         config: the ``terrain:`` section.
-        mj_model: the loaded scene (the shared terrain is written into its ``hfield_data``).
+        pool: the run's terrain tiles (``hsa_mjx.model.load_scene``); None on the plane scene.
+        mj_model: the loaded scene (for the robot's footprint).
         block_body: body ids of the two blocks.
     """
 
-    def __init__(self, scene: str, config: TerrainConfig, mj_model: mujoco.MjModel, block_body: np.ndarray):
-        self.config = config
-        self.enabled = scene == "terrain"
-        self.per_env = self.enabled and config.per_env
+    def __init__(self, config: TerrainConfig, pool: TerrainPool | None, mj_model: mujoco.MjModel,
+                 block_body: np.ndarray):
+        self.config, self.pool = config, pool
+        self.enabled = pool is not None
         if not self.enabled:
             return
-        self.grid = Grid.from_model(mj_model)
-        self.sampler = TerrainSampler(config, self.grid)
+        self.grid = pool.layout.tile  # one tile: the original field, in the robot's coordinates
+        self._atlas_grid = pool.layout.grid
+        self._atlas = jnp.asarray(pool.atlas)
+        self._centres = jnp.asarray(pool.centres)
         self.footprint = Footprint.from_model(mj_model, block_body)
         self._corridor = "corridor" in config.types
         self.corridor_point, self.corridor_direction, self.corridor_limit = corridor_line(
             config.corridor, self.grid, config.edge_margin)
-        if not self.per_env:
-            data, type_id = jax.jit(self.sampler.sample)(jax.random.PRNGKey(config.seed))
-            self.shared_data, self.shared_id = np.asarray(data), int(type_id)
-            hid = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_HFIELD, "terrain")
-            adr = mj_model.hfield_adr[hid]
-            mj_model.hfield_data[adr:adr + self.grid.size] = self.shared_data
 
-    def bake(self, model: mjx.Model) -> mjx.Model:
-        """The MJX model every env shares: the shared terrain written in, else unchanged."""
-        if self.enabled and not self.per_env:
-            return model.replace(hfield_data=jnp.asarray(self.shared_data))
-        return model
+    @property
+    def per_env(self) -> bool:
+        """Whether envs draw their own tile (a pool of terrains) rather than share one."""
+        return self.enabled and self.config.per_env
 
     def draw(self, key: jax.Array | None) -> tuple[jax.Array, jax.Array]:
-        """This episode's (terrain field for TaskState, terrain type id); ``key`` only when per env."""
+        """This episode's (tile index, terrain type id); ``key`` is used only when envs draw their own."""
         if self.per_env:
-            return self.sampler.sample(key)
-        type_id = self.shared_id if self.enabled else FLAT_ID
-        return jnp.zeros(PLACEHOLDER, jnp.float32), jnp.asarray(type_id, jnp.int32)
+            return self.pool.draw(key)
+        type_id = int(self.pool.tile_type[0]) if self.enabled else FLAT_ID
+        return jnp.zeros((), jnp.int32), jnp.asarray(type_id, jnp.int32)
 
-    def data(self, terrain: jax.Array) -> jax.Array:
-        """The heightfield data of an env from its TaskState field (the shared data if shared)."""
-        return terrain if self.per_env else jnp.asarray(self.shared_data)
+    def floor_position(self, tile: jax.Array) -> jax.Array:
+        """Where the floor's mocap body goes so that ``tile``'s centre lies under the world origin, (3,)."""
+        return jnp.concatenate([-self._centres[tile], jnp.zeros(1, jnp.float32)])
 
-    def model_for(self, model: mjx.Model, terrain: jax.Array) -> mjx.Model:
-        """The MJX model for this env's physics: its own heightfield when terrain is per env."""
-        return model.replace(hfield_data=terrain) if self.per_env else model
-
-    def spawn_height(self, terrain: jax.Array, move: tuple | None = None) -> jax.Array:
+    def spawn_height(self, tile: jax.Array, move: tuple | None = None) -> jax.Array:
         """Block-origin z resting the level robot on this env's surface (clearance from the config);
         ``move`` = (centre, target, yaw) for a spawn pose moved along the ground (``hsa_mjx.pose``)."""
-        return self.footprint.spawn_height(self.data(terrain), self.grid, self.config.spawn_clearance, move)
+        return self.footprint.spawn_height(lambda xy: self.ground(tile, xy), self.config.spawn_clearance, move)
 
-    def ground(self, terrain: jax.Array, xy: jax.Array) -> jax.Array:
-        """Surface height under the points ``xy`` (..., 2); 0 on a plane."""
+    def ground(self, tile: jax.Array, xy: jax.Array) -> jax.Array:
+        """Surface height under the points ``xy`` (..., 2) of this env's tile; 0 on a plane."""
         if not self.enabled:
             return jnp.zeros(xy.shape[:-1], jnp.float32)
-        return surface_height(self.data(terrain), self.grid, xy)
+        return surface_height(self._atlas, self._atlas_grid, xy + self._centres[tile])
+
+    def tile_data(self, tile: jax.Array) -> jax.Array:
+        """The heightfield data (tile nrow * ncol,) of ``tile``, as its generator made it."""
+        return jnp.asarray(self.pool.tiles)[tile]
 
     def out_of_bounds(self, xy: jax.Array) -> jax.Array:
-        """True when the robot position is closer than ``edge_margin`` to the field's edge (never on a plane)."""
+        """True when the robot position is closer than ``edge_margin`` to its tile's edge (never on a plane)."""
         if not self.enabled:
             return jnp.zeros((), bool)
         return jnp.logical_not(inside(self.grid, xy, self.config.edge_margin))

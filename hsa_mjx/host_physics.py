@@ -1,0 +1,77 @@
+"""One env on a CPU: the physics substeps in C MuJoCo, everything else the env's own jitted code.
+
+MJX's JAX implementation is built for thousands of envs at once; one env on a CPU pays XLA's
+per-op cost on every substep (about 150 env steps/s on a 2-core machine). C MuJoCo steps the same
+compiled model about 15x faster. :class:`HostPhysics` runs the ``frame_skip`` substeps of
+``HSAEnv.step_with`` through ``jax.pure_callback`` on a C ``MjData``: the state goes in through
+public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, the solver warm start,
+``time``) and comes back through the fields the env reads (positions, orientations, ``qacc``,
+``sensordata``), so the control law, observation, reward and termination are exactly the env's.
+
+It differs from MJX only in arithmetic: float64 C MuJoCo with its own solver (the same settings)
+against float32 MJX; ``tests/test_host_physics.py`` bounds the difference over a gait. C MuJoCo
+resets a diverging state by itself; such a substep is reported as non-finite, as MJX's NaN would
+be. The Gymnasium single env uses it on a CPU (``HSAGymEnv(host_physics=...)``).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from hsa_mjx.backend import mjx
+from hsa_mjx.model import RobotIndex
+from hsa_mjx.termination import SubstepStats
+
+STATE_IN = ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat", "qacc_warmstart", "time")
+STATE_OUT = ("qpos", "qvel", "act", "ctrl", "qacc", "qacc_warmstart", "time", "xpos", "xquat", "sensordata")
+_BAD = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+
+
+class HostPhysics:
+    """C MuJoCo substeps for ``HSAEnv.step_with`` (one env; under ``vmap`` envs run one after another).
+
+    Args:
+        mj_model: the env's compiled C model (``env.robot.mj_model``: same asset, physics and terrain).
+        index: the env's name index (servo ids).
+    """
+
+    def __init__(self, mj_model: mujoco.MjModel, index: RobotIndex):
+        self.model, self.servos = mj_model, np.asarray(index.servo_ids)
+        self.data = mujoco.MjData(mj_model)
+
+    def __call__(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, SubstepStats]:
+        """Run one substep per row of ``targets`` (frame_skip, 8) from ``data``; the new data and stats."""
+        inputs = [getattr(data, name) for name in STATE_IN]
+        shapes = tuple(jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype)
+                       for name in STATE_OUT) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
+        *out, stats = jax.pure_callback(lambda *a: self._run(shapes, *a), shapes, *inputs, targets,
+                                        vmap_method="sequential")
+        new = data.replace(**dict(zip(STATE_OUT, out)))
+        return new, SubstepStats(max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0,
+                                 final_abs_qacc=stats[3])
+
+    def _run(self, shapes: tuple, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Host side: load the state, step, return the fields (the env's shapes and dtypes) and the stats."""
+        *state, targets = arrays
+        d = self.data
+        for name, value in zip(STATE_IN, state):
+            if name == "time":
+                d.time = float(value)
+            else:
+                np.copyto(getattr(d, name), np.asarray(value, np.float64).reshape(getattr(d, name).shape))
+        counts = [d.warning[w].number for w in _BAD]
+        qvel, qacc = np.empty(len(targets)), np.empty(len(targets))
+        for i, target in enumerate(np.asarray(targets, np.float64)):
+            d.ctrl[self.servos] = target
+            mujoco.mj_step(self.model, d)
+            qvel[i], qacc[i] = np.abs(d.qvel).max(), np.abs(d.qacc).max()  # a NaN stays a NaN
+        reset = any(d.warning[w].number > c for w, c in zip(_BAD, counts))  # C MuJoCo reset a bad state
+        bad = reset or not (np.isfinite(qvel).all() and np.isfinite(qacc).all() and np.isfinite(d.qpos).all())
+        qvel, qacc = np.nan_to_num(qvel), np.nan_to_num(qacc)
+        stats = np.array([qvel.max(), qacc.max(), float(bad), qacc[-1]], np.float32)
+        outs = tuple(np.asarray(getattr(d, name), shape.dtype).reshape(shape.shape)
+                     for name, shape in zip(STATE_OUT, shapes))
+        return outs + (stats,)

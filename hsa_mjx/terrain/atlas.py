@@ -1,0 +1,137 @@
+"""Per-env terrain as tiles of one shared heightfield (an atlas), placed under each env by a mocap body.
+
+MuJoCo Warp keeps one ``hfield_data`` for every world it simulates, and ``geom_dataid`` is static in
+both MJX implementations, so envs cannot each carry their own heightfield. Instead the run draws a
+pool of terrains once (``tiles_per_type`` of each random type, one of each deterministic type, or a
+single shared one), lays them out as tiles of one large heightfield, and each env, at every reset,
+draws a tile and moves the floor's mocap body (``terrain_frame``) so that its tile's centre lies under
+the world origin. The robot, its goals and every height query stay in the tile's own coordinates,
+exactly those of the original 10 x 10 m field: the same code serves a plane, one terrain, or a pool.
+
+Layout: one row of tiles per configured type (rows along world y), tiles of a row along x; tiles do
+not share vertices (a 1-cell seam joins neighbours), so each tile's data is exactly what its
+generator produced.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.terrain.grid import Grid
+from hsa_mjx.terrain.params import RANDOM_TYPES, TERRAIN_TYPES, TerrainConfig
+from hsa_mjx.terrain.sampler import TerrainSampler
+
+
+@dataclasses.dataclass(frozen=True)
+class AtlasLayout:
+    """How many tiles of which type, and where each sits in the atlas heightfield.
+
+    Args:
+        tile: the grid of one tile (the asset's field).
+        types: the terrain type of each row of tiles.
+        counts: tiles in each row (the rest of the row stays flat and is never drawn).
+    """
+
+    tile: Grid
+    types: tuple[str, ...]
+    counts: tuple[int, ...]
+
+    @classmethod
+    def from_config(cls, config: TerrainConfig, tile: Grid) -> "AtlasLayout":
+        """One row per type: ``tiles_per_type`` tiles of a random type, one of a deterministic type;
+        a single tile when the terrain is shared (``per_env: false``)."""
+        if not config.per_env:
+            return cls(tile, ("shared",), (1,))
+        counts = tuple(config.tiles_per_type if t in RANDOM_TYPES else 1 for t in config.types)
+        return cls(tile, tuple(config.types), counts)
+
+    @property
+    def rows(self) -> int:
+        return len(self.counts)
+
+    @property
+    def cols(self) -> int:
+        return max(self.counts)
+
+    @property
+    def grid(self) -> Grid:
+        """The atlas heightfield: ``rows x cols`` tiles at the tile's vertex spacing."""
+        nrow, ncol = self.rows * self.tile.nrow, self.cols * self.tile.ncol
+        return Grid(nrow, ncol, 0.5 * (ncol - 1) * self.tile.spacing_x, 0.5 * (nrow - 1) * self.tile.spacing_y,
+                    self.tile.z_scale, self.tile.base)
+
+    def slots(self) -> list[tuple[int, int]]:
+        """(row, col) of every drawable tile, in tile-index order (row by row)."""
+        return [(r, c) for r, count in enumerate(self.counts) for c in range(count)]
+
+    def centres(self) -> np.ndarray:
+        """Each tile's centre in the atlas frame, (tiles, 2): where the floor moves to put it at the origin."""
+        atlas, tile = self.grid, self.tile
+        out = [(-atlas.half_x + (c * tile.ncol + 0.5 * (tile.ncol - 1)) * tile.spacing_x,
+                -atlas.half_y + (r * tile.nrow + 0.5 * (tile.nrow - 1)) * tile.spacing_y) for r, c in self.slots()]
+        return np.asarray(out, np.float32)
+
+    def assemble(self, tiles: np.ndarray) -> np.ndarray:
+        """The atlas data (nrow * ncol,) from the tiles' data (tiles, tile nrow * ncol), row-major."""
+        t = self.tile
+        atlas = np.zeros((self.rows * t.nrow, self.cols * t.ncol), np.float32)
+        for (r, c), data in zip(self.slots(), tiles):
+            atlas[r * t.nrow:(r + 1) * t.nrow, c * t.ncol:(c + 1) * t.ncol] = np.asarray(data).reshape(t.nrow, t.ncol)
+        return atlas.reshape(-1)
+
+
+class TerrainPool:
+    """The run's terrain tiles: their data, types and centres, and the per-episode draw.
+
+    ``draw(key) -> (tile index, type id)``: the type from the configured proportions, then a tile
+    of that type uniformly (with a shared terrain: always tile 0 and its type).
+    """
+
+    def __init__(self, config: TerrainConfig, layout: AtlasLayout, tiles: np.ndarray | None = None,
+                 tile_type: np.ndarray | None = None):
+        """Draw the pool's tiles from ``config.seed``, or take given ``tiles`` (tiles, tile size) and their
+        ``tile_type`` ids (e.g. hand-made terrain in tests)."""
+        self.config, self.layout = config, layout
+        if tiles is None:
+            tiles, tile_type = _draw_tiles(config, layout)
+        if len(tiles) != len(layout.slots()) or len(tile_type) != len(tiles):
+            raise ValueError(f"a pool of this layout holds {len(layout.slots())} tiles, got {len(tiles)} "
+                             f"(and {len(tile_type)} type ids)")
+        self.tiles = np.asarray(tiles, np.float32)  # (tiles, tile nrow * ncol) in [0, 1]
+        self.tile_type = np.asarray(tile_type, np.int32)  # (tiles,) index into TERRAIN_TYPES
+        self.centres = layout.centres()
+        self.atlas = layout.assemble(self.tiles)
+        first = np.cumsum((0,) + layout.counts[:-1])
+        self._first = jnp.asarray(first, jnp.int32)  # first tile of each type's row
+        self._count = jnp.asarray(layout.counts, jnp.int32)
+        self._log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
+
+    def draw(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(tile index, type id) of one episode."""
+        if not self.config.per_env:
+            return jnp.zeros((), jnp.int32), jnp.asarray(self.tile_type[0], jnp.int32)
+        k_type, k_tile = jax.random.split(key)
+        row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
+            else jnp.zeros((), jnp.int32)
+        tile = self._first[row] + jax.random.randint(k_tile, (), 0, self._count[row])
+        return tile, jnp.asarray(self.tile_type)[tile]
+
+
+def _draw_tiles(config: TerrainConfig, layout: AtlasLayout) -> tuple[np.ndarray, np.ndarray]:
+    """Every tile of the pool: one shared terrain, or row by row each random tile from its own key."""
+    sampler = TerrainSampler(config, layout.tile)
+    if not config.per_env:
+        data, type_id = jax.jit(sampler.sample)(jax.random.PRNGKey(config.seed))
+        return np.asarray(data)[None], np.asarray([int(type_id)], np.int32)
+    tiles, types = [], []
+    base = jax.random.PRNGKey(config.seed)
+    for row, (name, count) in enumerate(zip(layout.types, layout.counts)):
+        keys = jax.random.split(jax.random.fold_in(base, row), count)
+        data = jax.jit(jax.vmap(lambda k, r=row: sampler.type_data(r, k)))(keys)
+        tiles.append(np.asarray(data))
+        types += [TERRAIN_TYPES.index(name)] * count
+    return np.concatenate(tiles), np.asarray(types, np.int32)

@@ -1,0 +1,132 @@
+"""The physics backend choice, and MJX's Warp implementation against its JAX implementation on a CPU.
+
+MuJoCo Warp runs on a CPU (slowly): a few envs for a few steps suffice to check that one env code
+path runs on both implementations, gives the same trajectories within a stated bound, and keeps
+every env on its own terrain tile.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hsa_mjx
+from hsa_mjx import backend
+from hsa_mjx.training_env import AutoResetEnv
+
+ENVS, REST, STEPS = 3, 8, 20  # envs, zero-action steps at rest, then gait steps
+# Terrain tiles: flat, stairs and craters; solver settings of the shipped heightfield configs.
+SETTINGS = {"physics.integrator": "implicitfast", "physics.iterations": 8, "physics.ls_iterations": 8,
+            "terrain.types": ["flat", "stairs", "craters"], "terrain.tiles_per_type": 2, "scene": "terrain"}
+# Same gait from the same reset on both implementations, 20 env steps (400 substeps, float32 both):
+# measured max |dqpos| 0.012 rad (hinges), block positions within 1.1 mm; the bounds leave room for
+# the order of Warp's atomics (not run-to-run deterministic on a GPU).
+QPOS_TOL, BLOCK_TOL = 0.1, 1e-2  # rad, m
+# Foot contact forces (what the contact-cost reward reads), summed over the four feet: at rest both
+# carry the robot's weight (58.9 N) within REST_FORCE_TOL; over the gait, impacts make single steps
+# differ by up to ~35 N between the implementations (a touchdown a substep apart), so the gait is
+# compared by its mean: measured 59.3 (JAX) vs 54.3 N (Warp) on these tiles, 60.5 vs 62.5 N on the plane.
+WEIGHT_N, REST_FORCE_TOL, GAIT_FORCE_TOL = 58.9, 1.0, 8.0
+
+
+def _gait(steps: int, envs: int) -> jax.Array:
+    """A crawl-like action sequence: each unit's pair in antiphase, one period per 25 steps."""
+    t = np.arange(steps)[:, None, None] * 2 * np.pi / 25
+    phase = np.arange(8)[None, None, :] * np.pi / 4
+    return jnp.asarray(np.broadcast_to(np.sin(t + phase), (steps, envs, 8)), jnp.float32)
+
+
+def _rollout(name: str) -> dict[str, np.ndarray]:
+    """Reset ENVS envs with fixed keys on backend ``name`` and play the gait; what the tests compare."""
+    env = hsa_mjx.make_env("mixed", num_envs=ENVS, **{**SETTINGS, "physics.backend": name})
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(3), ENVS))
+    step = jax.jit(jax.vmap(env.step))
+    forces = []
+    for action in jnp.concatenate([jnp.zeros((REST, ENVS, 8)), _gait(STEPS, ENVS)]):
+        state = step(state, action)
+        forces.append(np.asarray(jax.vmap(lambda d: d.sensordata[env.index.foot_sensors].sum(-2))(
+            state.pipeline_state.physics)))
+    physics, task = state.pipeline_state.physics, state.pipeline_state.task
+    blocks = np.asarray(physics.xpos[:, env.index.block_body])
+    ground = np.asarray(jax.vmap(env.world.ground)(task.tile, physics.xpos[:, env.index.block_body, :2]))
+    return {"backend": env.physics_backend, "qpos": np.asarray(physics.qpos), "blocks": blocks,
+            "height": blocks[..., 2] - ground, "tile": np.asarray(task.tile), "type": np.asarray(task.terrain_id),
+            "force": np.linalg.norm(np.asarray(forces), axis=-1).sum(-1), "done": np.asarray(state.done),
+            "floor": np.asarray(physics.mocap_pos[:, env.index.terrain_mocap])}
+
+
+@pytest.fixture(scope="module")
+def rollouts():
+    return {name: _rollout(name) for name in ("jax", "warp")}
+
+
+def test_auto_picks_jax_on_a_cpu_and_refuses_unknown_backends():
+    assert backend.resolve("auto") == "jax"
+    with pytest.raises(ValueError, match=r"'physics.backend' = 'cuda' is not valid; choose one of \['jax', 'warp', 'auto'\]"):
+        backend.resolve("cuda")
+    with pytest.raises(ValueError, match=r"physics.backend.*'cuda'.*\['jax', 'warp', 'auto'\]"):
+        hsa_mjx.build_config("flat", physics__backend="cuda")
+
+
+def test_warp_without_warp_lang_says_how_to_install(monkeypatch):
+    monkeypatch.setattr(backend, "warp_installed", lambda: False)
+    with pytest.raises(ValueError, match=r"warp-lang.*pip install -e \"\.\[warp\]\""):
+        hsa_mjx.make_env("flat", physics__backend="warp")
+
+
+def test_importing_the_package_prints_nothing():
+    out = subprocess.run([sys.executable, "-c", "import hsa_mjx.env, hsa_mjx.training_env"],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout == "" and "Failed to import" not in out.stderr
+
+
+def test_one_code_path_runs_on_both_backends(rollouts):
+    assert rollouts["jax"]["backend"] == "jax" and rollouts["warp"]["backend"] == "warp"
+    for run in rollouts.values():
+        assert np.all(np.isfinite(run["qpos"])) and not run["done"].any()
+
+
+def test_warp_and_jax_give_the_same_trajectory_within_the_bound(rollouts):
+    jax_run, warp_run = rollouts["jax"], rollouts["warp"]
+    np.testing.assert_array_equal(jax_run["tile"], warp_run["tile"])  # same keys, same terrain draws
+    assert np.abs(jax_run["qpos"] - warp_run["qpos"]).max() < QPOS_TOL
+    assert np.abs(jax_run["blocks"] - warp_run["blocks"]).max() < BLOCK_TOL
+    moved = np.linalg.norm(jax_run["blocks"][:, :, :2].mean(1) - warp_run["blocks"][:, :, :2].mean(1), axis=-1)
+    assert moved.max() < BLOCK_TOL
+
+
+def test_contact_forces_agree_between_backends(rollouts):
+    """The contact-cost reward reads these sensors: the same load on the feet at rest and over the gait."""
+    jax_force, warp_force = rollouts["jax"]["force"], rollouts["warp"]["force"]  # (steps, envs), summed over feet
+    for force in (jax_force, warp_force):
+        np.testing.assert_allclose(force[REST - 1], WEIGHT_N, atol=2 * REST_FORCE_TOL)
+    assert np.abs(jax_force[REST - 1] - warp_force[REST - 1]).max() < REST_FORCE_TOL
+    assert np.abs(jax_force[REST:].mean(0) - warp_force[REST:].mean(0)).max() < GAIT_FORCE_TOL
+
+
+def test_every_robot_stands_on_its_own_tile_on_both_backends(rollouts):
+    for run in rollouts.values():
+        assert len(set(run["tile"].tolist())) >= 2  # a mixed batch
+        assert np.all(np.abs(run["height"] - 0.14) < 0.02), run["height"]  # resting on its own ground
+        for tile, floor in zip(run["tile"], run["floor"]):  # the floor moved under each env's own tile
+            assert np.allclose(floor, run["floor"][run["tile"] == tile][0])
+        assert len({tuple(np.round(f, 3)) for f in run["floor"]}) == len(set(run["tile"].tolist()))
+
+
+def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
+    env = hsa_mjx.make_env("flat", num_envs=2, physics__backend="warp", termination__max_episode_steps=3,
+                           physics__iterations=4, physics__ls_iterations=8)
+    batch = AutoResetEnv(env)
+    state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    step = jax.jit(batch.step)
+    for _ in range(4):
+        state = step(state, jnp.zeros((2, 8)))
+    assert np.asarray(state.totals["episodes"]) == 2  # both truncated at step 3 and were reset...
+    assert np.all(np.asarray(state.env.pipeline_state.task.step_count) == 1)  # ...then stepped once more
+    with pytest.raises(ValueError, match="num_envs=3"):
+        batch.reset(jax.random.split(jax.random.PRNGKey(0), 3))
