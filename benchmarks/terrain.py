@@ -1,15 +1,13 @@
-"""Mixed terrain at scale: a batch resets onto per-env terrains, steps, and every robot settles on its own.
+"""Mixed terrain at scale: a batch resets onto per-env terrain tiles, steps, and every robot settles on its own.
 
     python -m benchmarks.terrain --envs 1024 --steps 15        # ten types, the original's solver
-    python -m benchmarks.terrain --envs 16384 --types craters            # per-env cost against ...
-    python -m benchmarks.terrain --envs 16384 --types craters --shared   # ... one shared terrain
+    python -m benchmarks.terrain --envs 16384 --types craters --backend warp
+    python -m benchmarks.terrain --envs 16384 --types craters --shared   # one terrain for every env
 
 Prints timings (compile and run, reset and step), the height of each block above the surface
 under it per terrain type after the steps (flat-ground rest: 0.138-0.140 m), terminations and
-non-finite values. ``--shared`` sets ``terrain.per_env: false`` (one terrain baked into the model)
-so the cost of per-env heightfields can be compared on the same machine. Actions are zero (the
-servos hold: a settling test) unless ``--random-actions``. Compare per-env and shared terrain with
-a single type (with several, ``--shared`` draws one type for the whole batch).
+non-finite values. ``--shared`` sets ``terrain.per_env: false`` (one terrain for every env).
+Actions are zero (the servos hold: a settling test) unless ``--random-actions``.
 """
 
 from __future__ import annotations
@@ -43,13 +41,14 @@ def build(args: argparse.Namespace) -> hsa_mjx.HSAEnv:
         overrides["physics__ls_iterations"] = args.ls_iterations
     if args.solver:
         overrides["physics__solver"] = args.solver
-    return hsa_mjx.make_env(args.config, **overrides)
+    overrides["physics__backend"] = args.backend
+    return hsa_mjx.make_env(args.config, num_envs=args.envs, **overrides)
 
 
 def heights_over_ground(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     """Block-origin height above the surface under each block, shape (envs, 2)."""
     xpos = state.pipeline_state.physics.xpos[:, env.index.block_body]
-    ground = jax.vmap(env.world.ground)(state.pipeline_state.task.terrain, xpos[..., :2])
+    ground = jax.vmap(env.world.ground)(state.pipeline_state.task.tile, xpos[..., :2])
     return np.asarray(xpos[..., 2] - ground)
 
 
@@ -79,12 +78,13 @@ def main() -> None:
     parser.add_argument("--solver", default="", help="newton | cg ('': the config's)")
     parser.add_argument("--shared", action="store_true", help="one terrain shared by every env")
     parser.add_argument("--random-actions", action="store_true")
+    parser.add_argument("--backend", choices=("jax", "warp", "auto"), default="auto", help="physics backend")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
     start = time.perf_counter()
     env = build(args)
-    print(f"backend {jax.default_backend()}, {args.envs} envs, per_env {not args.shared}, "
+    print(f"backend {jax.default_backend()}, physics {env.physics_backend}, {args.envs} envs, per_env {not args.shared}, "
           f"solver {env.config.physics.solver} {env.config.physics.iterations}/{env.config.physics.ls_iterations}, "
           f"env built in {time.perf_counter() - start:.1f} s")
     reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))

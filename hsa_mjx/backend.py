@@ -89,9 +89,11 @@ def resolve(name: str, device: jax.Device | None = None) -> str:
 
 
 def _quiet_warp() -> None:
-    """Keep Warp's per-module load messages off the console."""
+    """Keep Warp's banner and per-module load messages off the console (its warnings stay)."""
     import warp
     warp.config.quiet = True
+    if hasattr(warp, "LOG_WARNING"):  # warp-lang >= 1.10 times module loads at log level INFO
+        warp.config.log_level = warp.LOG_WARNING
 
 
 def put_model(mj_model: mujoco.MjModel, backend: str, device: jax.Device) -> mjx.Model:

@@ -109,3 +109,33 @@ def vector_env():
                               termination__max_episode_steps=VECTOR_EPISODE_STEPS)
     yield envs
     envs.close()
+
+
+# Scheduling under pytest-xdist (``-n 2``): each module runs on one worker (its module fixtures compile
+# once), the modules sharing ``tiny_run_dir`` run on the same worker (one tiny run per session), and the
+# longest modules start first so that neither worker is left with them at the end.
+SHARED_RUN_MODULES = ("tests/test_train_run.py", "tests/test_export.py", "tests/test_policies.py")
+LONGEST_FIRST = ("tests/test_multi_device.py", *SHARED_RUN_MODULES, "tests/test_env.py", "tests/test_terrain_env.py")
+
+
+def _module(nodeid: str) -> str:
+    """The test file of a node id."""
+    return nodeid.split("::", 1)[0]
+
+
+def pytest_collection_modifyitems(items):
+    """Order the modules longest first (a stable sort: the tests of a module keep their order)."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(_module(item.nodeid), len(rank)))
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """Send whole modules to workers, the shared-run modules together."""
+    from xdist.scheduler import LoadFileScheduling
+
+    class ModuleScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            module = _module(nodeid)
+            return SHARED_RUN_MODULES[0] if module in SHARED_RUN_MODULES else module
+
+    return ModuleScheduling(config, log)

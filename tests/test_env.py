@@ -125,17 +125,18 @@ def test_brax_training_wrappers_run_unchanged(env):
     assert "reward/forward" in state.info["episode_metrics"]
 
 
-def test_vmapped_step_over_1024_envs_on_cpu(env):
-    """jit(vmap(step)) over 1024 envs runs on the CPU.
+def test_vmapped_step_over_a_large_batch_on_cpu(env):
+    """jit(vmap(step)) over 64 envs runs on the CPU.
 
     Before hsa_mjx.cpu_linalg this hung forever on a 2-core machine (jaxlib's batched LAPACK
-    Cholesky deadlocks its thread pool); the test would then hit the pytest timeout.
+    Cholesky deadlocks its thread pool once a batch exceeds 44 matrices; 1024 envs hung as well);
+    the test would then hit the pytest timeout.
     """
     import jax
     import jax.numpy as jnp
     from hsa_mjx import cpu_linalg
     assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
-    n = 1024
+    n = 64
     state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), n))
     actions = jax.random.uniform(jax.random.PRNGKey(8), (n, env.action_size), minval=-1.0, maxval=1.0)
     state = jax.jit(jax.vmap(env.step))(state, actions)

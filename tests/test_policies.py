@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from hsa_mjx import policy as pol
+from hsa_mjx.host_physics import HostPhysics
 from train import evaluate
 
+
 SHIPPED = sorted(p.name for p in evaluate.POLICIES_DIR.glob("*") if (p / pol.META_FILE).is_file())
-EPISODES, STEPS = 2, 250  # per policy; the trained corridor policy closes about 0.07 m in 250 steps
+EPISODES, STEPS = 2, 250  # per policy: the corridor policy closes about 0.06 m, the flat one 0.2-0.7 m
 MARGIN_M = 0.02
 
 
@@ -26,7 +28,7 @@ def goal_progress(traces: dict) -> np.ndarray:
 
 
 def test_policies_folder_documents_every_shipped_policy():
-    assert "corridor" in SHIPPED
+    assert {"corridor", "flat"} <= set(SHIPPED)
     readme = (evaluate.POLICIES_DIR / "README.md").read_text()
     for name in SHIPPED:
         assert f"policies/{name}" in readme, name
@@ -36,7 +38,8 @@ def test_policies_folder_documents_every_shipped_policy():
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_policy_beats_a_zero_policy(name):
     """The policy and a zero policy (the same network with zero weights) from the same starts and
-    goals, in one compiled rollout: every trained episode must close more distance on its goal."""
+    goals, in one compiled rollout: every trained episode must close more distance on its goal.
+    The physics runs in C MuJoCo (the original's engine; the policies trained on MJX)."""
     import jax
     import jax.numpy as jnp
     config, env, _, policy = evaluate.load_shipped_policy(evaluate.POLICIES_DIR / name)
@@ -46,8 +49,9 @@ def test_shipped_policy_beats_a_zero_policy(name):
     params = jax.tree.map(lambda a, b: jnp.stack([a] * EPISODES + [b] * EPISODES), trained, zero)
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
     goal_range = jnp.asarray(evaluate.default_goal_range(config), jnp.float32)
-    traces = jax.device_get(evaluate.rollout(env, evaluate.shipped_policy_apply(policy),
-                                             jnp.concatenate([keys, keys]), goal_range, STEPS, params=params))
+    c_mujoco = HostPhysics(env.robot.mj_model, env.index)  # the substeps in C MuJoCo: fast on a CPU
+    traces = jax.device_get(evaluate.rollout(env, evaluate.shipped_policy_apply(policy), jnp.concatenate([keys, keys]),
+                                             goal_range, STEPS, params=params, simulate=c_mujoco))
     traces = {k: np.asarray(v) for k, v in traces.items()}
     assert np.all(traces["action"][EPISODES:] == 0.0) and np.any(traces["action"][:EPISODES] != 0.0)
     np.testing.assert_allclose(traces["goal"][:EPISODES, 0], traces["goal"][EPISODES:, 0])  # same goals
@@ -82,11 +86,12 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
     assert export.main([str(tiny_run_dir), "--format", "npz", "--out", str(tmp_path / "tiny")]) == 0
     out = tmp_path / "eval"
     assert evaluate.main(["--policy", str(tmp_path / "tiny"), "--episodes", "2", "--steps", "12",
-                          "--out", str(out)]) == 0
+                          "--physics", "c", "--out", str(out)]) == 0
     assert f"wrote 4 files to {out}" in capsys.readouterr().out
     result = json.loads((out / "eval.json").read_text())
     assert result["policy_dir"] == str(tmp_path / "tiny") and result["policy"] == "deterministic"
     assert result["episodes"] == 2 and result["max_steps"] == 12 and result["step"] >= 80
+    assert result["physics"] == "c_mujoco"  # the substeps ran in C MuJoCo
     assert result["source"]["run"] == str(tiny_run_dir) and result["mean_final_distance"] > 0
     for name in ("actions.png", "joints.png", "constraint.png", "trajectories.png"):
         assert (out / name).stat().st_size > 5_000

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes.util
 import os
 from pathlib import Path
 
@@ -98,7 +99,8 @@ def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, i
                max_frames: int = GIF_FRAMES) -> Path:
     """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
     ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    if ctypes.util.find_library("EGL"):  # offscreen; without the library mujoco's import would fail
+        os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
     from PIL import Image
     model = env.robot.mj_model

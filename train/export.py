@@ -74,7 +74,10 @@ def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPoli
     clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.ppo.make_networks
     meta = pol.describe(params, ppo.activation, ppo.distribution_type, clip,
                         list(observation.observation_labels(config.env.observation)))
-    meta.update(config=tcfg.to_dict(config), source=source)
+    # the policy runs wherever it is loaded: the physics backend is picked there (the training's is in source)
+    config_dict = tcfg.to_dict(config)
+    config_dict["env"]["physics"]["backend"] = "auto"
+    meta.update(config=config_dict, source=source)
     pol.check(params, meta, Path(source.get("checkpoint", "")))
     return pol.NumpyPolicy(params=params, meta=meta)
 
@@ -86,7 +89,9 @@ def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol
     from train.evaluate import load_training_state
     config, path, step = read_checkpoint(run_dir, checkpoint_path)
     _, ts = load_training_state(config, path, observation_size(config.env.observation), len(SERVOS))
+    trained_on = checkpoint.read_meta(path).get("physics_backend", config.env.physics.backend)
     source = {"run": str(run_dir), "checkpoint": str(path), "step": step, "env_steps": step,
+              "physics_backend": trained_on,
               "exported": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
     return to_numpy_policy(config, ts, source)
 
