@@ -106,23 +106,19 @@ def put_model(mj_model: mujoco.MjModel, backend: str, device: jax.Device) -> mjx
     return model
 
 
-def make_data(mj_model: mujoco.MjModel, backend: str, device: jax.Device, num_envs: int = 1,
-              contacts_per_env: int = 64, constraints_per_env: int = 256) -> mjx.Data:
+def make_data(mj_model: mujoco.MjModel, backend: str, device: jax.Device, num_envs: int,
+              contacts_per_env: int, constraints_per_env: int) -> mjx.Data:
     """Fresh MJX data for one env of ``backend``.
 
     On Warp, ``num_envs`` is how many envs this data will be vmapped over: their contacts share one
-    buffer of ``contacts_per_env * num_envs`` slots, and each env has ``constraints_per_env`` rows.
+    buffer of ``contacts_per_env * num_envs`` slots, and each env has ``constraints_per_env`` rows
+    (``physics.contacts_per_env`` / ``physics.constraints_per_env`` of the env config).
     The JAX implementation allocates every candidate contact statically and ignores all three.
     """
     if backend == "warp":
         return mjx.make_data(mj_model, impl="warp", device=device, naconmax=contacts_per_env * max(num_envs, 1),
                              njmax=constraints_per_env)
     return mjx.make_data(mj_model, impl="jax", device=device)
-
-
-def impl_of(data: mjx.Data) -> str:
-    """``"jax"`` or ``"warp"``: the implementation ``data`` belongs to."""
-    return str(data.impl.value).lower()
 
 
 def select(done: jax.Array, fresh: mjx.Data, current: mjx.Data) -> mjx.Data:
