@@ -89,6 +89,11 @@ class HSAEnv(BraxEnv):
         return self.robot.backend
 
     @property
+    def spawn_xy(self) -> jax.Array:
+        """Where the robot starts an episode (its position at the spawn pose), (2,): goals' distances count from here."""
+        return self._origin
+
+    @property
     def dt(self) -> float:
         """Seconds per env step (timestep x frame_skip)."""
         return self.config.dt
@@ -97,9 +102,11 @@ class HSAEnv(BraxEnv):
         """Start an episode: the robot at rest at its spawn pose and a goal drawn from ``rng``."""
         return self.reset_with_goal_range(rng, self._radial_range)
 
-    def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array) -> EnvState:
-        """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum)."""
-        return self._reset(rng, radius_range)
+    def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array,
+                              terrain_cell: jax.Array | None = None) -> EnvState:
+        """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum) and,
+        optionally, the terrain cell (type row in ``terrain.types``, level) int32 (2,) to draw a tile of."""
+        return self._reset(rng, radius_range, terrain_cell=terrain_cell)
 
     def reset_at_checkpoint(self, rng: jax.Array, index: int | jax.Array) -> EnvState:
         """Start a spiral episode at checkpoint ``index``, as ``goal.track_starts`` would draw it.
@@ -118,13 +125,14 @@ class HSAEnv(BraxEnv):
         index = jnp.clip(jnp.asarray(index, jnp.int32), 0, goal.num_checkpoints - 1)
         return self._reset(rng, self._radial_range, index)
 
-    def _reset(self, rng: jax.Array, radius_range: jax.Array, start_index: jax.Array | None = None) -> EnvState:
+    def _reset(self, rng: jax.Array, radius_range: jax.Array, start_index: jax.Array | None = None,
+               terrain_cell: jax.Array | None = None) -> EnvState:
         """The reset behind the public ones; ``start_index`` forces a track start there."""
         rng, goal_key = jax.random.split(rng)
         terrain_key = None
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
-        tile, terrain_id = self.world.draw(terrain_key)
+        tile, terrain_id = self.world.draw(terrain_key, terrain_cell)
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)

@@ -15,6 +15,7 @@ from flax import struct
 
 from hsa_mjx import backend, reward, termination
 from hsa_mjx import curriculum as cur
+from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.types import EnvState, SimState
 
@@ -39,6 +40,7 @@ class BatchState:
     curriculum: cur.CurriculumState
     episode: EpisodeAccumulator
     totals: dict[str, jax.Array]  # scalar sums over episodes finished since the last drain
+    terrain: tcur.TerrainLevels  # every env's terrain type and level (zeros without the terrain curriculum)
 
     @property
     def obs(self) -> jax.Array:
@@ -60,14 +62,19 @@ class AutoResetEnv:
         axis_name: the ``pmap`` axis to gather episode outcomes over (None on one device).
         step_curriculum: update the curriculum inside ``step`` (True); False leaves it to the
             caller (the PPO learner feeds it each collection's outcomes, ``train.ppo``).
+        terrain_curriculum: the per-env terrain level curriculum (``hsa_mjx.terrain_curriculum``);
+            it moves each env's level where its episode ends, before the env is reset.
     """
 
     def __init__(self, env: HSAEnv, curriculum: cur.CurriculumConfig | None = None,
-                 axis_name: str | None = None, step_curriculum: bool = True):
+                 axis_name: str | None = None, step_curriculum: bool = True,
+                 terrain_curriculum: tcur.TerrainCurriculumConfig | None = None):
         self.env = env
         self.curriculum = curriculum or cur.CurriculumConfig(enabled=False)
         if self.curriculum.enabled and env.config.goal.mode != "radial":
             raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
+        self.terrain_curriculum = tcur.validate(terrain_curriculum or tcur.TerrainCurriculumConfig(),
+                                                env.config.terrain, env.world.per_env, env.config.goal.mode)
         self.axis_name, self.step_curriculum = axis_name, step_curriculum
 
     @property
@@ -83,16 +90,29 @@ class AutoResetEnv:
             return cur.goal_range(state, self.curriculum)
         return jnp.asarray(self.env.config.goal.radial_range, jnp.float32)
 
-    def reset(self, keys: jax.Array, curriculum_state: cur.CurriculumState | None = None) -> BatchState:
-        """Reset a batch (one key per env); a given curriculum state is kept (resume)."""
+    def reset(self, keys: jax.Array, curriculum_state: cur.CurriculumState | None = None,
+              terrain_levels: tcur.TerrainLevels | None = None) -> BatchState:
+        """Reset a batch (one key per env); given curriculum states are kept (resume)."""
         check_batch(self.env, keys.shape[0])
-        cstate = curriculum_state if curriculum_state is not None else cur.init(self.curriculum)
-        goal_range = self._goal_range(cstate)
-        env_state = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, goal_range)
         batch = keys.shape[0]
+        cstate = curriculum_state if curriculum_state is not None else cur.init(self.curriculum)
+        levels = terrain_levels if terrain_levels is not None else self._initial_levels(keys)
+        env_state = self._reset_all(keys, self._goal_range(cstate), levels)
         zeros = jnp.zeros((batch,), jnp.float32)
         episode = EpisodeAccumulator(ret=zeros, length=zeros, terms={k: zeros for k in reward.TERM_NAMES})
-        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=_zero_totals())
+        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=_zero_totals(), terrain=levels)
+
+    def _initial_levels(self, keys: jax.Array) -> tcur.TerrainLevels:
+        """The terrain curriculum's start levels, or the placeholder without it."""
+        if self.terrain_curriculum.enabled:
+            return tcur.init(keys, self.terrain_curriculum, self.env.config.terrain)
+        return tcur.placeholder(keys.shape[0])
+
+    def _reset_all(self, keys: jax.Array, goal_range: jax.Array, levels: tcur.TerrainLevels) -> EnvState:
+        """Fresh episodes for every env: on its curriculum cell, or on a freely drawn tile without it."""
+        if self.terrain_curriculum.enabled:
+            return jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None, 0))(keys, goal_range, levels.cells())
+        return jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, goal_range)
 
     def step(self, state: BatchState, actions: jax.Array) -> BatchState:
         """Step every env; reset the finished ones with fresh goals; update curriculum and totals."""
@@ -114,11 +134,22 @@ class AutoResetEnv:
             terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
         totals = self._add_totals(state.totals, nxt, episode, done)
         cstate = self._update_curriculum(state.curriculum, nxt.metrics["termination/goal_reached"] > 0, done)
-        env_state = self._reset_done(nxt, done, cstate, reset_metrics)
+        levels = self._update_levels(state.terrain, nxt, done)
+        env_state = self._reset_done(nxt, done, cstate, levels, reset_metrics)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
         running = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
                                      terms={k: keep(v) for k, v in episode.terms.items()})
-        return BatchState(env=env_state, curriculum=cstate, episode=running, totals=totals), nxt, episode
+        return BatchState(env=env_state, curriculum=cstate, episode=running, totals=totals,
+                          terrain=levels), nxt, episode
+
+    def _update_levels(self, levels: tcur.TerrainLevels, nxt: EnvState, done: jax.Array) -> tcur.TerrainLevels:
+        """Move the envs whose episode ended up or down a terrain level (their next episode's level)."""
+        if not self.terrain_curriculum.enabled:
+            return levels
+        start = jnp.linalg.norm(nxt.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
+        progress = 1.0 - nxt.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
+        return tcur.update(levels, done, nxt.metrics["termination/goal_reached"] > 0, progress,
+                           self.terrain_curriculum, self.env.config.terrain.levels)
 
     def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
                            done: jax.Array) -> cur.CurriculumState:
@@ -131,11 +162,11 @@ class AutoResetEnv:
         return cur.update(cstate, success, done, self.curriculum)
 
     def _reset_done(self, nxt: EnvState, done: jax.Array, cstate: cur.CurriculumState,
-                    reset_metrics: bool = False) -> EnvState:
+                    levels: tcur.TerrainLevels, reset_metrics: bool = False) -> EnvState:
         """Replace finished envs by fresh episodes drawn from their own keys (skipped if none ended)."""
         def fresh(state: EnvState) -> EnvState:
             keys = jax.vmap(lambda k: jax.random.split(k)[1])(state.pipeline_state.task.rng)
-            new = jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, self._goal_range(cstate))
+            new = self._reset_all(keys, self._goal_range(cstate), levels)
             pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             metrics = jax.tree.map(pick, new.metrics, state.metrics) if reset_metrics else state.metrics
             old, fresh_sim = state.pipeline_state, new.pipeline_state
@@ -164,10 +195,13 @@ class AutoResetEnv:
         add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
         return {k: totals[k] + add[k] for k in totals}
 
-    @staticmethod
-    def drain(state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
-        """Return the totals and the state with them zeroed (call between jitted chunks)."""
-        return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), state.totals
+    def drain(self, state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
+        """Return the totals (with the terrain levels' snapshot) and the state with them zeroed (between jitted chunks)."""
+        totals = dict(state.totals)
+        if self.terrain_curriculum.enabled:
+            terrain = self.env.config.terrain
+            totals.update(tcur.totals(state.terrain, tuple(terrain.types), terrain.levels))
+        return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), totals
 
 
 def check_batch(env: HSAEnv, batch: int) -> None:
@@ -177,8 +211,9 @@ def check_batch(env: HSAEnv, batch: int) -> None:
                          f"HSAEnv(config, num_envs={batch}) (this one shares its contact buffer among {env.num_envs})")
 
 
-def summarize(totals: dict[str, float]) -> dict[str, float]:
-    """Turn drained totals (host floats, summed over devices) into per-episode means and rates.
+def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
+    """Turn drained totals (host floats, summed over devices) into per-episode means and rates
+    (and the terrain curriculum's levels, of ``levels``).
 
     Per-episode keys are left out when no episode ended in the period (rather than logged as 0).
     """
@@ -187,6 +222,7 @@ def summarize(totals: dict[str, float]) -> dict[str, float]:
     steps = max(totals["env_steps"], 1.0)
     out.update({"step/reward": totals["step_reward"] / steps, "step/distance_to_goal": totals["step_distance"] / steps,
                 "step/checkpoint_index": totals["step_checkpoint"] / steps})
+    out.update(tcur.summarize(totals, levels))
     episodes = totals["episodes"]
     if episodes <= 0:
         return out

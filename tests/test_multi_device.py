@@ -29,7 +29,13 @@ FACTS = "FACTS "
 # The solver runs to convergence (20 iterations, not TINY's 4): the pmap and per-device programs are
 # compiled separately and may round differently (seen on an AVX2 CI CPU), and the under-converged
 # 4-iteration solver turned a 6e-6 m difference into 5e-3 m in one step; converged, it stays ~1e-7.
-TWO_DEVICE_CONFIG = {**TINY, "env": {**TINY["env"], "physics": {"iterations": 20, "ls_iterations": 20}},
+# On terrain with the terrain curriculum: two types over 3 levels, start levels spread over all three;
+# a random 15-step episode covers far less than demote_progress of its goal distance, so every episode
+# end moves its env down one level (the facts below check it, and that a resume keeps the levels).
+TERRAIN = {"types": ["flat", "stairs"], "proportions": [0.5, 0.5], "levels": 3, "tiles_per_type": 1}
+TWO_DEVICE_CONFIG = {**TINY, "env": {**TINY["env"], "preset": "mixed", "terrain": TERRAIN,
+                                     "physics": {"iterations": 20, "ls_iterations": 20}},
+                     "terrain_curriculum": {"enabled": True, "initial_spread": 1.0},
                      "ppo": {**TINY["ppo"], "batch_size": 8},
                      "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1}}
 # Largest leaf difference, relative to max(1, |leaf|), between the pmap and per-device runs (and the
@@ -124,15 +130,20 @@ def _learner_facts(config_path: str, compiles: list) -> dict:
     key = jax.random.PRNGKey(3)
     state = learner.reset(distributed.env_keys(key, config.run.num_envs, devices), cur.init(config.curriculum))
     goals = np.asarray(state.env.pipeline_state.task.goal_xy)
+    start = jax.device_get(state.terrain)
     ts = replicate_for_pmap(init_training_state(config, learner.networks, key, env.observation_size), devices)
     ts, state, _ = learner.epoch(ts, state, distributed.epoch_keys(key, devices))
     before = len(compiles)
-    ts, state, _ = learner.epoch(ts, state, distributed.epoch_keys(jax.random.PRNGKey(4), devices))
+    ts, state, out = learner.epoch(ts, state, distributed.epoch_keys(jax.random.PRNGKey(4), devices))
+    terrain = {"terrain_rows": np.asarray(start.row).tolist(), "terrain_start": np.asarray(start.level).tolist(),
+               "terrain_after": np.asarray(state.terrain.level).tolist(),
+               "terrain_totals": {k: np.asarray(v).tolist() for k, v in jax.device_get(out["totals"]).items()
+                                  if k.startswith("terrain_")}}
     leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curriculum})
     differing = [jax.tree_util.keystr(path) for path, x in leaves
                  if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))]
     return {"goals": goals.tolist(), "second_epoch_compiles": len(compiles) - before, "leaves": len(leaves),
-            "replicas_differing": differing, "episodes_seen": int(state.curriculum.episode_count[0])}
+            "replicas_differing": differing, "episodes_seen": int(state.curriculum.episode_count[0]), **terrain}
 
 
 # Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
@@ -311,6 +322,34 @@ def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
     assert all(a["max_distance"] == pytest.approx(1.8) for a in facts["curriculum_alone"])  # ...no device alone did
 
 
+def _saved_levels(run_dir: Path, step: int) -> np.ndarray:
+    """The per-env terrain levels a checkpoint of the run holds."""
+    from train import checkpoint
+    path = checkpoint.checkpoint_dir(run_dir) / f"step_{step:012d}"
+    count = checkpoint.read_meta(path)["terrain_envs"]
+    template = {"terrain_levels": {"row": np.zeros(count, np.int32), "level": np.zeros(count, np.int32)}}
+    return checkpoint.load(path, template)["terrain_levels"]["level"]
+
+
+def test_terrain_levels_move_on_every_device_and_survive_resume(two_devices):
+    facts, run_dir = two_devices
+    rows, start, after = (np.asarray(facts[k]) for k in ("terrain_rows", "terrain_start", "terrain_after"))
+    assert rows.shape == start.shape == (FAKE_DEVICES, 4)
+    assert all(sorted(r) == [0, 0, 1, 1] for r in rows.tolist())  # each device's envs split over both types
+    assert set(start.reshape(-1).tolist()) == {0, 1, 2}  # spread over all three levels at the start
+    np.testing.assert_array_equal(after, np.maximum(start - 1, 0))  # one short episode each: one level down
+    totals = facts["terrain_totals"]  # summed over both devices
+    assert totals["terrain_envs/flat"][0] == totals["terrain_envs/stairs"][0] == 4
+    assert sum(v[0] for k, v in totals.items() if k.startswith("terrain_level_sum/")) == after.sum()
+    first, resumed = _saved_levels(run_dir, 160), _saved_levels(run_dir, 240)
+    assert first.shape == (8,)
+    # 160 -> 240 steps is 10 steps per env: no episode ends, so a resume that restored the levels keeps them
+    np.testing.assert_array_equal(resumed, first)
+    record = [r for r in _records(run_dir) if r["step"] == 160][0]
+    assert record["terrain/levels"] == 3 and record["terrain/mean_level/flat"] + record["terrain/mean_level/stairs"] \
+        == pytest.approx(first.mean() * 2)
+
+
 def test_envs_differ_across_devices(two_devices):
     facts, _ = two_devices
     goals = np.asarray(facts["goals"])  # (devices, envs per device, 2)
@@ -389,6 +428,14 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     assert last["step"] == 280 and last["curriculum/episode_count"] >= 8  # the curriculum came along
     assert evaluate([str(run_dir), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0  # C MuJoCo: a short compile
     assert json.loads((run_dir / "eval" / "eval.json").read_text())["step"] == 280
+    # the table by terrain type and difficulty (one atlas of both types at 0, 0.5 and 1)
+    assert evaluate([str(run_dir), "--terrain-types", "all", "--levels", "0,0.5,1", "--episodes", "2",
+                     "--steps", "5", "--physics", "c"]) == 0
+    table = json.loads((run_dir / "eval" / "terrain_eval.json").read_text())
+    assert [(r["type"], r["difficulty"], r["episodes"]) for r in table["rows"]] == [
+        (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)]
+    assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
+    assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
 
 
 def test_scaling_benchmark_smoke(two_devices):

@@ -1,9 +1,10 @@
 """Training configuration: the env, the curriculum, PPO hyperparameters and the run, from one YAML file.
 
-A training YAML has four sections, each optional (missing keys take the defaults below)::
+A training YAML has five sections, each optional (missing keys take the defaults below)::
 
     env: {...}          # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
-    curriculum: {...}   # hsa_mjx.curriculum.CurriculumConfig
+    curriculum: {...}   # hsa_mjx.curriculum.CurriculumConfig (goal distances)
+    terrain_curriculum: {...}  # hsa_mjx.terrain_curriculum.TerrainCurriculumConfig (terrain levels)
     ppo: {...}          # PPOConfig
     run: {...}          # RunConfig
 
@@ -21,12 +22,13 @@ import yaml
 
 from hsa_mjx import config as env_config
 from hsa_mjx import curriculum as cur
+from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.config import EnvConfig, build_section
 
 ACTIVATIONS = ("swish", "tanh", "relu", "elu")
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
-SECTIONS = ("env", "curriculum", "ppo", "run")
+SECTIONS = ("env", "curriculum", "terrain_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
 
 
@@ -98,6 +100,7 @@ class TrainConfig:
 
     env: EnvConfig = env_config.PRESETS["flat_radial"]
     curriculum: cur.CurriculumConfig = cur.CurriculumConfig()
+    terrain_curriculum: tcur.TerrainCurriculumConfig = tcur.TerrainCurriculumConfig()
     ppo: PPOConfig = PPOConfig()
     run: RunConfig = RunConfig()
 
@@ -127,6 +130,8 @@ def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
     config = TrainConfig(
         env=_env_from(data.get("env")),
         curriculum=build_section(cur.CurriculumConfig, data.get("curriculum") or {}, "curriculum"),
+        terrain_curriculum=build_section(tcur.TerrainCurriculumConfig, data.get("terrain_curriculum") or {},
+                                         "terrain_curriculum"),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
         run=build_section(RunConfig, data.get("run") or {}, "run"))
     return validate(config)
@@ -135,6 +140,8 @@ def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
 def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfig:
     """Check the config's internal consistency (and the device split when ``device_count`` is given)."""
     cur.validate(config.curriculum)
+    env = config.env
+    tcur.validate(config.terrain_curriculum, env.terrain, env.scene == "terrain" and env.terrain.per_env, env.goal.mode)
     ppo, run = config.ppo, config.run
     for key, choices in (("activation", ACTIVATIONS), ("distribution_type", DISTRIBUTIONS),
                          ("noise_std_type", NOISE_STD_TYPES)):

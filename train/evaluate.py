@@ -11,6 +11,10 @@ of at most 1,000 steps).
 Prints success rate, mean final distance, mean speed and how the episodes ended (termination
 reasons, ``not_finished`` at the step cap), and writes eval.json, the diagnostic plots (and with
 ``--video`` a GIF) into ``--out`` (default ``RUN_DIR/eval/`` or ``runs/eval_<NAME>/``).
+
+``--terrain-types all|T1,T2 --levels 0,0.5,1``: instead, ``--episodes`` episodes per terrain type
+and difficulty, printed as a table of success rate and net progress and written to
+terrain_eval.json and terrain_eval.png (``train/terrain_eval.py``).
 """
 
 from __future__ import annotations
@@ -88,20 +92,21 @@ def default_goal_range(config: tcfg.TrainConfig) -> tuple[float, float]:
 
 
 def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int,
-            params: Any = None, simulate: Any = None) -> dict[str, jax.Array]:
+            params: Any = None, simulate: Any = None, cells: jax.Array | None = None) -> dict[str, jax.Array]:
     """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...).
 
     ``policy(obs, key) -> (action, extras)``; with ``params`` (a pytree with a leading episode
     axis) ``policy(params_i, obs, key)`` instead, so that one compiled rollout plays several
     parameter sets (e.g. a policy against a zero policy). ``simulate``: another physics engine for
     ``env.step_with`` (e.g. ``hsa_mjx.host_physics.HostPhysics``); default the env's MJX step.
+    ``cells``: each episode's terrain cell (type row, level), (N, 2) int32; default a free draw.
     """
     idx = env.index
     env_step = env.step if simulate is None else functools.partial(env.step_with, simulate)
 
-    def one(key, p):
+    def one(key, p, cell):
         act = policy if params is None else functools.partial(policy, p)
-        state = env.reset_with_goal_range(key, goal_range)
+        state = env.reset_with_goal_range(key, goal_range, cell)
 
         def step(carry, k_act):
             s, alive = carry
@@ -124,7 +129,8 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
         traces["start_distance"] = state.metrics["distance_to_goal"]
         return traces
 
-    return jax.jit(jax.vmap(one, in_axes=(0, None if params is None else 0)))(keys, params)
+    in_axes = (0, None if params is None else 0, None if cells is None else 0)
+    return jax.jit(jax.vmap(one, in_axes=in_axes))(keys, params, cells)
 
 
 def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
@@ -215,6 +221,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "(hsa_mjx.host_physics), several times faster on a CPU for a few long episodes")
     parser.add_argument("--backend", choices=BACKENDS, default=None,
                         help="physics backend to evaluate on (default: the run's env.physics.backend)")
+    parser.add_argument("--terrain-types", default=None, metavar="all|T1,T2",
+                        help="evaluate per terrain type: 'all' (the run's types) or a list (with --levels)")
+    parser.add_argument("--levels", default=None, metavar="D1,D2",
+                        help="terrain difficulties in [0, 1] to evaluate each type at (default: the run's top)")
     return parser.parse_args(argv)
 
 
@@ -255,6 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     shipped = args.policy is not None
+    if args.terrain_types is not None or args.levels is not None:
+        return by_terrain(args, config, policy, header, out)
     episodes = _episodes(args, shipped)
     steps = args.steps or (min(CPU_STEPS, config.env.termination.max_episode_steps) if shipped
                            else config.env.termination.max_episode_steps)
@@ -277,6 +289,32 @@ def main(argv: list[str] | None = None) -> int:
     for key, value in result.items():
         if key not in ("files", "source"):
             print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
+    print(f"wrote {len(written)} files to {out}")
+    return 0
+
+
+def by_terrain(args: argparse.Namespace, config: tcfg.TrainConfig, policy, header: dict, out: Path) -> int:
+    """``--terrain-types`` / ``--levels``: the table of success and progress per terrain type and difficulty."""
+    from train import terrain_eval
+    try:
+        types = terrain_eval.parse_types(args.terrain_types or "all", config.env)
+        levels = terrain_eval.parse_levels(args.levels or str(config.env.terrain.difficulty))
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    episodes = _episodes(args, args.policy is not None)
+    steps = args.steps or config.env.termination.max_episode_steps
+    goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
+    env_config = evaluation_env_config(config.env, args.backend)
+    def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
+        simulate = HostPhysics(env.robot.mj_model, env.index) if args.physics == "c" else None
+        return rollout(env, policy, keys, goal_range, steps, simulate=simulate, cells=cells)
+
+    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed)
+    print(terrain_eval.table(rows))
+    header = {**header, "goal_range": [float(v) for v in goal_range], "max_steps": steps,
+              "policy": "stochastic" if args.stochastic else "deterministic", "episodes_per_cell": episodes}
+    written = terrain_eval.write(rows, header, out)
     print(f"wrote {len(written)} files to {out}")
     return 0
 

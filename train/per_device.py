@@ -31,6 +31,7 @@ from flax import struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
 from hsa_mjx import curriculum as cur
+from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.training_env import AutoResetEnv, BatchState
 from train.config import TrainConfig
@@ -81,9 +82,9 @@ def _unlead(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def _drain_piece(state: BatchState) -> tuple[BatchState, dict]:
+def _drain_piece(state: BatchState, batch_env: AutoResetEnv) -> tuple[BatchState, dict]:
     """One GPU's drained state and its totals with a leading device axis of 1."""
-    state, totals = AutoResetEnv.drain(state)
+    state, totals = batch_env.drain(state)
     return state, _lead(totals)
 
 
@@ -103,12 +104,13 @@ class PerDeviceLearner(PPOLearner):
         for device in self.devices:
             with jax.default_device(device):
                 piece = HSAEnv(config.env, num_envs=self.envs_per_device)
-                self.batch_envs.append(AutoResetEnv(piece, config.curriculum, step_curriculum=False))
+                self.batch_envs.append(AutoResetEnv(piece, config.curriculum, step_curriculum=False,
+                                                    terrain_curriculum=config.terrain_curriculum))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated
         self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b), donate_argnums=donate)
                             for b in self.batch_envs]
         self.reset_fns = [jax.jit(b.reset) for b in self.batch_envs]
-        self.drain_fn = jax.jit(_drain_piece)
+        self.drain_fns = [jax.jit(functools.partial(_drain_piece, batch_env=b)) for b in self.batch_envs]
         self.learn_fn = jax.pmap(self._learn, axis_name=AXIS)
         self.sum_fn = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
@@ -130,11 +132,16 @@ class PerDeviceLearner(PPOLearner):
         state, data = self._collect(ts, state.replace(curriculum=cstate), k_collect, batch_env)
         return state, _lead((data, key, k_sgd))
 
-    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState) -> DeviceStates:
-        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)."""
+    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
+              terrain: tcur.TerrainLevels | None = None) -> DeviceStates:
+        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)
+        and, when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
         keys, host = np.asarray(env_keys), jax.device_get(curriculum)
-        envs = self._on_each(lambda i, k: self.reset_fns[i](jax.device_put(k, self.devices[i]),
-                                                            jax.device_put(host, self.devices[i])), keys)
+        levels = [None] * len(self.devices) if terrain is None else \
+            [jax.tree.map(lambda x, i=i: np.asarray(x).reshape(keys.shape[:2])[i], terrain)
+             for i in range(len(self.devices))]
+        envs = self._on_each(lambda i, k, t: self.reset_fns[i](*jax.device_put((k, host, t), self.devices[i])),
+                             keys, levels)
         pieces = [jax.device_put(jax.tree.map(lambda x: np.asarray(x)[None], host), d) for d in self.devices]
         return DeviceStates(envs=tuple(envs), curriculum=stack(pieces, self.devices))
 
@@ -149,11 +156,15 @@ class PerDeviceLearner(PPOLearner):
             data, k_sgd = stack([o[1][0] for o in outs], self.devices), stack([o[1][2] for o in outs], self.devices)
             ts, cstate, metrics = self.learn_fn(ts, cstate, data, k_sgd)
             losses.append(metrics)
-        drained = self._on_each(lambda i, s: self.drain_fn(s), envs)
+        drained = self._on_each(lambda i, s: self.drain_fns[i](s), envs)
         totals = self.sum_fn(stack([d[1] for d in drained], self.devices))
         losses = jax.tree.map(lambda *xs: np.mean(np.stack([np.asarray(x) for x in xs]), axis=0), *losses)
         return ts, DeviceStates(envs=tuple(d[0] for d in drained), curriculum=cstate), {"totals": totals,
                                                                                         "losses": losses}
+
+    def terrain_levels(self, states: DeviceStates) -> dict:
+        """Every env's terrain type row and level as host arrays (envs,), in device order (checkpoints)."""
+        return tcur.to_host([jax.device_get(s.terrain) for s in states.envs])
 
     def collect_epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
         """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling)."""

@@ -22,6 +22,9 @@ PANELS = (
     ("loss/total_loss", "PPO total loss (symlog)"),
     ("loss/policy_dist_mean_std", "policy std (mean)"),
     ("training/env_steps_per_s", "env-steps/s"),
+    # the terrain curriculum (runs with it only)
+    ("terrain/mean_level", "terrain level (mean over envs)"),
+    ("terrain/top_share", "share of envs at the top terrain level"),
 )
 LOG_SCALE = {"loss/total_loss"}
 
@@ -32,8 +35,12 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
     if not records:
         return None
     steps = [r["step"] for r in records]
-    fig, axes = plt.subplots(3, 3, figsize=(13, 10), constrained_layout=True)
-    for ax, (key, label) in zip(axes.flat, PANELS):
+    panels = [p for p in PANELS if not p[0].startswith("terrain/") or any(p[0] in r for r in records)]
+    fig, axes = plt.subplots(3, (len(panels) + 2) // 3, figsize=(4.4 * ((len(panels) + 2) // 3), 10),
+                             constrained_layout=True)
+    for ax in axes.flat[len(panels):]:
+        ax.axis("off")
+    for ax, (key, label) in zip(axes.flat, panels):
         values = [r.get(key) for r in records]
         points = [(s, v) for s, v in zip(steps, values) if isinstance(v, (int, float))]
         if points:
@@ -44,6 +51,31 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
     fig.suptitle(title or str(Path(metrics_path).parent.name))
+    out_path = Path(out_path)
+    fig.savefig(out_path, dpi=100)
+    plt.close(fig)
+    return out_path
+
+
+def terrain_grid(rows: list[dict], out_path: str | Path) -> Path:
+    """Success rate and net progress per terrain type (rows) and difficulty (columns) as two heat maps."""
+    types = list(dict.fromkeys(r["type"] for r in rows))
+    levels = sorted({r["difficulty"] for r in rows})
+    cell = {(r["type"], r["difficulty"]): r for r in rows}
+    fig, axes = plt.subplots(1, 2, figsize=(4 + 1.6 * len(levels), 1.5 + 0.45 * len(types)), constrained_layout=True)
+    for ax, (key, label, fmt) in zip(axes, (("success_rate", "success rate", "{:.0%}"),
+                                            ("mean_progress_m", "net progress (m)", "{:.2f}"))):
+        grid = [[cell[(t, d)][key] for d in levels] for t in types]
+        image = ax.imshow(grid, cmap="viridis", aspect="auto", vmin=0.0 if key == "success_rate" else None,
+                          vmax=1.0 if key == "success_rate" else None)
+        for i, line in enumerate(grid):
+            for j, value in enumerate(line):
+                ax.text(j, i, fmt.format(value), ha="center", va="center", color="w", fontsize=8)
+        ax.set_xticks(range(len(levels)), [f"{d:g}" for d in levels])
+        ax.set_yticks(range(len(types)), types)
+        ax.set_xlabel("terrain difficulty")
+        ax.set_title(label)
+        fig.colorbar(image, ax=ax)
     out_path = Path(out_path)
     fig.savefig(out_path, dpi=100)
     plt.close(fig)

@@ -27,6 +27,7 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
 from hsa_mjx import curriculum as cur
+from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.training_env import AutoResetEnv, BatchState
 from train import compat
@@ -86,7 +87,8 @@ class PPOLearner:
     def __init__(self, config: TrainConfig, env: HSAEnv, num_devices: int):
         self.config, self.env, self.num_devices = config, env, num_devices
         # the curriculum learns from each collection's outcomes in ``_learn`` (gathered over devices)
-        self.batch_env = AutoResetEnv(env, config.curriculum, step_curriculum=False)
+        self.batch_env = AutoResetEnv(env, config.curriculum, step_curriculum=False,
+                                      terrain_curriculum=config.terrain_curriculum)
         self.networks = make_networks(config, env.observation_size, env.action_size)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(config)
@@ -105,10 +107,18 @@ class PPOLearner:
         self.epoch_fn = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self.collect_epoch_fn = jax.pmap(self._collect_epoch, axis_name=AXIS)
 
-    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState) -> BatchState:
-        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)."""
+    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
+              terrain: tcur.TerrainLevels | None = None) -> BatchState:
+        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)
+        and, when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
         devices = jax.local_devices()[:env_keys.shape[0]]
-        return self.reset_fn(jax.device_put(env_keys), replicate(curriculum, devices))
+        if terrain is not None:
+            terrain = jax.tree.map(lambda x: jnp.reshape(x, env_keys.shape[:2]), terrain)
+        return self.reset_fn(jax.device_put(env_keys), replicate(curriculum, devices), terrain)
+
+    def terrain_levels(self, state: BatchState) -> dict:
+        """Every env's terrain type row and level as host arrays (envs,), in device order (checkpoints)."""
+        return tcur.to_host([jax.device_get(state.terrain)])
 
     def epoch(self, ts: TrainingState, state: BatchState, keys: jax.Array):
         """``iterations_per_epoch`` PPO iterations on every device (one key per device); returns
@@ -231,7 +241,7 @@ class PPOLearner:
         """``iterations_per_epoch`` PPO iterations; returns the drained episode totals and losses."""
         (ts, state, _), metrics = jax.lax.scan(self._iteration, (ts, state, key), None,
                                                length=self.iterations_per_epoch)
-        state, totals = AutoResetEnv.drain(state)
+        state, totals = self.batch_env.drain(state)
         totals = jax.lax.psum(totals, AXIS)
         metrics = jax.tree.map(jnp.mean, metrics)
         return ts, state, {"totals": totals, "losses": metrics}

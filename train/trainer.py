@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from hsa_mjx import curriculum as cur
+from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.observation import observation_size
 from hsa_mjx.training_env import summarize
@@ -84,8 +85,24 @@ def replicate_for_pmap(tree: Any, devices: list) -> Any:
     return jax.pmap(lambda x: x, axis_name=AXIS)(replicate(tree, devices))
 
 
-def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array) -> dict[str, Any]:
-    return {"training_state": ts, "curriculum": cstate, "rng": key}
+def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array,
+             terrain: dict | None = None) -> dict[str, Any]:
+    """What a checkpoint holds; ``terrain``: every env's terrain levels (with the terrain curriculum)."""
+    payload = {"training_state": ts, "curriculum": cstate, "rng": key}
+    return payload if terrain is None else {**payload, "terrain_levels": terrain}
+
+
+def restore_terrain(config: tcfg.TrainConfig, meta: dict, batch: int) -> tcur.TerrainLevels | None:
+    """The checkpoint's per-env terrain levels for ``batch`` envs (None: start them afresh)."""
+    saved = meta.get("terrain_envs")
+    if not config.terrain_curriculum.enabled or not saved:
+        return None
+    template = {"terrain_levels": {k: np.zeros((saved,), np.int32) for k in ("row", "level")}}
+    restored = checkpoint.load(meta["path"], template)["terrain_levels"]
+    if int(np.max(restored["row"], initial=0)) >= len(config.env.terrain.types) or \
+            int(np.max(restored["level"], initial=0)) >= config.env.terrain.levels:
+        raise ValueError(f"checkpoint {meta['path']}: its terrain levels do not fit env.terrain (types, levels)")
+    return tcur.from_host(restored, batch, config.run.seed)
 
 
 def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | None:
@@ -171,11 +188,12 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
     ts = init_training_state(config, learner.networks, k_init, env.observation_size)
-    cstate, step = cur.init(config.curriculum), 0
+    cstate, step, levels = cur.init(config.curriculum), 0, None
     if meta is not None:
         restored = checkpoint.load(meta["path"], _payload(ts, cstate, key))
         ts, cstate = jax.tree.map(jnp.asarray, (restored["training_state"], restored["curriculum"]))
         key, step = jnp.asarray(restored["rng"], jnp.uint32), int(meta["step"])
+        levels = restore_terrain(config, meta, config.run.num_envs // jax.process_count())
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
     elif init is not None:
         ts = warm_start(ts, init, key)
@@ -184,12 +202,12 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
-    state = learner.reset(env_keys, cstate)
+    state = learner.reset(env_keys, cstate, levels)
     extra = {"physics_backend": env.physics_backend}
-    return _loop(config, config_dict, learner, devices, run_dir, ts_r, state, key, step, quiet, extra)
+    return _loop(config, learner, devices, run_dir, ts_r, state, key, step, quiet, extra)
 
 
-def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, quiet, extra) -> dict:
+def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra) -> dict:
     """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
     main = distributed.is_main()
     logger = MetricsLogger(run_dir) if main else _NoLogger()
@@ -215,10 +233,10 @@ def _loop(config, config_dict, learner, devices, run_dir, ts, state, key, step, 
                 if main and not quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
             if step - last_ckpt >= config.run.checkpoint_every:
-                _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints, extra)
+                _save(run_dir, step, ts, state, key, config, learner, extra)
                 last_ckpt = step
         if step != last_ckpt or not checkpoint.list_checkpoints(run_dir):
-            _save(run_dir, step, ts, state, key, config_dict, config.run.keep_checkpoints, extra)
+            _save(run_dir, step, ts, state, key, config, learner, extra)
     bar.close()
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s,
@@ -236,7 +254,7 @@ def _finish(run_dir: Path, summary: dict) -> dict:
 
 def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) -> dict:
     """One log record: episode statistics, losses, curriculum and throughput."""
-    record = summarize(totals)
+    record = summarize(totals, config.env.terrain.levels)
     losses = distributed.all_devices(out["losses"])  # every process's devices, not only this one's
     record.update({f"loss/{k}": float(np.mean(v)) for k, v in losses.items()})
     cstate = jax.device_get(unreplicate(state.curriculum))
@@ -246,9 +264,12 @@ def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) 
     return record
 
 
-def _save(run_dir: Path, step: int, ts, state, key, config_dict: dict, keep: int, extra: dict) -> None:
-    """Checkpoint the learner (first device's copy), curriculum and rng; process 0 only."""
+def _save(run_dir: Path, step: int, ts, state, key, config: tcfg.TrainConfig, learner, extra: dict) -> None:
+    """Checkpoint the learner (first device's copy), curricula and rng; process 0 only (its own envs' levels)."""
     if not distributed.is_main():
         return
-    payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key)
-    checkpoint.save(run_dir, step, payload, config_dict, keep=keep, extra=extra)
+    terrain = learner.terrain_levels(state) if config.terrain_curriculum.enabled else None
+    if terrain is not None:
+        extra = {**extra, "terrain_envs": int(terrain["row"].shape[0])}
+    payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key, terrain)
+    checkpoint.save(run_dir, step, payload, tcfg.to_dict(config), keep=config.run.keep_checkpoints, extra=extra)

@@ -2,15 +2,15 @@
 
 MuJoCo Warp keeps one ``hfield_data`` for every world it simulates, and ``geom_dataid`` is static in
 both MJX implementations, so envs cannot each carry their own heightfield. Instead the run draws a
-pool of terrains once (``tiles_per_type`` of each random type, one of each deterministic type, or a
-single shared one), lays them out as tiles of one large heightfield, and each env, at every reset,
-draws a tile and moves the floor's mocap body (``terrain_frame``) so that its tile's centre lies under
+pool of terrains once (per difficulty level, ``tiles_per_type`` of each random type and one of each
+deterministic type; or a single shared one), lays them out as tiles of one large heightfield, and
+each env, at every reset, draws a tile and moves the floor's mocap body (``terrain_frame``) so that its tile's centre lies under
 the world origin. The robot, its goals and every height query stay in the tile's own coordinates,
 exactly those of the original 10 x 10 m field: the same code serves a plane, one terrain, or a pool.
 
-Layout: one row of tiles per configured type (rows along world y), tiles of a row along x; tiles do
-not share vertices (a 1-cell seam joins neighbours), so each tile's data is exactly what its
-generator produced.
+Layout: one row of tiles per configured type (rows along world y); along a row (x) the tiles of level
+0, then those of level 1, and so on. Tiles do not share vertices (a 1-cell seam joins neighbours),
+so each tile's data is exactly what its generator produced.
 """
 
 from __future__ import annotations
@@ -33,21 +33,27 @@ class AtlasLayout:
     Args:
         tile: the grid of one tile (the asset's field).
         types: the terrain type of each row of tiles.
-        counts: tiles in each row (the rest of the row stays flat and is never drawn).
+        counts: tiles of each row per difficulty level (the rest of a row stays flat, never drawn).
+        difficulties: the difficulty of each level.
     """
 
     tile: Grid
     types: tuple[str, ...]
     counts: tuple[int, ...]
+    difficulties: tuple[float, ...] = (1.0,)
 
     @classmethod
     def from_config(cls, config: TerrainConfig, tile: Grid) -> "AtlasLayout":
-        """One row per type: ``tiles_per_type`` tiles of a random type, one of a deterministic type;
-        a single tile when the terrain is shared (``per_env: false``)."""
+        """One row per type: per level ``tiles_per_type`` tiles of a random type, one of a deterministic
+        type; a single tile when the terrain is shared (``per_env: false``)."""
         if not config.per_env:
-            return cls(tile, ("shared",), (1,))
+            return cls(tile, ("shared",), (1,), (config.difficulty,))
         counts = tuple(config.tiles_per_type if t in RANDOM_TYPES else 1 for t in config.types)
-        return cls(tile, tuple(config.types), counts)
+        return cls(tile, tuple(config.types), counts, config.level_difficulties)
+
+    @property
+    def levels(self) -> int:
+        return len(self.difficulties)
 
     @property
     def rows(self) -> int:
@@ -55,7 +61,7 @@ class AtlasLayout:
 
     @property
     def cols(self) -> int:
-        return max(self.counts)
+        return max(self.counts) * self.levels
 
     @property
     def grid(self) -> Grid:
@@ -65,8 +71,12 @@ class AtlasLayout:
                     self.tile.z_scale, self.tile.base)
 
     def slots(self) -> list[tuple[int, int]]:
-        """(row, col) of every drawable tile, in tile-index order (row by row)."""
-        return [(r, c) for r, count in enumerate(self.counts) for c in range(count)]
+        """(row, col) of every drawable tile, in tile-index order (row by row, level by level)."""
+        return [(r, c) for r, count in enumerate(self.counts) for c in range(count * self.levels)]
+
+    def tile_level(self) -> np.ndarray:
+        """The difficulty level of every tile, (tiles,) int32."""
+        return np.asarray([c // self.counts[r] for r, c in self.slots()], np.int32)
 
     def centres(self) -> np.ndarray:
         """Each tile's centre in the atlas frame, (tiles, 2): where the floor moves to put it at the origin."""
@@ -87,8 +97,9 @@ class AtlasLayout:
 class TerrainPool:
     """The run's terrain tiles: their data, types and centres, and the per-episode draw.
 
-    ``draw(key) -> (tile index, type id)``: the type from the configured proportions, then a tile
-    of that type uniformly (with a shared terrain: always tile 0 and its type).
+    ``draw(key, cell) -> (tile index, type id)``: a tile of the given ``cell`` = (type row, level),
+    or, without one, the type from the configured proportions and (with several levels) a level
+    uniformly; then one of that cell's tiles uniformly. With a shared terrain: always tile 0.
     """
 
     def __init__(self, config: TerrainConfig, layout: AtlasLayout, tiles: np.ndarray | None = None,
@@ -105,19 +116,26 @@ class TerrainPool:
         self.tile_type = np.asarray(tile_type, np.int32)  # (tiles,) index into TERRAIN_TYPES
         self.centres = layout.centres()
         self.atlas = layout.assemble(self.tiles)
-        first = np.cumsum((0,) + layout.counts[:-1])
+        self.tile_level = layout.tile_level()
+        first = np.cumsum((0,) + tuple(c * layout.levels for c in layout.counts[:-1]))
         self._first = jnp.asarray(first, jnp.int32)  # first tile of each type's row
-        self._count = jnp.asarray(layout.counts, jnp.int32)
+        self._count = jnp.asarray(layout.counts, jnp.int32)  # tiles per level of each row
         self._log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
 
-    def draw(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """(tile index, type id) of one episode."""
+    def draw(self, key: jax.Array, cell: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+        """(tile index, type id) of one episode; ``cell`` = (type row, level) int32 (2,) picks the cell."""
         if not self.config.per_env:
             return jnp.zeros((), jnp.int32), jnp.asarray(self.tile_type[0], jnp.int32)
         k_type, k_tile = jax.random.split(key)
-        row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
-            else jnp.zeros((), jnp.int32)
-        tile = self._first[row] + jax.random.randint(k_tile, (), 0, self._count[row])
+        if cell is not None:
+            row, level = cell[0], cell[1]
+        else:
+            row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
+                else jnp.zeros((), jnp.int32)
+            level = jax.random.randint(jax.random.fold_in(k_type, 1), (), 0, self.layout.levels) \
+                if self.layout.levels > 1 else jnp.zeros((), jnp.int32)
+        count = self._count[row]
+        tile = self._first[row] + level * count + jax.random.randint(k_tile, (), 0, count)
         return tile, jnp.asarray(self.tile_type)[tile]
 
 
@@ -129,9 +147,11 @@ def _draw_tiles(config: TerrainConfig, layout: AtlasLayout) -> tuple[np.ndarray,
         return np.asarray(data)[None], np.asarray([int(type_id)], np.int32)
     tiles, types = [], []
     base = jax.random.PRNGKey(config.seed)
+    difficulty = np.asarray(layout.difficulties, np.float32)
     for row, (name, count) in enumerate(zip(layout.types, layout.counts)):
-        keys = jax.random.split(jax.random.fold_in(base, row), count)
-        data = jax.jit(jax.vmap(lambda k, r=row: sampler.type_data(r, k)))(keys)
+        keys = jax.random.split(jax.random.fold_in(base, row), count * layout.levels)
+        per_tile = jnp.asarray(np.repeat(difficulty, count))  # level by level
+        data = jax.jit(jax.vmap(lambda k, d, r=row: sampler.type_data(r, k, d)))(keys, per_tile)
         tiles.append(np.asarray(data))
-        types += [TERRAIN_TYPES.index(name)] * count
+        types += [TERRAIN_TYPES.index(name)] * (count * layout.levels)
     return np.concatenate(tiles), np.asarray(types, np.int32)

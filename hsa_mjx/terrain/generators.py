@@ -1,12 +1,18 @@
 """The eleven terrain generators of the original as pure JAX functions of world coordinates.
 
-Every generator has the signature ``fn(key, params, grid, x, y) -> heights`` where ``x``, ``y``
-are world coordinates (metres) of any common shape, ``params`` its frozen parameter dataclass
-(static) and ``grid`` the static :class:`~hsa_mjx.terrain.grid.Grid` (vertex spacing, field size);
-the result has the shape of ``x`` and holds world heights in metres above the generator's
-reference level 0 (negative values are allowed; :func:`~hsa_mjx.terrain.grid.to_hfield_data`
-lifts them). Random draws depend on the key only, never on the shape of ``x``, so evaluating a
-generator on the vertex mesh or at a single point gives the same terrain.
+Every generator has the signature ``fn(key, params, grid, x, y, difficulty=1.0) -> heights``
+where ``x``, ``y`` are world coordinates (metres) of any common shape, ``params`` its frozen
+parameter dataclass (static) and ``grid`` the static :class:`~hsa_mjx.terrain.grid.Grid` (vertex
+spacing, field size); the result has the shape of ``x`` and holds world heights in metres above
+the generator's reference level 0 (negative values are allowed;
+:func:`~hsa_mjx.terrain.grid.to_hfield_data` lifts them). Random draws depend on the key only,
+never on the shape of ``x``, so evaluating a generator on the vertex mesh or at a single point
+gives the same terrain.
+
+``difficulty`` in [0, 1] (a float or a traced scalar) scales the one parameter that makes each
+type hard, from 0 (level ground) to the configured value at 1: the wave, noise, step, crater,
+pole and wall heights, the ramp's height and the inclines' angle (``DIFFICULTY_PARAMETER``).
+Positions and sizes (where the craters and poles are, the tracks' layout) do not change with it.
 
 Sharp edges (stairs, corridor and spiral walls) are drawn as a linear ramp one vertex spacing
 wide centred on the requested position, so the edge sits where it was asked for at half height
@@ -29,7 +35,8 @@ from hsa_mjx.terrain.params import (
     PerlinParams, PolesParams, SpiralParams, StairsParams, WavyParams,
 )
 
-Generator = Callable[[jax.Array, Any, Grid, jax.Array, jax.Array], jax.Array]
+Generator = Callable[..., jax.Array]  # (key, params, grid, x, y, difficulty=1.0) -> heights
+Difficulty = float | jax.Array
 
 
 def soft_edge(distance: jax.Array, edge: float, ramp: float) -> jax.Array:
@@ -46,6 +53,13 @@ def _slope_coordinate(x: jax.Array, y: jax.Array, direction: str) -> jax.Array:
     return (x + y) / math.sqrt(2.0)
 
 
+def _slope(angle: float, difficulty: Difficulty) -> jax.Array | float:
+    """tan of ``difficulty x angle`` degrees (a Python float when the difficulty is one)."""
+    if isinstance(difficulty, (int, float)):
+        return math.tan(math.radians(angle * difficulty))
+    return jnp.tan(jnp.radians(angle * difficulty))
+
+
 def _random_vertices(key: jax.Array, count: int, grid: Grid) -> tuple[jax.Array, jax.Array]:
     """World (x, y) of ``count`` uniformly drawn vertices (the original drew integer cells)."""
     k_col, k_row = jax.random.split(key)
@@ -59,37 +73,42 @@ def _pairwise_distance(x: jax.Array, y: jax.Array, cx: jax.Array, cy: jax.Array)
     return jnp.hypot(x[..., None] - cx, y[..., None] - cy)
 
 
-def wavy(key: jax.Array, p: WavyParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def wavy(key: jax.Array, p: WavyParams, grid: Grid, x: jax.Array, y: jax.Array,
+         difficulty: Difficulty = 1.0) -> jax.Array:
     """amplitude * sin(scale x) * cos(scale y): 0 at the spawn point."""
-    return p.amplitude * jnp.sin(p.scale * x) * jnp.cos(p.scale * y)
+    return difficulty * p.amplitude * jnp.sin(p.scale * x) * jnp.cos(p.scale * y)
 
 
-def perlin(key: jax.Array, p: PerlinParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def perlin(key: jax.Array, p: PerlinParams, grid: Grid, x: jax.Array, y: jax.Array,
+           difficulty: Difficulty = 1.0) -> jax.Array:
     """Fractal Perlin noise scaled by ``amplitude``; a new field for every key, 0 at the origin."""
     extent = max(grid.half_x, grid.half_y)
     field = noise.fractal_noise(key, x, y, p.scale, p.octaves, p.persistence, p.lacunarity, extent)
-    return p.amplitude * field
+    return difficulty * p.amplitude * field
 
 
-def stairs(key: jax.Array, p: StairsParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def stairs(key: jax.Array, p: StairsParams, grid: Grid, x: jax.Array, y: jax.Array,
+           difficulty: Difficulty = 1.0) -> jax.Array:
     """Steps of ``step_height`` every ``step_length`` along +x; step 0 covers |x| < step_length / 2."""
     s = x / p.step_length + 0.5  # step boundaries at integer s
     ramp = min(grid.spacing_x / p.step_length, 1.0)
     nearest = jnp.round(s)
-    return p.step_height * (nearest - 1.0 + soft_edge(s - nearest, 0.0, ramp))
+    return difficulty * p.step_height * (nearest - 1.0 + soft_edge(s - nearest, 0.0, ramp))
 
 
-def flat(key: jax.Array, p: Any, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def flat(key: jax.Array, p: Any, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0) -> jax.Array:
     """Level ground."""
     return jnp.zeros(jnp.broadcast_shapes(jnp.shape(x), jnp.shape(y)), jnp.float32)
 
 
-def incline(key: jax.Array, p: InclineParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
-    """A plane through the spawn point rising at ``angle`` degrees along ``direction``."""
-    return math.tan(math.radians(p.angle)) * _slope_coordinate(x, y, p.direction)
+def incline(key: jax.Array, p: InclineParams, grid: Grid, x: jax.Array, y: jax.Array,
+            difficulty: Difficulty = 1.0) -> jax.Array:
+    """A plane through the spawn point rising at ``difficulty x angle`` degrees along ``direction``."""
+    return _slope(p.angle, difficulty) * _slope_coordinate(x, y, p.direction)
 
 
-def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.Array,
+            difficulty: Difficulty = 1.0) -> jax.Array:
     """``num`` Gaussian dips at random vertices, each cut off at its radius; overlaps add up."""
     if p.num == 0:
         return flat(key, p, grid, x, y)
@@ -99,7 +118,7 @@ def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.A
     depth = jax.random.uniform(k_depth, (p.num,), minval=p.depth[0], maxval=p.depth[1])
     d = _pairwise_distance(x, y, cx, cy)
     dip = depth * jnp.exp(-(d ** 2) / (2.0 * (radius / 3.0) ** 2))
-    return -jnp.sum(jnp.where(d < radius, dip, 0.0), axis=-1)
+    return -difficulty * jnp.sum(jnp.where(d < radius, dip, 0.0), axis=-1)
 
 
 def _spacing_offsets(grid: Grid, spacing: float) -> list[tuple[int, int]]:
@@ -132,7 +151,8 @@ def pole_centres(key: jax.Array, p: PolesParams, grid: Grid) -> tuple[jax.Array,
     return x.reshape(-1)[index], y.reshape(-1)[index], top >= 0.0
 
 
-def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array,
+          difficulty: Difficulty = 1.0) -> jax.Array:
     """Poles of random radius and height: full height up to ``radius - edge``, linear to 0 at ``radius``.
 
     ``edge`` is one vertex spacing (or the radius if smaller), so the default 0.2 m poles are the
@@ -149,21 +169,22 @@ def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array
     edge = jnp.minimum(radius, min(grid.spacing_x, grid.spacing_y))
     d = _pairwise_distance(x, y, cx, cy)
     profile = jnp.where(present, height * jnp.clip((radius - d) / edge, 0.0, 1.0), 0.0)
-    return jnp.max(profile, axis=-1)
+    return difficulty * jnp.max(profile, axis=-1)
 
 
 def flat_with_incline(key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: jax.Array,
-                      y: jax.Array) -> jax.Array:
-    """Flat ground; inside the rectangle a slope rising from 0 at its start edge, then a drop."""
+                      y: jax.Array, difficulty: Difficulty = 1.0) -> jax.Array:
+    """Flat ground; inside the rectangle a slope (``difficulty x angle``) rising from 0 at its start edge, then a drop."""
     x0, x1 = (grid.fraction_to_x(f) for f in p.x_range)
     y0, y1 = (grid.fraction_to_y(f) for f in p.y_range)
     inside = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
-    rise = math.tan(math.radians(p.angle)) * _slope_coordinate(x - x0, y - y0, p.direction)
+    rise = _slope(p.angle, difficulty) * _slope_coordinate(x - x0, y - y0, p.direction)
     return jnp.where(inside, rise, 0.0)
 
 
-def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
-    """Flat ground with a ramp from 0 to ``height`` over ``length``, optionally faded at its sides."""
+def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Array, y: jax.Array,
+                   difficulty: Difficulty = 1.0) -> jax.Array:
+    """Flat ground with a ramp from 0 to ``difficulty x height`` over ``length``, optionally faded at its sides."""
     dx, dy = x - grid.fraction_to_x(p.center[0]), y - grid.fraction_to_y(p.center[1])
     along_x = p.direction.endswith("x")
     extent_along = 2.0 * (grid.half_x if along_x else grid.half_y)
@@ -172,20 +193,21 @@ def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Arr
     along = -along if p.direction.startswith("-") else along
     length, half_width = p.length * extent_along, 0.5 * p.width * extent_across
     inside = (jnp.abs(along) < 0.5 * length) & (jnp.abs(across) < half_width)
-    rise = p.height * (along + 0.5 * length) / length
+    rise = difficulty * p.height * (along + 0.5 * length) / length
     if p.smooth_edges:
         q = jnp.abs(across) / half_width
         rise = rise * jnp.where(q > 0.7, jnp.maximum(0.0, 1.0 - (q - 0.7) / 0.3), 1.0)
     return jnp.where(inside, rise, 0.0)
 
 
-def corridor(key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def corridor(key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array,
+             difficulty: Difficulty = 1.0) -> jax.Array:
     """Walls of ``wall_height`` on both sides of a floor running along ``axis``."""
     if p.axis == "x":
         lateral, ramp = y - grid.fraction_to_y(p.center), grid.spacing_y
     else:
         lateral, ramp = x - grid.fraction_to_x(p.center), grid.spacing_x
-    return p.wall_height * soft_edge(jnp.abs(lateral), 0.5 * p.corridor_width, ramp)
+    return difficulty * p.wall_height * soft_edge(jnp.abs(lateral), 0.5 * p.corridor_width, ramp)
 
 
 def spiral_track_distance(p: SpiralParams, x: jax.Array, y: jax.Array, extension: float) -> jax.Array:
@@ -210,13 +232,21 @@ def spiral_extension(p: SpiralParams) -> float:
     return p.track_width / max(p.end_radius, p.track_width)
 
 
-def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array) -> jax.Array:
+def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array,
+           difficulty: Difficulty = 1.0) -> jax.Array:
     """Walls everywhere except the spiral track (the checkpoint path) and a start disc of radius r0."""
     ramp = max(grid.spacing_x, grid.spacing_y)
     track = soft_edge(spiral_track_distance(p, x, y, spiral_extension(p)), 0.5 * p.track_width, ramp)
     start = soft_edge(jnp.hypot(x, y), p.start_radius, ramp)
-    return p.wall_height * jnp.minimum(track, start)
+    return difficulty * p.wall_height * jnp.minimum(track, start)
 
+
+# What difficulty scales in each type (its value at difficulty 1 is the configured one).
+DIFFICULTY_PARAMETER: dict[str, str] = {
+    "wavy": "amplitude", "perlin": "amplitude", "stairs": "step_height", "flat": "(none: always level)",
+    "incline": "angle", "craters": "depth", "poles": "height", "flat_with_incline": "angle",
+    "flat_with_ramp": "height", "corridor": "wall_height", "spiral": "wall_height",
+}
 
 GENERATORS: dict[str, Generator] = {
     "wavy": wavy, "perlin": perlin, "stairs": stairs, "flat": flat, "incline": incline,
@@ -231,7 +261,9 @@ def vertex_mesh(grid: Grid) -> tuple[jax.Array, jax.Array]:
     return jnp.asarray(x, jnp.float32), jnp.asarray(y, jnp.float32)
 
 
-def point_height(fn: Generator, params: Any, grid: Grid, x: float, y: float) -> float:
-    """Height of a deterministic generator at one world point, as a Python float (static)."""
-    value = fn(jax.random.PRNGKey(0), params, grid, np.full((1,), x, np.float32), np.full((1,), y, np.float32))
-    return float(np.asarray(value)[0])
+def point_height(fn: Generator, params: Any, grid: Grid, x: float, y: float, difficulty: Difficulty = 1.0
+                 ) -> jax.Array:
+    """Height of a deterministic generator at one world point, shape () (traced with a traced difficulty)."""
+    value = fn(jax.random.PRNGKey(0), params, grid, np.full((1,), x, np.float32), np.full((1,), y, np.float32),
+               difficulty)
+    return jnp.asarray(value, jnp.float32)[0]

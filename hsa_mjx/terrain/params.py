@@ -20,6 +20,7 @@ RANDOM_TYPES = ("perlin", "craters", "poles")  # the others ignore the key
 AXES = ("x", "y")
 INCLINE_DIRECTIONS = ("x", "y", "diagonal")
 RAMP_DIRECTIONS = ("x", "-x", "y", "-y")
+MAX_LEVELS = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,14 +136,22 @@ class TerrainConfig:
     ``types`` and ``proportions`` (summing to 1) give the distribution each env's terrain type is
     drawn from at every reset; each env then takes one of the run's ``tiles_per_type`` terrains of
     that type (drawn once from ``seed``; deterministic types have one). ``per_env: false`` generates
-    one terrain (from ``seed``) shared by every env instead. ``spawn_clearance`` is the gap left under the lowest robot geom at reset;
-    ``edge_margin`` how far inside the field's edge the robot must stay.
+    one terrain (from ``seed``) shared by every env instead. ``spawn_clearance`` is the gap left
+    under the lowest robot geom at reset; ``edge_margin`` how far inside the field's edge the robot
+    must stay.
+
+    ``levels`` difficulty levels of every type (each with its own tiles): level ``l`` of ``L`` has
+    difficulty ``difficulty x l / (L - 1)`` (level 0 is level ground); with one level the terrain
+    has difficulty ``difficulty``. Without the terrain curriculum every reset draws a level
+    uniformly; with it (``train``'s ``terrain_curriculum``) each env keeps its own level.
     """
 
     types: tuple[str, ...] = ("flat",)
     proportions: tuple[float, ...] = (1.0,)
     per_env: bool = True
-    tiles_per_type: int = 16
+    tiles_per_type: int = 16  # per level
+    levels: int = 1
+    difficulty: float = 1.0  # of the top level, in [0, 1]
     seed: int = 0
     spawn_clearance: float = 0.003
     edge_margin: float = 0.3
@@ -157,6 +166,13 @@ class TerrainConfig:
     flat_with_ramp: FlatWithRampParams = FlatWithRampParams()
     corridor: CorridorParams = CorridorParams()
     spiral: SpiralParams = SpiralParams()
+
+    @property
+    def level_difficulties(self) -> tuple[float, ...]:
+        """The difficulty of each level, easiest first."""
+        if self.levels == 1:
+            return (float(self.difficulty),)
+        return tuple(float(self.difficulty) * level / (self.levels - 1) for level in range(self.levels))
 
     def params(self, terrain_type: str) -> Any:
         """The parameter section of ``terrain_type`` (None for flat)."""
@@ -266,6 +282,12 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     _check_sign(config, "", non_negative=("spawn_clearance", "edge_margin"))
     if not 1 <= config.tiles_per_type <= 256:
         _fail("tiles_per_type", "must be between 1 and 256", config.tiles_per_type)
+    if isinstance(config.levels, bool) or not 1 <= config.levels <= MAX_LEVELS:
+        _fail("levels", f"must be an integer between 1 and {MAX_LEVELS}", config.levels)
+    if not 0.0 <= config.difficulty <= 1.0:
+        _fail("difficulty", "must be in [0, 1] (0: level ground, 1: the configured parameters)", config.difficulty)
+    if config.levels > 1 and not config.per_env:
+        _fail("levels", "> 1 needs terrain.per_env: true (one shared terrain has one level)", config.levels)
     spawn = config.flat_spawn
     if spawn.radius < 0:
         _fail("flat_spawn.radius", "must be >= 0 (a fraction of the field width)", spawn.radius)

@@ -17,7 +17,8 @@ from hsa_mjx.terrain.params import (
 SPAWN_BLEND = 1.2  # the zone blends back into the terrain between radius and 1.2 x radius
 
 
-def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid = Grid()) -> jax.Array:
+def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid = Grid(),
+             difficulty: float | jax.Array = 1.0) -> jax.Array:
     """World heights (nrow, ncol) of one terrain of ``terrain_type``, relative to its level 0.
 
     Args:
@@ -25,6 +26,8 @@ def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid =
         key: PRNG key (only perlin, craters and poles use it).
         params: the type's parameter dataclass; ``None`` takes the defaults.
         grid: the heightfield's static grid (default: the asset's 50 x 50 over 10 x 10 m).
+        difficulty: in [0, 1], a float or a traced scalar: 0 is level ground, 1 the terrain the
+            parameters describe (``generators.DIFFICULTY_PARAMETER`` says what it scales).
 
     Raises:
         ValueError: unknown ``terrain_type`` (the message lists the valid types).
@@ -32,17 +35,18 @@ def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid =
     check_type(terrain_type)
     params = TerrainConfig().params(terrain_type) if params is None else params
     x, y = vertex_mesh(grid)
-    return GENERATORS[terrain_type](key, params, grid, x, y).astype(jnp.float32)
+    return GENERATORS[terrain_type](key, params, grid, x, y, difficulty).astype(jnp.float32)
 
 
-def spawn_level(terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig) -> float:
+def spawn_level(terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig,
+                difficulty: float | jax.Array = 1.0) -> jax.Array:
     """Height the spawn zone is levelled to: the terrain's own height at the zone centre for the
     deterministic types (an incline or ramp under the spawn becomes a landing, not a pit), the
     base level 0 for the random ones (their obstacles are removed, as the original did)."""
     if terrain_type in RANDOM_TYPES:
-        return 0.0
+        return jnp.zeros((), jnp.float32)
     cx, cy = grid.fraction_to_x(spawn.center[0]), grid.fraction_to_y(spawn.center[1])
-    return point_height(GENERATORS[terrain_type], params, grid, cx, cy)
+    return point_height(GENERATORS[terrain_type], params, grid, cx, cy, difficulty)
 
 
 def apply_flat_spawn(heights: jax.Array, grid: Grid, spawn: FlatSpawnConfig, level: jax.Array) -> jax.Array:
@@ -63,7 +67,8 @@ class TerrainSampler:
 
     ``sample(key) -> (data (nrow * ncol,) float32, type_id () int32)``; ``type_id`` indexes
     ``TERRAIN_TYPES``. With several types the generators are selected with ``lax.switch`` (under
-    ``vmap`` every configured generator runs and the result is selected per env).
+    ``vmap`` every configured generator runs and the result is selected per env). Terrain is drawn
+    at ``config.difficulty`` unless a difficulty is given.
     """
 
     def __init__(self, config: TerrainConfig, grid: Grid):
@@ -71,32 +76,32 @@ class TerrainSampler:
         self.types = tuple(config.types)
         self.type_ids = jnp.asarray([TERRAIN_TYPES.index(t) for t in self.types], jnp.int32)
         self.log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
-        self.levels = jnp.asarray(
-            [spawn_level(t, config.params(t), grid, config.flat_spawn) for t in self.types], jnp.float32)
         self._branches = [self._branch(t) for t in self.types]
 
     def _branch(self, terrain_type: str):
-        """The generator of one type as a function of the key alone (a lax.switch branch)."""
-        params = self.config.params(terrain_type)
-        return lambda key: generate(terrain_type, key, params, self.grid)
+        """One type's levelled heights as a function of (key, difficulty) (a lax.switch branch)."""
+        params, grid, spawn = self.config.params(terrain_type), self.grid, self.config.flat_spawn
 
-    def heights(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+        def branch(key: jax.Array, difficulty: jax.Array) -> jax.Array:
+            heights = generate(terrain_type, key, params, grid, difficulty)
+            return apply_flat_spawn(heights, grid, spawn, spawn_level(terrain_type, params, grid, spawn, difficulty))
+        return branch
+
+    def heights(self, key: jax.Array, difficulty: float | jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
         """World heights (nrow, ncol) with the spawn zone applied, and the local type index."""
+        difficulty = jnp.asarray(self.config.difficulty if difficulty is None else difficulty, jnp.float32)
         k_type, k_gen = jax.random.split(key)
         if len(self.types) == 1:
-            index = jnp.zeros((), jnp.int32)
-            heights = self._branches[0](k_gen)
-        else:
-            index = jax.random.categorical(k_type, self.log_p).astype(jnp.int32)
-            heights = jax.lax.switch(index, self._branches, k_gen)
-        return apply_flat_spawn(heights, self.grid, self.config.flat_spawn, self.levels[index]), index
+            return self._branches[0](k_gen, difficulty), jnp.zeros((), jnp.int32)
+        index = jax.random.categorical(k_type, self.log_p).astype(jnp.int32)
+        return jax.lax.switch(index, self._branches, k_gen, difficulty), index
 
-    def type_data(self, index: int, key: jax.Array) -> jax.Array:
+    def type_data(self, index: int, key: jax.Array, difficulty: float | jax.Array | None = None) -> jax.Array:
         """Heightfield data (nrow * ncol,) in [0, 1] of the ``index``-th configured type (a static index)."""
-        heights = apply_flat_spawn(self._branches[index](key), self.grid, self.config.flat_spawn, self.levels[index])
-        return to_hfield_data(heights, self.grid)
+        difficulty = jnp.asarray(self.config.difficulty if difficulty is None else difficulty, jnp.float32)
+        return to_hfield_data(self._branches[index](key, difficulty), self.grid)
 
-    def sample(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def sample(self, key: jax.Array, difficulty: float | jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
         """Heightfield data (nrow * ncol,) in [0, 1] and the type id (index into ``TERRAIN_TYPES``)."""
-        heights, index = self.heights(key)
+        heights, index = self.heights(key, difficulty)
         return to_hfield_data(heights, self.grid), self.type_ids[index]

@@ -53,10 +53,11 @@ class TerrainWorld:
         """Whether envs draw their own tile (a pool of terrains) rather than share one."""
         return self.enabled and self.config.per_env
 
-    def draw(self, key: jax.Array | None) -> tuple[jax.Array, jax.Array]:
-        """This episode's (tile index, terrain type id); ``key`` is used only when envs draw their own."""
+    def draw(self, key: jax.Array | None, cell: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+        """This episode's (tile index, terrain type id); ``key`` (and ``cell`` = (type row, level), from the
+        terrain curriculum) are used only when envs draw their own."""
         if self.per_env:
-            return self.pool.draw(key)
+            return self.pool.draw(key, cell)
         type_id = int(self.pool.tile_type[0]) if self.enabled else FLAT_ID
         return jnp.zeros((), jnp.int32), jnp.asarray(type_id, jnp.int32)
 

@@ -1,0 +1,136 @@
+"""Evaluation by terrain type and difficulty: ``python -m train.evaluate RUN --terrain-types all --levels 0,0.5,1``.
+
+The run's env is rebuilt with one tile per type and difficulty (one atlas when the difficulties are
+evenly spaced from 0, e.g. 0, 0.5, 1), and the episodes of one batch are split evenly over the
+(type, difficulty) cells, each env reset on its cell's tile with the same goals in every cell. Per type and difficulty it reports the success rate and the net progress
+towards the goal, prints them as a table, writes ``terrain_eval.json`` and plots them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.config import EnvConfig
+from hsa_mjx.env import HSAEnv
+from hsa_mjx.terrain.params import TERRAIN_TYPES
+
+TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral
+
+
+def parse_types(text: str, config: EnvConfig) -> tuple[str, ...]:
+    """``all`` (the run's own terrain types) or a comma-separated list of terrain types (ValueError)."""
+    if text == "all":
+        types = tuple(config.terrain.types) if config.scene == "terrain" else ("flat",)
+    else:
+        types = tuple(t.strip() for t in text.split(",") if t.strip())
+    unknown = [t for t in types if t not in TERRAIN_TYPES]
+    if not types or unknown:
+        raise ValueError(f"--terrain-types: unknown type(s) {unknown or [text]}; give 'all' or a comma-separated "
+                         f"list of {list(TERRAIN_TYPES)}")
+    if config.goal.mode != "spiral" and any(t in TRACK_TYPES for t in types):
+        raise ValueError(f"--terrain-types: {list(TRACK_TYPES)} need goal.mode spiral; this run's goals are "
+                         f"{config.goal.mode!r}")
+    return types
+
+
+def parse_levels(text: str) -> tuple[float, ...]:
+    """Comma-separated difficulties in [0, 1] (ValueError naming the bad one)."""
+    try:
+        levels = tuple(float(v) for v in text.split(","))
+    except ValueError as err:
+        raise ValueError(f"--levels must be comma-separated numbers in [0, 1], got {text!r}") from err
+    bad = [v for v in levels if not 0.0 <= v <= 1.0]
+    if bad:
+        raise ValueError(f"--levels: difficulties must be in [0, 1], got {bad}")
+    return levels
+
+
+def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, ...]) -> EnvConfig:
+    """The env with one tile of each of ``types`` per difficulty level (random types: one drawn terrain);
+    ``levels`` must be one difficulty, or evenly spaced from 0 (``level_groups``)."""
+    terrain = dataclasses.replace(config.terrain, types=types, proportions=(1.0 / len(types),) * len(types),
+                                  levels=len(levels), difficulty=max(levels), per_env=True, tiles_per_type=1)
+    if not np.allclose(terrain.level_difficulties, levels):
+        raise ValueError(f"difficulties {levels} are not one value or evenly spaced from 0")
+    return dataclasses.replace(config, scene="terrain", terrain_type=types[0] if len(types) == 1 else "mixed",
+                               terrain=terrain)
+
+
+def level_groups(levels: tuple[float, ...]) -> list[tuple[float, ...]]:
+    """The difficulties as few atlases as possible: all in one when they are 0, d, 2d, ... (one env, one
+    compile, one rollout), else one each."""
+    ordered = tuple(sorted(set(levels)))
+    n = len(ordered)
+    if n > 1 and np.allclose(ordered, [ordered[-1] * i / (n - 1) for i in range(n)]):
+        return [ordered]
+    return [(d,) for d in ordered]
+
+
+def evaluate(config: EnvConfig, rollout: Callable[..., dict], types: tuple[str, ...], levels: tuple[float, ...],
+             episodes: int, seed: int) -> list[dict[str, Any]]:
+    """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
+
+    ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
+    (``train.evaluate.rollout`` with the policy bound).
+    """
+    rows = []
+    for group in level_groups(levels):
+        # every (type, level) cell plays the same goal keys: the cells differ by their ground only
+        type_of = np.tile(np.repeat(np.arange(len(types)), episodes), len(group))
+        level_of = np.repeat(np.arange(len(group)), episodes * len(types))
+        keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(types) * len(group), 1))
+        cells = jnp.asarray(np.stack([type_of, level_of], axis=-1), jnp.int32)
+        env = HSAEnv(cell_config(config, types, group), num_envs=len(type_of))
+        traces = {k: np.asarray(v) for k, v in jax.device_get(rollout(env, keys, cells)).items()}
+        outcome = episode_outcomes(traces)
+        for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
+            mine = (type_of == i) & (level_of == level)
+            rows.append({"type": name, "difficulty": difficulty, "episodes": int(mine.sum()),
+                         "success_rate": float(outcome["success"][mine].mean()),
+                         "mean_progress_m": float(outcome["progress"][mine].mean()),
+                         "mean_final_distance": float(outcome["final_distance"][mine].mean())})
+    return sorted(rows, key=lambda r: (types.index(r["type"]), r["difficulty"]))
+
+
+def episode_outcomes(traces: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per episode: reached its goal, net progress towards it (m), final distance (m)."""
+    alive = traces["alive"].astype(bool)
+    last = np.maximum(alive.sum(axis=1) - 1, 0)
+    rows = np.arange(alive.shape[0])
+    final = traces["distance"][rows, last]
+    return {"success": traces["success"][rows, last] > 0.5, "progress": traces["start_distance"] - final,
+            "final_distance": final}
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The rows as a text table: one line per type, success rate and progress per difficulty, and the mean."""
+    levels = sorted({r["difficulty"] for r in rows})
+    types = list(dict.fromkeys(r["type"] for r in rows))
+    cell = {(r["type"], r["difficulty"]): r for r in rows}
+    head = f"{'type':<18}" + "".join(f"{f'd={d:g} success':>15}{'progress m':>12}" for d in levels)
+    lines = [head, "-" * len(head)]
+    for name in types + ["mean"]:
+        parts = []
+        for d in levels:
+            group = [cell[(t, d)] for t in types] if name == "mean" else [cell[(name, d)]]
+            parts.append(f"{np.mean([g['success_rate'] for g in group]):>15.0%}"
+                         f"{np.mean([g['mean_progress_m'] for g in group]):>12.2f}")
+        lines.append(f"{name:<18}" + "".join(parts))
+    return "\n".join(lines)
+
+
+def write(rows: list[dict[str, Any]], header: dict[str, Any], out: Path) -> list[Path]:
+    """``terrain_eval.json`` and ``terrain_eval.png`` (success rate and progress per type and difficulty)."""
+    from train.plots import terrain_grid
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "terrain_eval.json"
+    path.write_text(json.dumps({**header, "rows": rows}, indent=1))
+    return [path, terrain_grid(rows, out / "terrain_eval.png")]
