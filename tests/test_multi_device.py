@@ -1,4 +1,4 @@
-"""Several devices on the CPU: training, resume, the curriculum and envs over devices, two processes, scaling.
+"""Several devices on the CPU: training, resume, the curricula and envs over devices, the Warp backend, two processes, scaling.
 
 XLA's fake host devices (``--xla_force_host_platform_device_count``) exist only when the flag is
 set before JAX starts, so the multi-device work runs this file as a script in fresh interpreters
@@ -218,7 +218,16 @@ def scenario_process(config_path: str, run_dir: str, port: str, process_id: str)
     return {"rc": rc, "saved": saved}
 
 
-SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process}
+def scenario_warp_per_device(config_path: str, run_dir: str) -> dict:
+    """The per-device learner (one env copy and one jitted collection per device) on the Warp backend."""
+    from train.cli import main
+    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", "--set", "env.physics.backend=warp",
+               "--set", "run.multi_device=per_device", "--set", "run.num_timesteps=160"])
+    return {"rc": rc}
+
+
+SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process,
+             "warp_per_device": scenario_warp_per_device}
 
 
 # ----- the tests ------------------------------------------------------------------------------
@@ -287,6 +296,20 @@ def _records(run_dir: Path) -> list[dict]:
     """The run's metrics records."""
     from train.logger import read_jsonl
     return read_jsonl(run_dir / "metrics.jsonl")
+
+
+def test_per_device_learner_trains_on_the_warp_backend(tmp_path):
+    """The multi-GPU path on MuJoCo Warp, here over two CPU devices (Warp runs on a CPU, slowly)."""
+    config, run_dir = _write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
+    proc = subprocess.run([sys.executable, __file__, "warp_per_device", config, str(run_dir)], cwd=ROOT,
+                          env=_subprocess_env(FAKE_DEVICES), capture_output=True, text=True,
+                          timeout=SUBPROCESS_TIMEOUT_S)
+    assert _facts(_check(proc))["rc"] == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["physics_backend"] == "warp" and summary["env_steps"] == 160
+    last = _records(run_dir)[-1]
+    assert last["episodes"] == 8 and last["curriculum/episode_count"] == 8  # both devices' envs, as on JAX
+    assert last["terrain/levels"] == 3 and last["nonfinite/states"] == 0
 
 
 def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
