@@ -2,7 +2,7 @@
 
 Public API:
     TERRAIN_TYPES                          the eleven type names
-    generate(type, key, params, grid)      world heights (nrow, ncol) of one terrain
+    generate(type, key, params, grid, d)   world heights (nrow, ncol) of one terrain at difficulty d in [0, 1]
     TerrainSampler(config, grid).sample    one env's heightfield data and type id from a key
     Grid                                   the heightfield's static geometry (``Grid.from_model``)
     to_hfield_data, surface_height         heights -> MuJoCo data in [0, 1]; exact surface lookup
