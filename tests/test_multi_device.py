@@ -1,4 +1,5 @@
-"""Several devices on the CPU: training, resume, the curricula and envs over devices, the Warp backend, two processes, scaling.
+"""Several devices on the CPU: training, resume, the curricula and envs over devices, the Warp backend,
+two processes, scaling.
 
 XLA's fake host devices (``--xla_force_host_platform_device_count``) exist only when the flag is
 set before JAX starts, so the multi-device work runs this file as a script in fresh interpreters

@@ -2,8 +2,9 @@
 
 The run's env is rebuilt with one tile per type and difficulty (one atlas when the difficulties are
 evenly spaced from 0, e.g. 0, 0.5, 1), and the episodes of one batch are split evenly over the
-(type, difficulty) cells, each env reset on its cell's tile with the same goals in every cell. Per type and difficulty it reports the success rate and the net progress
-towards the goal, prints them as a table, writes ``terrain_eval.json`` and plots them.
+(type, difficulty) cells, each env reset on its cell's tile with the same goals in every cell. Per
+type and difficulty it reports the success rate and the net progress towards the goal, prints them
+as a table, writes ``terrain_eval.json`` and plots them.
 """
 
 from __future__ import annotations
