@@ -269,6 +269,11 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     result = evaluate.summarize(traces, dt, checkpoints=True)
     assert result["checkpoints_per_episode"] == [2, 5, 0]  # read at each episode's own last step
     assert result["mean_checkpoints_collected"] == pytest.approx(7 / 3)
+    # checkpoint 1: episode 0 at its 2nd step, episode 1 (which holds 3 at its first) at its 1st
+    assert result["checkpoint_timeline"][:3] == [{"checkpoint": 1, "episodes": 2, "mean_step": 1.5},
+                                                 {"checkpoint": 2, "episodes": 2, "mean_step": 2.0},
+                                                 {"checkpoint": 3, "episodes": 1, "mean_step": 1.0}]
+    assert [row["episodes"] for row in result["checkpoint_timeline"]] == [2, 2, 1, 1, 1]
     assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
     assert "checkpoints_per_episode" not in evaluate.summarize(traces, dt)  # goals without checkpoints
     json.dumps(result)  # eval.json stays plain JSON

@@ -12,6 +12,9 @@ Prints success rate, mean final distance, mean speed and how the episodes ended 
 reasons, ``not_finished`` at the step cap), and writes eval.json, the diagnostic plots (and with
 ``--video`` a GIF) into ``--out`` (default ``RUN_DIR/eval/`` or ``runs/eval_<NAME>/``).
 
+``--set env.KEY=VALUE`` (repeatable) evaluates on a changed env, e.g. goals farther than training's
+(``--set env.goal.radial_range=[4.0,4.5]``); the observation cannot change.
+
 ``--terrain-types all|T1,T2 --levels 0,0.5,1``: instead, ``--episodes`` episodes per terrain type
 and difficulty, printed as a table of success rate and net progress and written to
 terrain_eval.json and terrain_eval.png (``train/terrain_eval.py``).
@@ -60,17 +63,38 @@ def evaluation_env_config(config: EnvConfig, backend: str | None = None) -> EnvC
 
 
 def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministic: bool = True,
-                backend: str | None = None, num_envs: int = 1):
+                backend: str | None = None, num_envs: int = 1, overrides: tuple[str, ...] = ()):
     """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training;
-    ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer."""
+    ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer,
+    ``overrides`` (``env.KEY=VALUE``, ``env_overrides``) change the env it is evaluated on."""
     from brax.training.agents.ppo import networks as ppo_networks
     path = checkpoint_path or checkpoint.latest(run_dir)
     meta = checkpoint.read_meta(path)
-    config = tcfg.from_dict(meta["config"])
+    config = tcfg.from_dict(env_overrides(meta["config"], overrides))
     env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
     networks, ts = load_training_state(config, path, env.observation_size, env.action_size)
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
     return config, env, policy, path, int(meta["step"])
+
+
+def check_env_overrides(overrides: tuple[str, ...] | list[str]) -> None:
+    """Refuse ``--set`` keys an evaluation may not change: goals, terrain, termination, reward and physics
+    may change; the observation (the policy's input) and the ppo, run and curriculum sections may not."""
+    for item in overrides:
+        key = item.split("=", 1)[0].strip()
+        if not key.startswith("env.") or key.startswith("env.observation"):
+            raise ValueError(f"evaluate --set {key!r}: only env keys may change (env.goal.*, env.terrain.*, "
+                             "env.termination.*, ...), not env.observation.* or the ppo, run and curriculum sections")
+
+
+def env_overrides(data: dict, overrides: tuple[str, ...] | list[str]) -> dict:
+    """A run's config data with ``--set env.KEY=VALUE`` applied (``check_env_overrides`` first); goals
+    other than radial turn the goal curriculum off (it only draws training goals from its range)."""
+    check_env_overrides(overrides)
+    data = tcfg.apply_overrides(data, list(overrides))
+    if data["env"].get("goal", {}).get("mode", "radial") != "radial":
+        data = tcfg.apply_overrides(data, ["curriculum.enabled=false"])
+    return data
 
 
 def load_training_state(config: tcfg.TrainConfig, path: Path, observation_size: int, action_size: int):
@@ -149,13 +173,27 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
     # net progress towards the goal; with spiral checkpoints the goal moves, so count those instead
     collected = traces["checkpoint"][rows, last]
     progress = {"mean_checkpoints_collected": float(collected.mean()),
-                "checkpoints_per_episode": [int(c) for c in collected]} if checkpoints \
+                "checkpoints_per_episode": [int(c) for c in collected],
+                "checkpoint_timeline": checkpoint_timeline(traces["checkpoint"], alive)} if checkpoints \
         else {"mean_progress_m": float(np.mean(traces["start_distance"] - final_distance))}
     return {"episodes": int(alive.shape[0]), "success_rate": float(success.mean()),
             "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
             "mean_start_distance": float(traces["start_distance"].mean()), **progress,
             "mean_episode_steps": float(length.mean()), **{k: v for k, v in ends.items() if v > 0},
             "not_finished": float(np.mean(~ended))}
+
+
+def checkpoint_timeline(index: np.ndarray, alive: np.ndarray) -> list[dict[str, float]]:
+    """Per checkpoint k = 1, 2, ... that any episode collected: how many episodes did, and the mean
+    env step at which they did (where on the track the episodes slow down or stop)."""
+    held = np.where(alive.astype(bool), index, -1)  # (episodes, steps); steps after an end do not count
+    timeline = []
+    for k in range(1, int(held.max(initial=0)) + 1):
+        reached = held >= k
+        got = reached.any(axis=1)
+        first = reached.argmax(axis=1) + 1  # steps taken when the count first reached k
+        timeline.append({"checkpoint": k, "episodes": int(got.sum()), "mean_step": float(first[got].mean())})
+    return timeline
 
 
 def shipped_policy_apply(policy: pol.NumpyPolicy):
@@ -180,14 +218,18 @@ def resolve_policy(name_or_dir: str) -> Path:
                             f"the shipped policies {available} (in {POLICIES_DIR})")
 
 
-def load_shipped_policy(directory: Path, backend: str | None = None, num_envs: int = 1):
+def load_shipped_policy(directory: Path, backend: str | None = None, num_envs: int = 1,
+                        overrides: tuple[str, ...] = ()):
     """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json (on
-    ``backend`` when given), the network from its policy.npz."""
+    ``backend`` when given, with ``env.KEY=VALUE`` ``overrides``), the network from its policy.npz."""
+    check_env_overrides(overrides)
     policy = pol.load_policy(directory)
     try:
         config = tcfg.from_dict(policy.meta["config"])
     except (KeyError, ValueError) as err:
         raise ValueError(f"policy {directory}: its {pol.META_FILE} holds no usable training config ({err})") from err
+    if overrides:
+        config = tcfg.from_dict(env_overrides(tcfg.to_dict(config), overrides))
     env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
     if (env.observation_size, env.action_size) != (policy.observation_size, policy.action_size):
         raise ValueError(f"policy {directory} maps {policy.observation_size} observations to {policy.action_size} "
@@ -216,6 +258,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
     parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="env.KEY=VALUE",
+                        help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
+                             "not env.observation.*)")
     parser.add_argument("--physics", choices=("mjx", "c"), default="mjx",
                         help="mjx: the env's MJX physics (default); c: its substeps in C MuJoCo "
                              "(hsa_mjx.host_physics), several times faster on a CPU for a few long episodes")
@@ -238,17 +283,20 @@ def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, An
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = resolve_policy(args.policy)
-        config, env, policy, shipped = load_shipped_policy(directory, args.backend, _episodes(args, True))
+        config, env, policy, shipped = load_shipped_policy(directory, args.backend, _episodes(args, True),
+                                                           tuple(args.overrides))
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {"policy_dir": str(directory), "source": shipped.meta.get("source", {}),
-                  "step": shipped.meta.get("source", {}).get("env_steps")}
+                  "step": shipped.meta.get("source", {}).get("env_steps"),
+                  **({"env_overrides": args.overrides} if args.overrides else {})}
         return config, env, policy, header, out
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory not found: {run_dir}")
     config, env, policy, path, step = load_policy(run_dir, deterministic=not args.stochastic, backend=args.backend,
-                                                  num_envs=_episodes(args, False))
-    return config, env, policy, {"checkpoint": str(path), "step": step}, Path(args.out) if args.out else run_dir / "eval"
+                                                  num_envs=_episodes(args, False), overrides=tuple(args.overrides))
+    header = {"checkpoint": str(path), "step": step, **({"env_overrides": args.overrides} if args.overrides else {})}
+    return config, env, policy, header, Path(args.out) if args.out else run_dir / "eval"
 
 
 def _episodes(args: argparse.Namespace, shipped: bool) -> int:
