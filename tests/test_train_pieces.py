@@ -252,6 +252,15 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     assert restart_count(old, 10**9) is old  # never more samples than it had
 
 
+def test_terrain_evaluation_counts_how_episodes_ended():
+    from hsa_mjx import termination
+    from train import terrain_eval
+    reasons = np.zeros((4, len(termination.REASONS)), bool)
+    reasons[0, termination.REASONS.index("goal_reached")] = reasons[1, termination.REASONS.index("goal_reached")] = True
+    reasons[2, termination.REASONS.index("qacc_limit")] = True  # episode 3 ran out of steps
+    assert terrain_eval.ended_by(reasons) == {"qacc_limit": 0.25, "goal_reached": 0.5, "time_out": 0.25}
+
+
 def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     """Three hand-made spiral episodes: 2 checkpoints and a time-out, 5 then qacc_limit, 0 and a time-out."""
     from hsa_mjx import termination

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hsa_mjx import termination
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
@@ -97,18 +98,27 @@ def evaluate(config: EnvConfig, rollout: Callable[..., dict], types: tuple[str, 
             rows.append({"type": name, "difficulty": difficulty, "episodes": int(mine.sum()),
                          "success_rate": float(outcome["success"][mine].mean()),
                          "mean_progress_m": float(outcome["progress"][mine].mean()),
-                         "mean_final_distance": float(outcome["final_distance"][mine].mean())})
+                         "mean_final_distance": float(outcome["final_distance"][mine].mean()),
+                         "ended_by": ended_by(outcome["reasons"][mine])})
     return sorted(rows, key=lambda r: (types.index(r["type"]), r["difficulty"]))
 
 
 def episode_outcomes(traces: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Per episode: reached its goal, net progress towards it (m), final distance (m)."""
+    """Per episode: reached its goal, net progress towards it (m), final distance (m), termination flags."""
     alive = traces["alive"].astype(bool)
     last = np.maximum(alive.sum(axis=1) - 1, 0)
     rows = np.arange(alive.shape[0])
     final = traces["distance"][rows, last]
     return {"success": traces["success"][rows, last] > 0.5, "progress": traces["start_distance"] - final,
-            "final_distance": final}
+            "final_distance": final, "reasons": traces["reasons"][rows, last] > 0.5}
+
+
+def ended_by(reasons: np.ndarray) -> dict[str, float]:
+    """Share of episodes per termination reason (``termination.REASONS``, those that occur) and ``time_out``
+    for the episodes that ended with none (they ran out of steps); ``reasons`` is (episodes, reasons) bool."""
+    shares = {name: float(reasons[:, i].mean()) for i, name in enumerate(termination.REASONS) if reasons[:, i].any()}
+    shares["time_out"] = float((~reasons.any(axis=1)).mean())
+    return shares
 
 
 def table(rows: list[dict[str, Any]]) -> str:
