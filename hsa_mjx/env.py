@@ -16,7 +16,7 @@ from hsa_mjx.backend import mjx
 
 from hsa_mjx import backend, control, goals, observation, physics, pose, reward, termination
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import RobotModel, compiled_forward, load_robot, local_device
+from hsa_mjx.model import RobotModel, compiled_kinematics, load_robot, local_device
 from hsa_mjx.terrain.world import TerrainWorld
 from hsa_mjx.types import EnvState, SimState, TaskState
 
@@ -62,7 +62,7 @@ class HSAEnv(BraxEnv):
         data = backend.make_data(self.robot.mj_model, self.robot.backend, local_device(), self.num_envs,
                                  cfg.physics.contacts_per_env, cfg.physics.constraints_per_env)
         qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
-        self._data0 = compiled_forward(model, data.replace(qpos=qpos))
+        self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)

@@ -52,9 +52,11 @@ _INTEGRATORS = {
 _SOLVERS = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}
 _CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
 
-# mjx.forward compiled once per model layout and shared by the index and the env's reset state
-# (eager op-by-op dispatch takes minutes on a CPU for the heightfield scene).
-compiled_forward = jax.jit(mjx.forward)
+# The reset state's positions, compiled once per model layout. Kinematics, not the full mjx.forward:
+# the observation reads only qpos, qvel, xpos and ctrl, and each step recomputes every derived field,
+# so contacts and forces at the spawn pose would be unused (and mjx.forward's collision and solver
+# cost 6-12 s of compile per model layout on a CPU, eager dispatch minutes).
+compiled_kinematics = jax.jit(mjx.kinematics)
 
 
 @dataclasses.dataclass(frozen=True)

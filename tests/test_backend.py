@@ -7,6 +7,7 @@ every env on its own terrain tile.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -18,6 +19,8 @@ import pytest
 import hsa_mjx
 from hsa_mjx import backend
 from hsa_mjx.training_env import AutoResetEnv
+from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
+from train.logger import read_jsonl
 
 ENVS, REST, STEPS = 3, 8, 20  # envs, zero-action steps at rest, then gait steps
 # Terrain tiles: flat, stairs and craters; solver settings of the shipped heightfield configs.
@@ -130,3 +133,15 @@ def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
     assert np.all(np.asarray(state.env.pipeline_state.task.step_count) == 1)  # ...then stepped once more
     with pytest.raises(ValueError, match="num_envs=3"):
         batch.reset(jax.random.split(jax.random.PRNGKey(0), 3))
+
+
+def test_per_device_learner_trains_on_the_warp_backend(tmp_path):
+    """The multi-GPU path on MuJoCo Warp, here over two fake CPU devices (tests/test_multi_device.py's
+    scenario). Last in this file: the rollouts above have compiled Warp's CPU kernels into its cache."""
+    config, run_dir = write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
+    assert run_scenario("warp_per_device", config, str(run_dir))["rc"] == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["physics_backend"] == "warp" and summary["env_steps"] == 80
+    last = read_jsonl(run_dir / "metrics.jsonl")[-1]
+    assert last["episodes"] == 8 and last["curriculum/episode_count"] == 8  # both devices' envs, as on JAX
+    assert last["terrain/levels"] == 3 and last["nonfinite/states"] == 0

@@ -53,19 +53,26 @@ def test_batch_stays_finite_for_200_random_steps_without_retracing(jit_batch):
 
 
 def test_reward_is_the_sum_of_logged_components(jit_single):
-    reset, step, _ = jit_single
-    state = step(reset(jax.random.PRNGKey(2)), jnp.full(8, 0.5))
+    reset, step, counter = jit_single
+    state = step(reset(jax.random.PRNGKey(2)), jnp.full(8, 0.5, jnp.float32))
+    assert counter.traces == 1  # single and batch steps share one compile (a weak-typed action would not)
     parts = sum(float(v) for k, v in state.metrics.items() if k.startswith("reward/"))
     assert float(state.reward) == pytest.approx(parts, rel=1e-5, abs=1e-6)
 
 
-def test_heading_alignment_is_wired_to_the_robot_axis(env):
+@pytest.fixture(scope="module")
+def options_env():
+    """An env with every optional observation entry and the heading shaping term on: (env, reset, step)."""
+    env = hsa_mjx.make_env("flat", observation__heading=True, observation__servo_targets=True,
+                           observation__clock_period_s=1.0, observation__hinge_angles="sincos",
+                           reward__heading_alignment=100.0)
+    return env, jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_heading_alignment_is_wired_to_the_robot_axis(options_env):
     """With the shaping weight on, the logged term is w * (|cos| after - |cos| before) of axis vs goal."""
-    import copy
     from hsa_mjx import observation
-    shaped = copy.copy(env)
-    shaped.weights = env.weights.replace(heading_alignment=jnp.float32(100.0))
-    reset, step = jax.jit(shaped.reset), jax.jit(shaped.step)
+    env, reset, step = options_env
     state = reset(jax.random.PRNGKey(4))
     one_sided = jnp.array([1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0])
     logged, expected = [], []
@@ -100,17 +107,20 @@ def test_nonfinite_action_is_sanitised_and_counted(jit_single):
     assert float(out.metrics["nonfinite_action"]) == 1.0 and np.all(np.isfinite(out.obs))
 
 
-def test_goal_reached_and_truncation_are_separate():
-    env = hsa_mjx.make_env("flat", goal__mode="fixed", goal__position=[0.0, 0.05], termination__max_episode_steps=2,
-                           control__frame_skip=2)
-    step = jax.jit(env.step)
-    out = step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(8))
+def test_goal_reached_and_truncation_are_separate(env, jit_single):
+    reset, step, _ = jit_single
+    set_goal = jax.jit(env.set_goal)
+    near = set_goal(reset(jax.random.PRNGKey(0)), jnp.array([0.0, 0.05]))  # inside the success radius
+    out = step(near, jnp.zeros(8))
     assert float(out.metrics["termination/goal_reached"]) == 1.0 and float(out.done) == 1.0
     assert float(out.info["truncation"]) == 0.0 and float(out.metrics["reward/goal_bonus"]) == 40.0
-    far = env.set_goal(env.reset(jax.random.PRNGKey(0)), jnp.array([3.0, 0.0]))
-    far = step(step(far, jnp.zeros(8)), jnp.zeros(8))
+    far = set_goal(reset(jax.random.PRNGKey(0)), jnp.array([3.0, 0.0]))
+    last = env.config.termination.max_episode_steps - 1  # the episode's last step comes next
+    task = far.pipeline_state.task.replace(step_count=jnp.int32(last))
+    far = step(far.replace(pipeline_state=far.pipeline_state.replace(task=task)), jnp.zeros(8))
     assert float(far.info["truncation"]) == 1.0 and float(far.done) == 1.0
     assert float(far.metrics["termination/goal_reached"]) == 0.0
+    assert float(step(reset(jax.random.PRNGKey(0)), jnp.zeros(8)).done) == 0.0  # not on an earlier step
 
 
 def test_brax_training_wrappers_run_unchanged(env):
@@ -125,24 +135,29 @@ def test_brax_training_wrappers_run_unchanged(env):
     assert "reward/forward" in state.info["episode_metrics"]
 
 
-def test_vmapped_step_over_a_large_batch_on_cpu(env):
-    """jit(vmap(step)) over 64 envs runs on the CPU.
+def _lapack_calls(lowered) -> int:
+    """How many LAPACK custom calls a lowered program makes."""
+    return lowered.as_text().count("lapack_")
 
-    Before hsa_mjx.cpu_linalg this hung forever on a 2-core machine (jaxlib's batched LAPACK
-    Cholesky deadlocks its thread pool once a batch exceeds 44 matrices; 1024 envs hung as well);
-    the test would then hit the pytest timeout.
+
+def test_large_batches_lower_without_lapack_on_cpu(env):
+    """jit(vmap(step)) over 64 envs has no LAPACK call left, small batches keep LAPACK's fast kernels.
+
+    Before hsa_mjx.cpu_linalg a step over 64 envs hung forever on a 2-core machine (jaxlib's batched
+    LAPACK Cholesky deadlocks its thread pool once a batch exceeds 44 matrices; 1024 envs hung as well).
+    The lowering is checked (XLA's own ops have no such pool), and a 64-matrix batch is run against numpy.
     """
-    import jax
-    import jax.numpy as jnp
     from hsa_mjx import cpu_linalg
     assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
     n = 64
-    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(7), n))
-    actions = jax.random.uniform(jax.random.PRNGKey(8), (n, env.action_size), minval=-1.0, maxval=1.0)
-    state = jax.jit(jax.vmap(env.step))(state, actions)
-    assert state.obs.shape == (n, 24)
-    assert bool(jnp.all(jnp.isfinite(state.obs)))
-    assert float(jnp.std(state.obs[:, 0])) > 0  # the envs really differ (random actions)
+    state = jax.eval_shape(jax.vmap(env.reset), jax.random.split(jax.random.PRNGKey(7), n))
+    assert _lapack_calls(jax.jit(jax.vmap(env.step)).lower(state, jnp.zeros((n, env.action_size)))) == 0
+    spd = np.eye(24, dtype=np.float32) * 3 + np.random.default_rng(0).normal(size=(n, 24, 24)).astype(np.float32) / 8
+    spd = spd @ np.swapaxes(spd, 1, 2)
+    for batch, lapack in ((n, False), (4, True)):
+        lowered = jax.jit(jnp.linalg.cholesky).lower(spd[:batch])
+        assert (_lapack_calls(lowered) > 0) == lapack, batch
+    np.testing.assert_allclose(jax.jit(jnp.linalg.cholesky)(spd), np.linalg.cholesky(spd), atol=1e-4)
 
 
 def _yaw(physics, env):
@@ -166,15 +181,13 @@ def _rotated_about_z(state, env, angle):
     return state.replace(pipeline_state=state.pipeline_state.replace(physics=physics.replace(qpos=jnp.asarray(qpos))))
 
 
-def test_optional_observation_entries(jit_single):
+def test_optional_observation_entries(jit_single, options_env):
     """sin/cos hinge angles, heading (unit heading, goal direction rotated by -yaw), servo targets and gait clock.
 
     One env with all four options (one compile): slots 0-15 sin/cos, 16-31 the original's other 16,
     32-35 heading, 36-43 targets, 44-45 clock; sanitised like the rest.
     """
-    env = hsa_mjx.make_env("flat", observation__heading=True, observation__servo_targets=True,
-                           observation__clock_period_s=1.0, observation__hinge_angles="sincos")
-    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    env, reset, step = options_env
     start = reset(jax.random.PRNGKey(0))
     assert env.observation_size == 46 == start.obs.shape[0]
     np.testing.assert_allclose(start.obs[16:32], jit_single[0](jax.random.PRNGKey(0)).obs[8:], atol=1e-6)

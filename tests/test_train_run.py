@@ -83,7 +83,7 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 def test_evaluate_writes_summary_and_plots(run_dir):
     from train.evaluate import main
-    assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0  # C MuJoCo substeps
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0
     assert result["mean_final_distance"] > 0
@@ -130,15 +130,16 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
 
 def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
     from train.trainer import train
-    data = tcfg.apply_overrides(json.loads(json.dumps(TINY)),
-                                ["env.reward.forward=1.0", "ppo.learning_rate=0.0", "run.num_timesteps=40",
-                                 f"run.init_from={run_dir}"])
-    summary = train(tcfg.from_dict(data), tmp_path / "ft", quiet=True)
+    config = tiny(num_timesteps=40, init_from=str(run_dir))  # the tiny run's programs: no new compile
+    summary = train(config, tmp_path / "ft", quiet=True)
     assert summary["env_steps"] == 40  # a fresh step count
     source_ts = load_payload(checkpoint.latest(run_dir))
     tuned_ts = load_payload(checkpoint.latest(tmp_path / "ft"))
-    same = jax.tree.map(np.array_equal, source_ts["params"], tuned_ts["params"])  # learning rate 0
-    assert all(jax.tree.leaves(same))
+    # 40 env steps are one PPO iteration: 2 Adam steps, each moving a weight by about the learning rate
+    # (a fresh initialisation would differ by tenths)
+    moved = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+                for a, b in zip(jax.tree.leaves(source_ts["params"]), jax.tree.leaves(tuned_ts["params"])))
+    assert moved < 5 * 2 * config.ppo.learning_rate
     assert _count(tuned_ts["normalizer"]["count"]) > _count(source_ts["normalizer"]["count"])  # stats carried on
 
 
@@ -163,6 +164,9 @@ def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, caps
         "ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"]))
     with pytest.raises(ValueError, match="policy_hidden_sizes"):
         read_init_from(wider)
+    other_task = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
+        "env.reward.forward=1.0", "ppo.learning_rate=0.0", f"run.init_from={run_dir}"]))
+    assert read_init_from(other_task)["step"] >= 80  # another env and optimiser: the same networks fit
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--run-dir", str(tmp_path / "x"),
                  "--init-from", str(tmp_path / "missing")]) == 2
     assert "run.init_from" in capsys.readouterr().err and not (tmp_path / "x").exists()
