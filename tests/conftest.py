@@ -41,8 +41,8 @@ def env():
     return hsa_mjx.make_env("flat")
 
 
-# For the few jitted functions the tests call hundreds of times: XLA's full optimisation back (their
-# compile takes ~10 % longer, each call runs ~8x faster than at XLA_TEST_FLAGS' level 0).
+# For the few jitted functions the tests call hundreds of times: XLA's full optimisation back (the flat
+# 4-env step compiles in 7.5 instead of 5.4 s and runs in 13.5 instead of 136 ms per call).
 OPTIMISED = {"xla_backend_optimization_level": 3}
 
 
