@@ -22,6 +22,15 @@ def test_reset_matches_the_original_start(env, jit_single):
     goal = np.asarray(state.pipeline_state.task.goal_xy)
     assert 1.5 <= abs(goal[0]) <= 4.5 and abs(goal[1]) <= 4.0
     assert float(state.obs[21]) == pytest.approx(np.linalg.norm(goal), rel=1e-5)
+    # The reset state carries kinematics only: block bodies sit at their free joints' positions,
+    # foot contact forces are zero until a step computes them (once the spawned robot has landed on its feet).
+    physics, index = state.pipeline_state.physics, env.index
+    np.testing.assert_allclose(physics.xpos[index.block_body], physics.qpos[index.block_qpos[:, None] + np.arange(3)],
+                               atol=1e-6)
+    assert not np.any(physics.sensordata[index.foot_sensors])
+    for _ in range(10):  # the robot spawns a little above the floor and lands within 0.2 s
+        state = jit_single[1](state, jnp.zeros(8))
+    assert np.abs(state.pipeline_state.physics.sensordata[index.foot_sensors]).sum() > 0.0
 
 
 def test_same_key_same_trajectory(jit_single):
