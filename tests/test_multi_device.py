@@ -131,13 +131,14 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
         return serialization.msgpack_restore(path.read_bytes())
 
     a, b = load(run_a), load(run_b)
-    pairs = list(zip(jax_leaves(a.pop("training_state")), jax_leaves(b.pop("training_state"))))
+    pairs = list(zip(_float_leaves(a.pop("training_state")), _float_leaves(b.pop("training_state"))))
     gap = max(float(np.max(np.abs(x - y)) / max(1.0, float(np.max(np.abs(x))))) for x, y in pairs)
-    rest_equal = sorted(a) == sorted(b) and all(np.array_equal(x, y) for x, y in zip(jax_leaves(a), jax_leaves(b)))
+    rest_equal = sorted(a) == sorted(b) and all(
+        np.array_equal(x, y) for x, y in zip(_float_leaves(a), _float_leaves(b)))
     return {"same_run_param_gap": gap, "same_run_leaves": len(pairs), "same_run_rest_equal": rest_equal}
 
 
-def jax_leaves(tree: dict) -> list[np.ndarray]:
+def _float_leaves(tree: dict) -> list[np.ndarray]:
     """The leaves of a restored checkpoint tree as float64 arrays, in key order."""
     import jax
     return [np.asarray(x, np.float64) for x in jax.tree.leaves(tree)]
