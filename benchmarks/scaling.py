@@ -119,7 +119,8 @@ class Bench:
 
     def __init__(self, config: tcfg.TrainConfig, devices: list, seed: int = 0):
         self.config, self.devices = config, devices
-        self.env = HSAEnv(config.env, num_envs=config.run.num_envs // len(devices))
+        self.env = HSAEnv(config.env, num_envs=config.run.num_envs // len(devices),
+                          privileged=config.ppo.privileged_critic)
         self.learner = make_learner(config, self.env, devices)
         self.per_device = isinstance(self.learner, PerDeviceLearner)
         self.key = jax.random.PRNGKey(seed)
@@ -142,7 +143,7 @@ class Bench:
 
     def training_state(self) -> Any:
         """Fresh learner state, one copy per device."""
-        ts = init_training_state(self.config, self.learner.networks, self.keys()[0], self.env.observation_size)
+        ts = init_training_state(self.config, self.learner.networks, self.keys()[0], self.learner.network_input_size)
         return replicate_for_pmap(ts, self.devices)
 
     def env_loop(self, steps: int, repeats: int) -> Timed:

@@ -24,7 +24,8 @@ but the spiral (``HEIGHTFIELD_TYPES``). ``--backends jax,warp`` measures MJX's J
 implementations side by side (each row records its backend).
 
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
-        [--terrains flat,heightfield] [--settings NAME ...] [--steps K] [--repeats R]
+        [--terrains flat,heightfield] [--settings NAME ...] [--observations original,heading,heading+scan]
+        [--steps K] [--repeats R]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
 
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import statistics
 import time
 from pathlib import Path
@@ -56,6 +58,14 @@ TERRAINS: dict[str, dict[str, Any]] = {
     "flat": {"scene": "flat"},
     "heightfield": {"scene": "terrain", "terrain.types": HEIGHTFIELD_TYPES},
 }
+# observations the env computes: the original's 24 values, or the rough task's heading (28) with the
+# 63-point height scan (the scan's cost is measured against "heading", the same observation without it)
+OBSERVATIONS: dict[str, dict[str, Any]] = {
+    "original": {},
+    "heading": {"observation.heading": True},
+    "heading+scan": {"observation.heading": True, "observation.height_scan.enabled": True,
+                     "observation.height_scan.noise": 0.02},
+}
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
 ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200
 QUICK = {"batches": (8,), "steps": 2, "repeats": 2, "baseline_s": 0.5}
@@ -72,11 +82,14 @@ class Timed:
     last: dict[str, float]  # the last timed call's counters
 
 
-def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int = 1) -> hsa_mjx.HSAEnv:
-    """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics,
-    on ``backend``, sized for batches of ``num_envs`` (Warp's shared contact buffer)."""
+def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int = 1,
+              observation: str = "original") -> hsa_mjx.HSAEnv:
+    """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics and
+    ``observation`` (``OBSERVATIONS``), on ``backend``, sized for batches of ``num_envs`` (Warp's shared
+    contact buffer)."""
     return hsa_mjx.make_env("flat", num_envs=num_envs, **{"goal.mode": "radial", "physics.backend": backend,
-                                                         **TERRAINS[terrain], **SETTINGS[setting]})
+                                                         **TERRAINS[terrain], **SETTINGS[setting],
+                                                         **OBSERVATIONS[observation]})
 
 
 def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
@@ -273,6 +286,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--settings", nargs="+", default=None,
                    help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
                         f"default per scene {SHIPPED_BY_SCENE}")
+    p.add_argument("--observations", type=names, default=("original",),
+                   help=f"comma list of {sorted(OBSERVATIONS)} (default original)")
     p.add_argument("--steps", type=int, default=None,
                    help=f"env steps per timed call (lax.scan length); default {ENV_STEPS_PER_CALL} / batch in [2, 20]")
     p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
@@ -290,9 +305,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.baseline_seconds = args.baseline_seconds or quick["baseline_s"]
     if args.settings is not None:
         args.settings = [name for arg in args.settings for name in arg.split(",") if name]
-    bad = sorted(set(args.terrains) - set(TERRAINS)) + sorted(set(args.settings or ()) - set(SETTINGS))
+    bad = (sorted(set(args.terrains) - set(TERRAINS)) + sorted(set(args.settings or ()) - set(SETTINGS))
+           + sorted(set(args.observations) - set(OBSERVATIONS)))
     if bad:
-        p.error(f"unknown terrain/setting {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}")
+        p.error(f"unknown terrain/setting/observation {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}, "
+                f"observations {sorted(OBSERVATIONS)}")
     try:
         args.backends = tuple(dict.fromkeys(backends.resolve(b) for b in args.backends))
     except ValueError as err:
@@ -324,27 +341,27 @@ def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[li
     for terrain in args.terrains:
         for setting in settings_for(terrain, args.settings):
             baseline = cpu_baseline(bench_env(terrain, setting, "jax"), args.baseline_seconds)
-            for backend in args.backends:
-                for batch in args.batches:
-                    if time.perf_counter() - start > args.budget_s:
-                        print(f"skipped {backend}/{terrain}/{setting}/{batch}: past --budget-s {args.budget_s}",
-                              flush=True)
-                        continue
-                    rows = report.upsert(rows, _row(args, info, terrain, setting, backend, batch, baseline))
-                    out(rows)
+            for backend, observation, batch in itertools.product(args.backends, args.observations, args.batches):
+                if time.perf_counter() - start > args.budget_s:
+                    print(f"skipped {backend}/{terrain}/{setting}/{observation}/{batch}: past --budget-s "
+                          f"{args.budget_s}", flush=True)
+                    continue
+                rows = report.upsert(rows, _row(args, info, terrain, setting, backend, batch, baseline, observation))
+                out(rows)
     return rows
 
 
 def _row(args: argparse.Namespace, info: dict[str, Any], terrain: str, setting: str, backend: str, batch: int,
-         baseline: dict[str, float]) -> dict[str, Any]:
+         baseline: dict[str, float], observation: str = "original") -> dict[str, Any]:
     """One measured row (printed as it is done)."""
-    env = bench_env(terrain, setting, backend, batch)
+    env = bench_env(terrain, setting, backend, batch, observation)
     wrapper, note = batch_wrapper(env)
     measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
-    row = {"terrain": terrain, "settings": setting, "physics_backend": env.physics_backend,
+    row = {"terrain": terrain, "settings": setting, "observation": observation,
+           "observation_size": env.observation_size, "physics_backend": env.physics_backend,
            "overrides": SETTINGS[setting], "full_step": wrapper is not None, "full_step_note": note,
            **measured, **baseline, **_row_meta(info)}
-    print(f"{backend:4s} {terrain:11s} {setting} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
+    print(f"{backend:4s} {terrain:11s} {setting} {observation} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
           f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
           f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
           f"NaN/M {row['nan_terminations_per_million_env_steps']}", flush=True)
@@ -361,7 +378,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     meta = {**info, "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
             "repeats": args.repeats,
             "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
-            "backends": list(args.backends),
+            "backends": list(args.backends), "observations": {o: OBSERVATIONS[o] for o in args.observations},
             "terrains": {t: TERRAINS[t] for t in args.terrains}}
     rows = run_matrix(args, info, lambda rows: report.write_all(args.out_dir, args.stem, rows, meta))
     paths = report.write_all(args.out_dir, args.stem, rows, meta)

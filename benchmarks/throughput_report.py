@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-ROW_KEY = ("physics_backend", "terrain", "settings", "batch", "full_step")
+ROW_KEY = ("physics_backend", "terrain", "settings", "observation", "batch", "full_step")
 # The project's speed targets (env-steps/s of the full step on one H200, Warp backend): heightfield at
 # 16k+ envs, plane at 65k envs.
 TARGETS = {"flat": 170_000, "heightfield": 120_000}
@@ -16,6 +16,11 @@ TARGETS = {"flat": 170_000, "heightfield": 120_000}
 def slug(text: str) -> str:
     """File-name-safe lower-case form of a device name ("NVIDIA H200" -> "nvidia_h200")."""
     return re.sub(r"[^a-z0-9]+", "_", text.lower()).strip("_") or "device"
+
+
+def _observation(row: dict[str, Any]) -> str:
+    """The row's observation (rows written before the column existed measured the original's)."""
+    return row.get("observation", "original")
 
 
 def upsert(rows: list[dict[str, Any]], row: dict[str, Any]) -> list[dict[str, Any]]:
@@ -50,15 +55,15 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     """The results as a markdown table with the provenance above it."""
     head = [f"Throughput on {meta.get('device')} ({meta.get('backend')}), {meta.get('date')}; "
             f"versions {meta.get('versions')}; command `{meta.get('command')}`.", "",
-            "| backend | terrain | settings | batch | env-steps/s | ceiling env-steps/s | env / ceiling | "
+            "| backend | terrain | settings | observation | batch | env-steps/s | ceiling env-steps/s | env / ceiling | "
             "compile env s | compile ceiling s | MiB/env (XLA) | NaN per M steps | ceiling NaN per M | "
             "non-finite obs | full step | C MuJoCo env-steps/s | terminations per M steps |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(rows, key=lambda r: (_backend(r), r["terrain"], r["settings"], r["batch"])):
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (_backend(r), r["terrain"], r["settings"], _observation(r), r["batch"])):
         mib = r.get("env_compiled_bytes_per_env")
         mib = None if mib is None else mib / 2**20
         head.append(
-            f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {r['batch']:,} | {_fmt(r['env_steps_per_s'])} | "
+            f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {_observation(r)} | {r['batch']:,} | {_fmt(r['env_steps_per_s'])} | "
             f"{_fmt(r['physics_ceiling_env_steps_per_s'])} | {_fmt(r['env_over_ceiling'], 2)} | "
             f"{_fmt(r['compile_s_env'], 1)} | {_fmt(r['compile_s_ceiling'], 1)} | "
             f"{_fmt(mib, 3)} | {_fmt(r['nan_terminations_per_million_env_steps'], 1)} | "
@@ -76,10 +81,10 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 5))
-    groups = sorted({(_backend(r), r["terrain"], r["settings"]) for r in rows})
+    groups = sorted({(_backend(r), r["terrain"], r["settings"], _observation(r)) for r in rows})
     for i, group in enumerate(groups):
         pts = sorted((r["batch"], r["env_steps_per_s"], r["physics_ceiling_env_steps_per_s"])
-                     for r in rows if (_backend(r), r["terrain"], r["settings"]) == group)
+                     for r in rows if (_backend(r), r["terrain"], r["settings"], _observation(r)) == group)
         batch, env, ceiling = zip(*pts)
         color, name = f"C{i}", ", ".join(group)
         ax.plot(batch, env, "o-", color=color, label=f"{name}: env step")

@@ -16,6 +16,8 @@ from typing import Any, Mapping
 
 import yaml
 
+from hsa_mjx.height_scan import HeightScanConfig
+from hsa_mjx.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
 from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_terrain
 from hsa_mjx.terrain.presets import TERRAIN_PRESETS
@@ -143,6 +145,8 @@ class ObservationConfig:
     # How the 8 actuated hinge angles enter: "raw" (the original: unbounded, they wind up over long
     # episodes), "wrapped" (into [-pi, pi): same size) or "sincos" (sin then cos: 8 more values).
     hinge_angles: str = "raw"
+    # terrain heights on a grid around the robot, turned with its heading (hsa_mjx.height_scan): appended last
+    height_scan: HeightScanConfig = HeightScanConfig()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -267,6 +271,7 @@ def validate(config: EnvConfig) -> EnvConfig:
     if config.observation.clock_period_s < 0:
         raise ValueError("config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
                          f"got {config.observation.clock_period_s!r}")
+    validate_height_scan(config.observation.height_scan)
     _validate_track_starts(config.goal)
     _validate_terrain(config)
     return config

@@ -14,9 +14,10 @@ import numpy as np
 from brax.envs.base import Env as BraxEnv
 from hsa_mjx.backend import mjx
 
-from hsa_mjx import backend, control, goals, observation, physics, pose, reward, termination
+from hsa_mjx import backend, control, goals, height_scan, observation, physics, pose, privileged, reward, termination
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.model import RobotModel, compiled_kinematics, load_robot, local_device
+from hsa_mjx.terrain.placement import Footprint
 from hsa_mjx.terrain.world import TerrainWorld
 from hsa_mjx.types import EnvState, SimState, TaskState
 
@@ -44,12 +45,15 @@ class HSAEnv(BraxEnv):
         num_envs: how many envs ``reset``/``step`` will be vmapped over. Only the Warp backend
             uses it: the envs of a batch share one contact buffer of
             ``physics.contacts_per_env * num_envs`` slots (the batch wrappers check it).
+        privileged: also put the privileged critic inputs (``hsa_mjx.privileged``) into
+            ``state.info["privileged_obs"]`` (the PPO learner's ``ppo.privileged_critic``).
     """
 
-    def __init__(self, config: EnvConfig, asset_dir: Path | None = None, num_envs: int = 1):
+    def __init__(self, config: EnvConfig, asset_dir: Path | None = None, num_envs: int = 1,
+                 privileged: bool = False):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        self.config, self.num_envs = config, int(num_envs)
+        self.config, self.num_envs, self.privileged = config, int(num_envs), bool(privileged)
         self.robot: RobotModel = load_robot(config, asset_dir)
         self.index = self.robot.index
         self.world = TerrainWorld(config.terrain, self.robot.pool, self.robot.mj_model, self.index.block_body)
@@ -67,6 +71,9 @@ class HSAEnv(BraxEnv):
             goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
+        self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))
+        # block-origin height above level ground with the robot resting on it: the scan's zero
+        self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
 
     # ----- Brax Env interface -------------------------------------------------------------
     @property
@@ -77,6 +84,11 @@ class HSAEnv(BraxEnv):
     @property
     def action_size(self) -> int:
         return len(self.index.servo_ids)
+
+    @property
+    def privileged_size(self) -> int:
+        """Length of ``info["privileged_obs"]`` (0 unless built with ``privileged=True``)."""
+        return privileged.size(self.config.observation) if self.privileged else 0
 
     @property
     def backend(self) -> str:
@@ -149,13 +161,14 @@ class HSAEnv(BraxEnv):
             prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
             step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id)
-        obs = observation.observe(data, goal_xy, self.index, self.config.observation)
+        obs, critic, task = self._observe(data, task)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
             jnp.zeros((), bool), distance, task.checkpoint_index)
+        info = {"truncation": jnp.zeros(()), **({} if critic is None else {"privileged_obs": critic})}
         return EnvState(pipeline_state=SimState(data, task), obs=obs, reward=jnp.zeros(()),
-                        done=jnp.zeros(()), metrics=metrics, info={"truncation": jnp.zeros(())})
+                        done=jnp.zeros(()), metrics=metrics, info=info)
 
     def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
         """Replace the current goal (non-spiral modes); progress terms restart from it."""
@@ -163,8 +176,9 @@ class HSAEnv(BraxEnv):
         data = self._with_goal_marker(sim.physics, goal_xy, sim.task.tile)
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
-        obs = observation.observe(data, goal_xy, self.index, self.config.observation, self._episode_time(task))
-        return state.replace(pipeline_state=SimState(data, task), obs=obs)
+        obs, critic, task = self._observe(data, task, self._episode_time(task))
+        info = state.info if critic is None else dict(state.info, privileged_obs=critic)
+        return state.replace(pipeline_state=SimState(data, task), obs=obs, info=info)
 
     def step(self, state: EnvState, action: jax.Array) -> EnvState:
         """Advance one env step (``frame_skip`` physics steps) with a normalised action."""
@@ -199,7 +213,7 @@ class HSAEnv(BraxEnv):
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = observation.goal_vector(after, task.goal_xy)
         steps = task.step_count + 1
-        obs = observation.observe(new_data, task.goal_xy, idx, cfg.observation, steps * cfg.dt)
+        obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
                                               cfg.termination, idx)
@@ -229,10 +243,39 @@ class HSAEnv(BraxEnv):
         new_data, obs, total = self._sanitize(data, new_data, obs, total, reasons["non_finite"])
         metrics = self._metrics(components, reasons, bad_action, distance, task.checkpoint_index)
         info = dict(state.info, truncation=truncated.astype(jnp.float32))
+        if critic is not None:
+            info["privileged_obs"] = jnp.where(jnp.isfinite(critic), critic, 0.0)
         return state.replace(pipeline_state=SimState(new_data, task), obs=obs, reward=total,
                              done=(terminated | truncated).astype(jnp.float32), metrics=metrics, info=info)
 
     # ----- helpers ------------------------------------------------------------------------
+    def _observe(self, data: mjx.Data, task: TaskState, time_s: jax.Array | float = 0.0
+                 ) -> tuple[jax.Array, jax.Array | None, TaskState]:
+        """The policy's observation, the privileged critic inputs (None unless ``privileged``) and the
+        task state (its key advanced when the scan draws noise)."""
+        cfg = self.config.observation
+        clean = scan = None
+        if cfg.height_scan.enabled:
+            clean, scan, task = self._height_scan(data, task)
+        obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan)
+        if not self.privileged:
+            return obs, None, task
+        clean = jnp.zeros((0,), jnp.float32) if clean is None else clean
+        critic = privileged.inputs(data, self.index, clean, task.terrain_id, self.world.level_fraction(task.tile))
+        return obs, critic, task
+
+    def _height_scan(self, data: mjx.Data, task: TaskState) -> tuple[jax.Array, jax.Array, TaskState]:
+        """(noise-free scan, the policy's noisy copy, task state) as the observation holds them."""
+        cfg = self.config.observation.height_scan
+        heights = height_scan.read(lambda xy: self.world.ground(task.tile, xy), self._scan_points,
+                                   observation.robot_xy(data, self.index), observation.heading(data, self.index),
+                                   jnp.mean(data.xpos[self.index.block_body, 2]), self._rest_height)
+        noisy = heights
+        if cfg.noise > 0:  # static: without noise the key stream stays as it was
+            rng, key = jax.random.split(task.rng)
+            task, noisy = task.replace(rng=rng), height_scan.add_noise(heights, key, cfg)
+        return height_scan.shape(heights, cfg), height_scan.shape(noisy, cfg), task
+
     def _episode_time(self, task: TaskState) -> jax.Array:
         """Seconds since this episode's reset (env steps x dt)."""
         return task.step_count * self.config.dt

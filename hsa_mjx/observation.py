@@ -4,7 +4,8 @@
 original), ``wrapped`` into [-pi, pi) or ``sincos`` (8 sines, then 8 cosines: 8 values more).
 Optional entries, appended in this order when enabled (``ObservationConfig``):
 ``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
-(the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock).
+(the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock),
+``height_scan`` one value per scan point (``hsa_mjx.height_scan``; the env reads it from its terrain).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import jax
 import jax.numpy as jnp
 from hsa_mjx.backend import mjx
 
+from hsa_mjx import height_scan as scan_module
 from hsa_mjx.config import ObservationConfig
 from hsa_mjx.model import RobotIndex
 
@@ -35,7 +37,8 @@ def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
     """A short name per observation slot for this observation config, in ``observe``'s order."""
     base = ORIGINAL_LABELS if config.hinge_angles != "sincos" else SINCOS_LABELS + ORIGINAL_LABELS[8:]
     return (base + (HEADING_LABELS if config.heading else ())
-            + (SERVO_TARGET_LABELS if config.servo_targets else ()) + (CLOCK_LABELS if config.clock_period_s > 0 else ()))
+            + (SERVO_TARGET_LABELS if config.servo_targets else ()) + (CLOCK_LABELS if config.clock_period_s > 0 else ())
+            + scan_module.labels(config.height_scan))
 
 
 def observation_size(config: ObservationConfig) -> int:
@@ -107,10 +110,12 @@ def gait_clock(time_s: jax.Array, period_s: float) -> jax.Array:
 
 
 def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
-            config: ObservationConfig = ORIGINAL, time_s: jax.Array | float = 0.0) -> jax.Array:
+            config: ObservationConfig = ORIGINAL, time_s: jax.Array | float = 0.0,
+            height_scan: jax.Array | None = None) -> jax.Array:
     """Build the observation (float32): the original's 24 values, then the enabled optional entries.
 
-    ``time_s`` is the episode time (env steps x dt), read only by the gait clock.
+    ``time_s`` is the episode time (env steps x dt), read only by the gait clock; ``height_scan`` the
+    scan values (required when ``config.height_scan`` is on).
     """
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
@@ -129,4 +134,8 @@ def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
         parts.append(servo_targets(data, index))
     if config.clock_period_s > 0:
         parts.append(gait_clock(time_s, config.clock_period_s))
+    if config.height_scan.enabled:
+        if height_scan is None:
+            raise ValueError("observation.height_scan is on: pass the scan values to observe()")
+        parts.append(height_scan)
     return jnp.concatenate(parts).astype(jnp.float32)

@@ -25,6 +25,10 @@ from flax import struct
 
 from hsa_mjx.terrain.params import TerrainConfig
 
+REDRAW_SALT = 0x5EED  # folded into an env's key for its top-level re-draw (independent of its reset draws)
+START_SALT = 0x7E11  # folded into an env's key for its start level
+OUTCOME_KEYS = ("cell_episodes", "cell_success")  # per-cell sums in the batch totals (arrays)
+
 
 @dataclasses.dataclass(frozen=True)
 class TerrainCurriculumConfig:
@@ -34,6 +38,10 @@ class TerrainCurriculumConfig:
     promote_progress: float = 0.8  # reaching the goal, or covering this share of the distance: one level up
     demote_progress: float = 0.3  # ending (not at the goal) with less than this share covered: one level down
     initial_spread: float = 0.5  # start levels uniform over the lowest round(spread x (levels - 1)) + 1 levels
+    # an env promoted from the top level moves to a uniformly drawn level instead of staying there
+    # (legged_gym's rule): solved types keep meeting every level, and the top level's share no longer
+    # saturates, so per-level success (terrain/success/<type>/L<level>) is what shows mastery
+    top_redraw: bool = False
 
 
 def validate(config: TerrainCurriculumConfig, terrain: TerrainConfig, per_env: bool, goal_mode: str
@@ -82,7 +90,7 @@ def init(keys: jax.Array, config: TerrainCurriculumConfig, terrain: TerrainConfi
     """Start levels of a batch (one PRNG key per env): types by proportion, levels spread from the keys."""
     batch = keys.shape[0]
     top = initial_max_level(config, terrain.levels)
-    level = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, 0x7E11), (), 0, top + 1))(keys)
+    level = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, START_SALT), (), 0, top + 1))(keys)
     return TerrainLevels(row=jnp.asarray(type_rows(batch, terrain.proportions)), level=level.astype(jnp.int32))
 
 
@@ -93,16 +101,46 @@ def placeholder(batch: int) -> TerrainLevels:
 
 
 def update(state: TerrainLevels, done: jax.Array, success: jax.Array, progress: jax.Array,
-           config: TerrainCurriculumConfig, levels: int) -> TerrainLevels:
+           config: TerrainCurriculumConfig, levels: int, keys: jax.Array | None = None) -> TerrainLevels:
     """Move every env whose episode ended (``done``) up or down a level by its outcome.
 
-    ``progress``: the share of the start distance covered, (start - final) / start.
+    ``progress``: the share of the start distance covered, (start - final) / start. ``keys`` (one
+    PRNG key per env) draw the new level of envs promoted from the top with ``top_redraw``.
     """
     done = done.astype(bool)
     up = done & (success.astype(bool) | (progress >= config.promote_progress))
     down = done & jnp.logical_not(up) & (progress < config.demote_progress)
     level = jnp.clip(state.level + up.astype(jnp.int32) - down.astype(jnp.int32), 0, levels - 1)
+    if config.top_redraw:
+        if keys is None:
+            raise ValueError("terrain_curriculum.top_redraw needs one PRNG key per env")
+        drawn = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, REDRAW_SALT), (), 0, levels))(keys)
+        level = jnp.where(up & (state.level == levels - 1), drawn.astype(jnp.int32), level)
     return state.replace(level=level)
+
+
+def cell_index(state: TerrainLevels, levels: int) -> jax.Array:
+    """Each env's cell as one index, row x levels + level, (B,) int32 (the outcome arrays' layout)."""
+    return state.row * levels + state.level
+
+
+def cell_outcomes(state: TerrainLevels, done: jax.Array, success: jax.Array, cells: int, levels: int
+                  ) -> dict[str, jax.Array]:
+    """Episodes ended and goals reached this step per cell (the level the episode ran on), (cells,) each."""
+    index = cell_index(state, levels)
+    ended = done.astype(jnp.float32)
+    return {OUTCOME_KEYS[0]: jax.ops.segment_sum(ended, index, num_segments=cells),
+            OUTCOME_KEYS[1]: jax.ops.segment_sum(ended * success.astype(jnp.float32), index, num_segments=cells)}
+
+
+def name_outcomes(sums: dict[str, jax.Array], types: tuple[str, ...], levels: int) -> dict[str, jax.Array]:
+    """The outcome arrays as one scalar per cell: ``terrain_<cell_episodes|cell_success>/<type>/<level>``."""
+    out = {}
+    for key in OUTCOME_KEYS:
+        for i, name in enumerate(types):
+            for level in range(levels):
+                out[f"terrain_{key}/{name}/{level}"] = sums[key][i * levels + level]
+    return out
 
 
 def totals(state: TerrainLevels, types: tuple[str, ...], levels: int) -> dict[str, jax.Array]:
@@ -127,10 +165,22 @@ def summarize(sums: dict[str, float], levels: int) -> dict[str, float]:
         out[f"terrain/mean_level/{name}"] = sums[f"terrain_level_sum/{name}"] / count
         out[f"terrain/top_share/{name}"] = sums[f"terrain_top/{name}"] / count
         envs, top = envs + count, top + sums[f"terrain_top/{name}"]
+    out.update(_cell_success(sums))
     if envs > 0:
         out["terrain/top_share"] = top / envs
         out["terrain/mean_level"] = sum(sums[k] for k in sums if k.startswith("terrain_level_sum/")) / envs
         out["terrain/levels"] = float(levels)
+    return out
+
+
+def _cell_success(sums: dict[str, float]) -> dict[str, float]:
+    """``terrain/success/<type>/L<level>``: goals reached per episode ended on that cell (cells with episodes)."""
+    out = {}
+    prefix = f"terrain_{OUTCOME_KEYS[0]}/"
+    for key, episodes in sums.items():
+        if key.startswith(prefix) and episodes > 0:
+            name, level = key[len(prefix):].rsplit("/", 1)
+            out[f"terrain/success/{name}/L{level}"] = sums[f"terrain_{OUTCOME_KEYS[1]}/{name}/{level}"] / episodes
     return out
 
 

@@ -100,7 +100,15 @@ class AutoResetEnv:
         env_state = self._reset_all(keys, self._goal_range(cstate), levels)
         zeros = jnp.zeros((batch,), jnp.float32)
         episode = EpisodeAccumulator(ret=zeros, length=zeros, terms={k: zeros for k in reward.TERM_NAMES})
-        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=_zero_totals(), terrain=levels)
+        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=self._zero_totals(), terrain=levels)
+
+    def _zero_totals(self) -> dict[str, jax.Array]:
+        """Zeroed totals; with the terrain curriculum also per-cell episode and success sums, (cells,) each."""
+        totals = _zero_totals()
+        if self.terrain_curriculum.enabled:
+            cells = len(self.env.config.terrain.types) * self.env.config.terrain.levels
+            totals.update({k: jnp.zeros((cells,), jnp.float32) for k in tcur.OUTCOME_KEYS})
+        return totals
 
     def _initial_levels(self, keys: jax.Array) -> tcur.TerrainLevels:
         """The terrain curriculum's start levels, or the placeholder without it."""
@@ -133,6 +141,11 @@ class AutoResetEnv:
             ret=state.episode.ret + nxt.reward, length=state.episode.length + 1.0,
             terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
         totals = self._add_totals(state.totals, nxt, episode, done)
+        if self.terrain_curriculum.enabled:  # per cell, on the level each ended episode ran on
+            terrain = self.env.config.terrain
+            outcomes = tcur.cell_outcomes(state.terrain, done, nxt.metrics["termination/goal_reached"] > 0,
+                                          len(terrain.types) * terrain.levels, terrain.levels)
+            totals = {**totals, **{k: totals[k] + v for k, v in outcomes.items()}}
         cstate = self._update_curriculum(state.curriculum, nxt.metrics["termination/goal_reached"] > 0, done)
         levels = self._update_levels(state.terrain, nxt, done)
         env_state = self._reset_done(nxt, done, cstate, levels, reset_metrics)
@@ -149,7 +162,7 @@ class AutoResetEnv:
         start = jnp.linalg.norm(nxt.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
         progress = 1.0 - nxt.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
         return tcur.update(levels, done, nxt.metrics["termination/goal_reached"] > 0, progress,
-                           self.terrain_curriculum, self.env.config.terrain.levels)
+                           self.terrain_curriculum, self.env.config.terrain.levels, nxt.pipeline_state.task.rng)
 
     def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
                            done: jax.Array) -> cur.CurriculumState:
@@ -172,7 +185,10 @@ class AutoResetEnv:
             old, fresh_sim = state.pipeline_state, new.pipeline_state
             sim = SimState(physics=backend.select(done, fresh_sim.physics, old.physics),
                            task=jax.tree.map(pick, fresh_sim.task, old.task))
-            return state.replace(pipeline_state=sim, obs=pick(new.obs, state.obs), metrics=metrics)
+            info = dict(state.info)  # truncation stays the step's; privileged inputs follow the observation
+            if "privileged_obs" in info:
+                info["privileged_obs"] = pick(new.info["privileged_obs"], info["privileged_obs"])
+            return state.replace(pipeline_state=sim, obs=pick(new.obs, state.obs), metrics=metrics, info=info)
         return jax.lax.cond(jnp.any(done), fresh, lambda s: s, nxt)
 
     @staticmethod
@@ -193,7 +209,7 @@ class AutoResetEnv:
         }
         add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
         add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
-        return {k: totals[k] + add[k] for k in totals}
+        return {**totals, **{k: totals[k] + add[k] for k in add}}
 
     def drain(self, state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
         """Return the totals (with the terrain levels' snapshot) and the state with them zeroed (between jitted chunks)."""
@@ -201,6 +217,8 @@ class AutoResetEnv:
         if self.terrain_curriculum.enabled:
             terrain = self.env.config.terrain
             totals.update(tcur.totals(state.terrain, tuple(terrain.types), terrain.levels))
+            outcomes = {k: totals.pop(k) for k in tcur.OUTCOME_KEYS}
+            totals.update(tcur.name_outcomes(outcomes, tuple(terrain.types), terrain.levels))
         return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), totals
 
 

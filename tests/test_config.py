@@ -82,7 +82,9 @@ def test_observation_section_is_opt_in_and_checked():
     on = cfg.from_dict({"observation": {"heading": True}})
     assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
     assert cfg.to_dict(on)["observation"] == {"heading": True, "servo_targets": False, "clock_period_s": 0.0,
-                                                "hinge_angles": "raw"}
+                                                "hinge_angles": "raw", "height_scan": cfg.to_dict(on)["observation"][
+                                                    "height_scan"]}
+    assert cfg.to_dict(on)["observation"]["height_scan"]["enabled"] is False  # off by default
     assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
     with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*'heading'"):
         cfg.from_dict({"observation": {"headng": True}})

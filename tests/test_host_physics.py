@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import hsa_mjx
+from hsa_mjx import height_scan
 from hsa_mjx.host_physics import HostPhysics
 
 STEPS = 40
@@ -20,6 +21,32 @@ STEPS = 40
 # than MJX's: the 40-step reward sums were 3.29 with MJX and 2.20 with C).
 QPOS_TOL = {"flat": 2e-3, "craters": 0.06}
 REWARD_TOL = {"flat": 1e-2, "craters": 0.15}
+# the observation carries the height scan, so both physics paths' scans are checked on every step's state
+SCAN = {"observation.heading": True, "observation.height_scan.enabled": True}
+REST = 0.14  # block origins above level ground at rest: the scan's zero
+
+
+def _scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
+    """The scan values of a state's observation."""
+    return np.asarray(state.obs)[-height_scan.num_points(env.config.observation.height_scan):]
+
+
+def _ray_scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
+    """The scan computed independently: C MuJoCo ray casts onto the floor the state's physics stands on."""
+    import mujoco
+    physics, model = state.pipeline_state.physics, env.robot.mj_model
+    data = mujoco.MjData(model)
+    data.mocap_pos[:] = np.asarray(physics.mocap_pos)  # the env's tile under the origin (terrain scene)
+    data.qpos[env.index.block_qpos + 2] = 10.0  # the robot out of the rays' way
+    mujoco.mj_kinematics(model, data)
+    blocks = np.asarray(physics.xpos)[env.index.block_body]
+    position, axis = blocks[:, :2].mean(axis=0), blocks[1, :2] - blocks[0, :2]
+    points = np.asarray(height_scan.world_points(jnp.asarray(height_scan.local_points(
+        env.config.observation.height_scan)), jnp.asarray(position), jnp.asarray(axis / np.linalg.norm(axis))))
+    geom = np.zeros(1, np.int32)
+    ground = np.array([3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]),
+                                           None, 1, -1, geom) for x, y in points])
+    return np.clip(ground - (blocks[:, 2].mean() - REST), -1.0, 1.0)
 
 
 def _both(env: hsa_mjx.HSAEnv, key: int = 0) -> tuple[list, list]:
@@ -38,7 +65,7 @@ def _both(env: hsa_mjx.HSAEnv, key: int = 0) -> tuple[list, list]:
 
 @pytest.mark.parametrize("preset", ["flat", "craters"])
 def test_host_physics_follows_mjx_within_the_bound(preset):
-    env = hsa_mjx.make_env(preset, physics__backend="jax")
+    env = hsa_mjx.make_env(preset, physics__backend="jax", **SCAN)
     mjx_states, host_states = _both(env)
     worst = max(float(np.abs(np.asarray(a.pipeline_state.physics.qpos) - np.asarray(b.pipeline_state.physics.qpos)).max())
                 for a, b in zip(mjx_states, host_states))
@@ -50,6 +77,11 @@ def test_host_physics_follows_mjx_within_the_bound(preset):
     if preset == "flat":  # on terrain the joint velocities in the observation differ by more (see above)
         np.testing.assert_allclose(np.asarray(b.obs), np.asarray(a.obs), atol=0.05)
     assert float(b.pipeline_state.physics.time) == pytest.approx(STEPS * env.dt, rel=1e-5)
+    for state in (a, b):  # each path's scan is the terrain under its own robot, as C MuJoCo collides with it
+        np.testing.assert_allclose(_scan(env, state), _ray_scan(env, state), atol=1e-4)
+    if preset == "craters":
+        assert np.ptp(_scan(env, b)) > 0.01  # the scan saw relief
+    np.testing.assert_allclose(_scan(env, a), _scan(env, b), atol=0.03)  # the two robots stand about alike
 
 
 def test_a_diverging_c_state_terminates_as_non_finite():

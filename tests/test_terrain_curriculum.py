@@ -132,6 +132,39 @@ def test_promotion_and_demotion_follow_the_episode_outcome():
     assert np.asarray(middling.level).tolist() == [2, 2, 2, 2, 0, 4]  # 50 %: neither
 
 
+def test_top_redraw_sends_envs_promoted_from_the_top_to_random_levels():
+    config = tcur.TerrainCurriculumConfig(enabled=True, top_redraw=True)
+    batch, levels = 512, 10
+    state = tcur.TerrainLevels(row=jnp.zeros(batch, jnp.int32), level=jnp.full(batch, levels - 1, jnp.int32))
+    keys = jax.random.split(jax.random.PRNGKey(0), batch)
+    done, success = jnp.arange(batch) % 2 == 0, jnp.ones(batch, bool)
+    new = np.asarray(tcur.update(state, done, success, jnp.ones(batch), config, levels, keys).level)
+    assert np.all(new[1::2] == levels - 1)  # still running: kept at the top
+    redrawn = new[0::2]
+    assert redrawn.min() == 0 and redrawn.max() == levels - 1 and len(set(redrawn.tolist())) == levels
+    again = tcur.update(state, done, success, jnp.ones(batch), config, levels, keys).level
+    np.testing.assert_array_equal(np.asarray(again), new)  # reproducible from the keys
+    below = state.replace(level=jnp.full(batch, 3, jnp.int32))  # promoted below the top: one level up, as before
+    assert np.all(np.asarray(tcur.update(below, done, success, jnp.ones(batch), config, levels, keys).level)[0::2] == 4)
+    kept = tcur.update(state, done, success, jnp.ones(batch), dataclasses.replace(config, top_redraw=False), levels)
+    assert np.all(np.asarray(kept.level) == levels - 1)  # without the rule the top level holds
+    with pytest.raises(ValueError, match="key"):
+        tcur.update(state, done, success, jnp.ones(batch), config, levels)
+
+
+def test_success_is_logged_per_type_and_level_of_the_episode_that_ended():
+    types, levels = ("flat", "poles"), 3
+    state = tcur.TerrainLevels(row=jnp.asarray([0, 0, 1, 1, 1]), level=jnp.asarray([2, 2, 0, 1, 1]))
+    done = jnp.asarray([True, True, True, True, False])
+    success = jnp.asarray([True, False, True, False, True])  # the last env's episode has not ended
+    sums = tcur.cell_outcomes(state, done, success, len(types) * levels, levels)
+    named = {k: float(v) for k, v in tcur.name_outcomes(sums, types, levels).items()}
+    summary = tcur.summarize(named, levels)
+    assert summary["terrain/success/flat/L2"] == 0.5 and summary["terrain/success/poles/L0"] == 1.0
+    assert summary["terrain/success/poles/L1"] == 0.0
+    assert "terrain/success/flat/L0" not in summary  # no episode ended there: not logged as 0
+
+
 def test_level_logs_per_type_and_top_share():
     state = tcur.TerrainLevels(row=jnp.asarray([0, 0, 1, 1]), level=jnp.asarray([0, 4, 4, 4]))
     sums = {k: float(v) for k, v in tcur.totals(state, ("flat", "poles"), levels=5).items()}

@@ -31,6 +31,10 @@ def test_default_and_shipped_configs_validate():
         assert (config.env.physics.integrator, config.env.physics.iterations) == ("implicitfast", 8)
         assert not config.env.terrain.per_env  # one shared track (exact: test_terrain_env)
     corridor = tcfg.to_dict(tcfg.load("configs/train_corridor.yaml"))
+    rough = tcfg.load("configs/train_rough.yaml")  # perception: the scan, a privileged critic, top re-draws
+    assert rough.env.observation.height_scan.enabled and rough.env.observation.height_scan.noise > 0
+    assert rough.ppo.privileged_critic and rough.terrain_curriculum.top_redraw
+    assert not corridor["env"]["observation"].pop("height_scan")["enabled"]
     assert corridor["env"]["observation"] == {"heading": True, "servo_targets": True, "clock_period_s": 4.0,
                                               "hinge_angles": "raw"}
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
@@ -70,6 +74,12 @@ def test_training_configs_use_the_guarded_physics():
     ({"curriculum": {"window_size": 0}}, "window_size"),
     ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
     ({"run": {"init_normalizer_count": -5}}, r"run.init_normalizer_count.*>= 0"),
+    ({"ppo": {"learning_rate": -0.001}}, r"ppo.learning_rate' = -0.001 is out of range.*\[0.0, inf\)"),
+    ({"ppo": {"discounting": 1.5}}, r"ppo.discounting' = 1.5 .*\(0.0, 1.0\]"),
+    ({"ppo": {"clipping_epsilon": -0.2}}, r"ppo.clipping_epsilon' = -0.2"),
+    ({"ppo": {"gae_lambda": 7}}, r"ppo.gae_lambda' = 7.0 .*\[0.0, 1.0\]"),
+    ({"ppo": {"entropy_cost": float("nan")}}, r"ppo.entropy_cost' = nan"),
+    ({"run": {"seed": -5}}, r"run.seed' = -5 .*\[0, 4294967295\]"),
 ])
 def test_bad_config_is_named(data, match):
     with pytest.raises(ValueError, match=match):

@@ -65,6 +65,10 @@ class PPOConfig:
     # action dim, "scalar" (softplus) or "log" (exp, as SB3's log_std)
     distribution_type: str = "tanh_normal"
     noise_std_type: str = "scalar"
+    # true: the value network also reads the privileged inputs (hsa_mjx.privileged: the noise-free
+    # height scan, true block velocities, foot forces, terrain type and level) after the observation;
+    # the policy, and every exported policy, reads the observation alone
+    privileged_critic: bool = False
 
 
 MULTI_DEVICE = ("auto", "pmap", "per_device")
@@ -147,6 +151,7 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
                          ("noise_std_type", NOISE_STD_TYPES)):
         if getattr(ppo, key) not in choices:
             raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
+    _validate_ranges(config)
     if ppo.observation_clip < 0:
         raise ValueError(f"config key 'ppo.observation_clip' must be >= 0 (0: no clip), got {ppo.observation_clip}")
     for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
@@ -172,6 +177,31 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
     if device_count is not None:
         _validate_devices(config, device_count)
     return config
+
+
+# (section, key): (lowest, highest, whether the ends are allowed), checked before anything compiles
+RANGES = {
+    ("ppo", "learning_rate"): (0.0, float("inf"), (True, False)),  # 0 freezes the networks (a warm-start check)
+    ("ppo", "entropy_cost"): (0.0, float("inf"), (True, False)),
+    ("ppo", "discounting"): (0.0, 1.0, (False, True)),
+    ("ppo", "gae_lambda"): (0.0, 1.0, (True, True)),
+    ("ppo", "clipping_epsilon"): (0.0, float("inf"), (False, False)),
+    ("ppo", "reward_scaling"): (0.0, float("inf"), (False, False)),
+    ("ppo", "max_grad_norm"): (0.0, float("inf"), (False, False)),
+    ("ppo", "vf_loss_coefficient"): (0.0, float("inf"), (False, False)),
+    ("ppo", "init_noise_std"): (0.0, float("inf"), (False, False)),
+    ("run", "seed"): (0, 2**32 - 1, (True, True)),
+}
+
+
+def _validate_ranges(config: TrainConfig) -> None:
+    """Every number with a valid range inside it (finite), or ValueError naming key, value and range."""
+    for (section, key), (lo, hi, (lo_in, hi_in)) in RANGES.items():
+        value = getattr(getattr(config, section), key)
+        ok = (value >= lo if lo_in else value > lo) and (value <= hi if hi_in else value < hi)
+        if not ok or value != value:  # NaN fails every comparison
+            span = f"{'[' if lo_in else '('}{lo}, {hi}{']' if hi_in else ')'}"
+            raise ValueError(f"config key '{section}.{key}' = {value!r} is out of range; it must lie in {span}")
 
 
 def _validate_devices(config: TrainConfig, devices: int) -> None:

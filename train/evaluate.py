@@ -99,9 +99,10 @@ def env_overrides(data: dict, overrides: tuple[str, ...] | list[str]) -> dict:
 
 def load_training_state(config: tcfg.TrainConfig, path: Path, observation_size: int, action_size: int):
     """(PPO networks, training state) of the checkpoint at ``path`` written with ``config``."""
-    from train.ppo import init_training_state, make_networks
-    networks = make_networks(config, observation_size, action_size)
-    template_ts = init_training_state(config, networks, jax.random.PRNGKey(0), observation_size)
+    from train.ppo import init_training_state, make_networks, privileged_size
+    extra = privileged_size(config)  # a privileged critic's inputs: in the checkpoint, never in the policy's input
+    networks = make_networks(config, observation_size, action_size, extra)
+    template_ts = init_training_state(config, networks, jax.random.PRNGKey(0), observation_size + extra)
     template = {"training_state": template_ts, "curriculum": cur.init(config.curriculum),
                 "rng": jax.random.PRNGKey(0)}
     restored = checkpoint.load(path, template)

@@ -57,7 +57,8 @@ def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
         dense = [tree["MLP_0"][f"hidden_{i}"] for i in range(len(tree["MLP_0"]))] + [tree["Dense_0"]]
     n_obs = np.asarray(dense[0]["kernel"]).shape[0]
     if config.ppo.normalize_observations:
-        mean, std = ts.normalizer.mean, ts.normalizer.std
+        # the policy's own inputs only: a privileged critic's follow them in the statistics
+        mean, std = ts.normalizer.mean[:n_obs], ts.normalizer.std[:n_obs]
     else:
         mean, std = np.zeros(n_obs), np.ones(n_obs)
     f32 = lambda x: np.asarray(x, np.float32)  # noqa: E731

@@ -103,7 +103,7 @@ class PerDeviceLearner(PPOLearner):
         self.batch_envs = []
         for device in self.devices:
             with jax.default_device(device):
-                piece = HSAEnv(config.env, num_envs=self.envs_per_device)
+                piece = HSAEnv(config.env, num_envs=self.envs_per_device, privileged=config.ppo.privileged_critic)
                 self.batch_envs.append(AutoResetEnv(piece, config.curriculum, step_curriculum=False,
                                                     terrain_curriculum=config.terrain_curriculum))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated

@@ -21,15 +21,18 @@ import jax
 import jax.numpy as jnp
 import optax
 from brax.training import gradients, types
+from brax.training import networks as brax_networks
 from brax.training.acme import running_statistics
 from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
 from hsa_mjx import curriculum as cur
+from hsa_mjx import privileged
 from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.training_env import AutoResetEnv, BatchState
+from hsa_mjx.types import EnvState
 from train import compat
 from train.config import TrainConfig
 
@@ -47,17 +50,52 @@ class TrainingState:
     normalizer: running_statistics.RunningStatisticsState
 
 
-def make_networks(config: TrainConfig, observation_size: int, action_size: int) -> ppo_networks.PPONetworks:
-    """Brax PPO actor and critic MLPs with the configured sizes."""
+def make_networks(config: TrainConfig, observation_size: int, action_size: int,
+                  privileged_size: int = 0) -> ppo_networks.PPONetworks:
+    """Brax PPO actor and critic MLPs with the configured sizes.
+
+    With ``privileged_size`` > 0 (``ppo.privileged_critic``) the networks' input is the policy's
+    observation followed by the privileged values: the value network reads all of it, the policy
+    only its first ``observation_size`` values (it also accepts the observation alone, as evaluation
+    and export give it).
+    """
     ppo = config.ppo
     normalize = types.identity_observation_preprocessor
     if ppo.normalize_observations:
         normalize = functools.partial(running_statistics.normalize, max_abs_value=ppo.observation_clip or None)
-    return ppo_networks.make_ppo_networks(
-        observation_size, action_size, preprocess_observations_fn=normalize,
+    actor_normalize = normalize if privileged_size == 0 else _actor_view(normalize, observation_size)
+    networks = ppo_networks.make_ppo_networks(  # the policy's parameters are sized for the observation alone
+        observation_size, action_size, preprocess_observations_fn=actor_normalize,
         policy_hidden_layer_sizes=ppo.policy_hidden_sizes, value_hidden_layer_sizes=ppo.value_hidden_sizes,
         activation=ACTIVATIONS[ppo.activation], init_noise_std=ppo.init_noise_std,
         distribution_type=ppo.distribution_type, noise_std_type=ppo.noise_std_type)
+    if privileged_size == 0:
+        return networks
+    value = brax_networks.make_value_network(
+        observation_size + privileged_size, preprocess_observations_fn=normalize,
+        hidden_layer_sizes=ppo.value_hidden_sizes, activation=ACTIVATIONS[ppo.activation])
+    return networks.replace(value_network=value)
+
+
+def _actor_view(normalize: Callable, actor_size: int) -> Callable:
+    """The policy's preprocessing under a privileged critic: normalise, then keep the actor's values."""
+    def preprocess(obs: jax.Array, stats: running_statistics.RunningStatisticsState) -> jax.Array:
+        if obs.shape[-1] == actor_size:  # the policy's observation alone
+            return normalize(obs, stats.replace(mean=stats.mean[:actor_size], std=stats.std[:actor_size]))
+        return normalize(obs, stats)[..., :actor_size]
+    return preprocess
+
+
+def privileged_size(config: TrainConfig) -> int:
+    """Privileged inputs the networks read after the observation (0 without ``ppo.privileged_critic``)."""
+    return privileged.size(config.env.observation) if config.ppo.privileged_critic else 0
+
+
+def network_obs(state: EnvState, privileged: bool) -> jax.Array:
+    """What the networks read from an env state: the observation, then the privileged inputs when used."""
+    if not privileged:
+        return state.obs
+    return jnp.concatenate([state.obs, state.info["privileged_obs"]], axis=-1)
 
 
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
@@ -89,7 +127,11 @@ class PPOLearner:
         # the curriculum learns from each collection's outcomes in ``_learn`` (gathered over devices)
         self.batch_env = AutoResetEnv(env, config.curriculum, step_curriculum=False,
                                       terrain_curriculum=config.terrain_curriculum)
-        self.networks = make_networks(config, env.observation_size, env.action_size)
+        self.privileged = config.ppo.privileged_critic
+        if self.privileged and not env.privileged:
+            raise ValueError("ppo.privileged_critic needs an env built with HSAEnv(..., privileged=True)")
+        self.networks = make_networks(config, env.observation_size, env.action_size, env.privileged_size)
+        self.network_input_size = env.observation_size + env.privileged_size
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         self.optimizer = make_optimizer(config)
         ppo = config.ppo
@@ -143,13 +185,14 @@ class PPOLearner:
         def step(carry, _):
             s, k = carry
             k, k_act = jax.random.split(k)
-            actions, extras = policy(s.obs, k_act)
+            obs = network_obs(s.env, self.privileged)
+            actions, extras = policy(obs, k_act)
             ns = batch_env.step(s, actions)
             state_extras = {"truncation": ns.env.info["truncation"], "episode_done": ns.env.done,
                             "goal_reached": ns.env.metrics["termination/goal_reached"]}
             transition = types.Transition(
-                observation=s.obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
-                next_observation=ns.env.obs, extras={"policy_extras": extras, "state_extras": state_extras})
+                observation=obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
+                next_observation=network_obs(ns.env, self.privileged), extras={"policy_extras": extras, "state_extras": state_extras})
             return (ns, k), transition
 
         (state, _), data = jax.lax.scan(step, (state, key), None, length=self.config.ppo.unroll_length)

@@ -26,7 +26,7 @@ from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar
 from train.per_device import make_learner
-from train.ppo import AXIS, TrainingState, init_training_state, replicate, unreplicate
+from train.ppo import AXIS, TrainingState, init_training_state, privileged_size, replicate, unreplicate
 
 
 class _StopFlag:
@@ -143,6 +143,9 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
     if observation_size(src.env.observation) != observation_size(config.env.observation):
         bad.append(f"observation size ({observation_size(src.env.observation)} vs {observation_size(config.env.observation)}: "
                    f"env.observation: heading, servo_targets, clock_period_s, hinge_angles)")
+    if privileged_size(src) != privileged_size(config):
+        bad.append(f"privileged critic inputs ({privileged_size(src)} vs {privileged_size(config)}: ppo.privileged_critic, "
+                   "env.observation.height_scan)")
     if bad:
         raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
     return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
@@ -183,11 +186,12 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     devices = select_devices(config)
     init = None if resume else read_init_from(config)
     meta = prepare_run_dir(run_dir, config_dict, resume)
-    env = HSAEnv(config.env, num_envs=config.run.num_envs // distributed.global_device_count(devices))
+    env = HSAEnv(config.env, num_envs=config.run.num_envs // distributed.global_device_count(devices),
+                 privileged=config.ppo.privileged_critic)
     learner = make_learner(config, env, devices)
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
-    ts = init_training_state(config, learner.networks, k_init, env.observation_size)
+    ts = init_training_state(config, learner.networks, k_init, learner.network_input_size)
     cstate, step, levels = cur.init(config.curriculum), 0, None
     if meta is not None:
         restored = checkpoint.load(meta["path"], _payload(ts, cstate, key))

@@ -76,6 +76,13 @@ class TerrainWorld:
             return jnp.zeros(xy.shape[:-1], jnp.float32)
         return surface_height(self._atlas, self._atlas_grid, xy + self._centres[tile])
 
+    def level_fraction(self, tile: jax.Array) -> jax.Array:
+        """The difficulty level of ``tile`` as a fraction of the top level (0 on a plane or with one level)."""
+        levels = self.config.levels if self.enabled else 1
+        if levels <= 1:
+            return jnp.zeros((), jnp.float32)
+        return jnp.asarray(self.pool.tile_level, jnp.float32)[tile] / (levels - 1)
+
     def tile_data(self, tile: jax.Array) -> jax.Array:
         """The heightfield data (tile nrow * ncol,) of ``tile``, as its generator made it."""
         return jnp.asarray(self.pool.tiles)[tile]

@@ -1,0 +1,48 @@
+"""Privileged critic inputs: what the simulator knows and a robot's sensors do not.
+
+With a privileged critic (``ppo.privileged_critic``) the PPO value network reads these values after
+the policy's observation; the policy, and every exported policy, never sees them. In order: the
+noise-free height scan (when ``observation.height_scan`` is on), each block's true linear and
+angular velocity (world frame, 12 values), the four feet's contact-force norms (N / 100), the
+terrain type one-hot over ``hsa_mjx.terrain.TERRAIN_TYPES`` and the tile's difficulty level as a
+fraction of the top level.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from hsa_mjx import height_scan
+from hsa_mjx.backend import mjx
+from hsa_mjx.config import ObservationConfig
+from hsa_mjx.model import RobotIndex
+from hsa_mjx.physics import foot_forces
+from hsa_mjx.terrain.params import TERRAIN_TYPES
+
+FORCE_UNIT = 100.0  # N: contact forces are given in hundreds of newtons (resting feet carry ~12 N each)
+BLOCK_DOFS = 6  # a free joint's velocity: linear (3), angular (3)
+FEET = 4
+
+
+def labels(config: ObservationConfig) -> tuple[str, ...]:
+    """A name per privileged value, in :func:`inputs`' order."""
+    scan = tuple(f"clean_{name}" for name in height_scan.labels(config.height_scan))
+    velocity = tuple(f"block_{b}_{kind}{axis}" for b in "ab" for kind in ("v", "w") for axis in "xyz")
+    return (scan + velocity + tuple(f"foot_force_{i}" for i in range(FEET))
+            + tuple(f"terrain_is_{name}" for name in TERRAIN_TYPES) + ("terrain_level",))
+
+
+def size(config: ObservationConfig) -> int:
+    """Number of privileged values for this observation config."""
+    return len(labels(config))
+
+
+def inputs(data: mjx.Data, index: RobotIndex, clean_scan: jax.Array, terrain_id: jax.Array,
+           level_fraction: jax.Array) -> jax.Array:
+    """The privileged values (float32); ``clean_scan``: the noise-free scan as the observation shapes it
+    ((0,) when off)."""
+    block_velocity = data.qvel[index.block_qvel[:, None] + jnp.arange(BLOCK_DOFS)[None, :]].reshape(-1)
+    parts = [clean_scan, block_velocity, foot_forces(data, index.foot_sensors) / FORCE_UNIT,
+             jax.nn.one_hot(terrain_id, len(TERRAIN_TYPES)), jnp.reshape(level_fraction, (1,))]
+    return jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts])
