@@ -15,6 +15,10 @@ import importlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hsa_mjx import gl
+
+gl.choose_platform()  # before anything imports mujoco: offscreen frames on a headless machine
+
 if TYPE_CHECKING:
     from hsa_mjx.config import EnvConfig
     from hsa_mjx.env import HSAEnv

@@ -10,6 +10,7 @@ quirks fixed as listed in ``docs/environment.md``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from pathlib import Path
 from typing import Any, Mapping
@@ -248,8 +249,23 @@ def build_section(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
     return _build(cls, data, prefix)
 
 
+def _non_finite(config: Any, prefix: str = "") -> list[str]:
+    """Dotted keys of every NaN or infinite number in a config tree."""
+    bad = []
+    for field in dataclasses.fields(config):
+        value, key = getattr(config, field.name), f"{prefix}{field.name}"
+        if dataclasses.is_dataclass(value):
+            bad += _non_finite(value, key + ".")
+        elif any(isinstance(v, float) and not math.isfinite(v) for v in (value if isinstance(value, tuple) else (value,))):
+            bad.append(f"'{key}' = {value!r}")
+    return bad
+
+
 def validate(config: EnvConfig) -> EnvConfig:
     """Check choices and value ranges; return the config unchanged or raise ValueError."""
+    bad = _non_finite(config)
+    if bad:
+        raise ValueError(f"config values must be finite numbers; got {bad}")
     for path, choices in _CHOICES.items():
         value = _get(config, path)
         if value not in choices:

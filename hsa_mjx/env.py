@@ -11,8 +11,8 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from brax.envs.base import Env as BraxEnv
-from hsa_mjx.backend import mjx
+from hsa_mjx.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
+from brax.envs.base import Env as BraxEnv  # noqa: I001
 
 from hsa_mjx import backend, control, goals, height_scan, observation, physics, pose, privileged, reward, termination
 from hsa_mjx.config import EnvConfig

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import jax
-from brax.envs.base import State as BraxState
+from hsa_mjx.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
+from brax.envs.base import State as BraxState  # noqa: I001
 from flax import struct
-from hsa_mjx.backend import mjx
 
 
 @struct.dataclass

@@ -98,3 +98,10 @@ def test_observation_section_is_opt_in_and_checked():
     assert all(p.observation.hinge_angles == "raw" for p in cfg.PRESETS.values())  # the original's angles
     with pytest.raises(ValueError, match=r"observation.hinge_angles.*'wrap'.*\['raw', 'wrapped', 'sincos'\]"):
         cfg.from_dict({"observation": {"hinge_angles": "wrap"}})
+
+
+@pytest.mark.parametrize("key", ["reward.forward", "termination.z_max", "goal.radial_range"])
+def test_non_finite_numbers_are_refused_naming_the_key(key):
+    value = [1.5, float("inf")] if key == "goal.radial_range" else float("nan")
+    with pytest.raises(ValueError, match=f"finite.*{key}"):
+        cfg.with_overrides(cfg.get_preset("flat"), **{key: value})

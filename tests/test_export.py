@@ -240,3 +240,24 @@ def test_numpy_policy_loads_and_runs_without_jax(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           cwd=Path(__file__).resolve().parent.parent)
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
+SHIPPED = sorted(p.parent.name for p in Path("policies").glob(f"*/{pol.META_FILE}"))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_a_shipped_policy_folder_converts_to_onnx_with_the_same_actions(name, tmp_path, capsys):
+    """``python -m train.export policies/NAME --format onnx``: the documented bound, 1e-5, holds for
+    observations within 10 standard deviations of the normaliser's mean (arbitrary values far
+    outside it round differently in float32: docs/policies.md)."""
+    policy = pol.load_policy(Path("policies") / name)
+    assert export.main([f"policies/{name}", "--format", "onnx", "--out", str(tmp_path / "onnx")]) == 0
+    meta = json.loads((tmp_path / "onnx" / pol.META_FILE).read_text())
+    assert meta["source"]["converted_from"] == f"policies/{name}" and meta["observation"] == policy.meta["observation"]
+    rng = np.random.default_rng(0)
+    scale = rng.uniform(-10, 10, size=(200, policy.observation_size))
+    obs = (policy.params["obs_mean"] + scale * policy.params["obs_std"]).astype(np.float32)
+    np.testing.assert_allclose(onnx_actions(tmp_path / "onnx", obs), policy(obs), atol=1e-5, rtol=0)
+    assert export.main([f"policies/{name}", "--format", "onnx", "--checkpoint", "x", "--out",
+                        str(tmp_path / "again")]) == 2
+    assert "policy directory holds one policy" in capsys.readouterr().err

@@ -1,5 +1,7 @@
 """The Gymnasium adapter: registration, check_env, determinism, bad input, rendering."""
 
+import ctypes.util
+
 import gymnasium
 import numpy as np
 import pytest
@@ -92,3 +94,30 @@ def test_bad_render_mode_and_preset():
         gymnasium.make("hsa_mjx/HSA-v0", render_mode="vr")
     with pytest.raises(ValueError, match="available presets"):
         gymnasium.make("hsa_mjx/HSA-v0", config="nope")
+
+
+def test_gl_platform_is_chosen_for_a_headless_machine_and_a_users_choice_kept():
+    from hsa_mjx import gl
+    assert gl.choose_platform({"MUJOCO_GL": "osmesa"}) == "osmesa"
+    assert gl.choose_platform({"DISPLAY": ":0"}) is None  # MuJoCo's default (GLFW) with a display
+    headless: dict = {}
+    expected = next((p for p, lib in gl.OFFSCREEN if ctypes.util.find_library(lib)), None)
+    assert gl.choose_platform(headless) == expected and headless.get("MUJOCO_GL") == expected
+    assert expected == "egl"  # this machine (and CI's) has EGL
+
+
+def test_render_works_headless_with_mujoco_gl_unset(tmp_path):
+    """The README's render snippet in a fresh process without MUJOCO_GL or a display."""
+    import os
+    import subprocess
+    import sys
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
+    code = ("import gymnasium, os, hsa_mjx\n"
+            "env = gymnasium.make('hsa_mjx/HSA-v0', render_mode='rgb_array', width=64, height=48)\n"
+            "env.reset(seed=0)\n"
+            "frame = env.render()\n"
+            "print(os.environ['MUJOCO_GL'], frame.shape, frame.dtype, int(frame.std() > 1))\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split("\n")[-2] == "egl (48, 64, 3) uint8 1", out.stdout

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -72,12 +73,68 @@ def test_resume_refuses_other_config_and_overwrite(run_dir):
         train(tiny(), run_dir, quiet=True)
 
 
+def _crashed_copy(run_dir, tmp_path):
+    """A copy of the run as a kill -9 after its newest checkpoint leaves it: log records past the
+    checkpoint and a cut-off last line. Returns (copy, the checkpoint's step)."""
+    copy = tmp_path / "crashed"
+    shutil.copytree(run_dir, copy)
+    step = int(checkpoint.read_meta(checkpoint.latest(copy))["step"])
+    with (copy / "metrics.jsonl").open("a") as fh:
+        for later in (step + 40, step + 80):
+            fh.write(json.dumps({"step": later, "time": 0.0, "episodes": 0.0}) + "\n")
+        fh.write('{"step": ')
+    return copy, step
+
+
+def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
+    from train.trainer import train
+    copy, step = _crashed_copy(run_dir, tmp_path)
+    summary = train(tiny(num_timesteps=step + 80), copy, resume=True, quiet=True)
+    assert summary["env_steps"] == step + 80
+    steps = [r["step"] for r in records(copy)]
+    assert steps == sorted(set(steps)) and steps[-2:] == [step + 40, step + 80], steps  # strictly increasing
+    assert records(copy)[-1]["episodes"] > 0 or "loss/total_loss" in records(copy)[-1]  # the new run's records
+    with pytest.raises(ValueError, match=r"already holds a run.*--resume.*--overwrite"):
+        train(tiny(), copy, quiet=True)  # a second start without --resume
+
+
+def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, capsys):
+    from train.trainer import train
+    copy, step = _crashed_copy(run_dir, tmp_path)
+    (checkpoint.latest(copy) / checkpoint.STATE_FILE).write_bytes(b"\x00 not msgpack")
+    previous = checkpoint.list_checkpoints(copy)[-2]
+    start = int(checkpoint.read_meta(previous)["step"])
+    summary = train(tiny(num_timesteps=step + 40), copy, resume=True, quiet=True)
+    out = capsys.readouterr().out
+    assert "skipping unreadable checkpoint" in out and f"resuming from the newest readable checkpoint, {previous.name}" in out
+    assert summary["env_steps"] == step + 40
+    steps = [r["step"] for r in records(copy)]
+    assert steps == sorted(set(steps)) and steps[-1] == step + 40 and start in steps
+
+
+def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
+    from train.trainer import prepare_run_dir
+    early = tmp_path / "early"  # killed before its first checkpoint: logs only
+    early.mkdir()
+    (early / "metrics.jsonl").write_text(json.dumps({"step": 40}) + "\n")
+    (early / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="already holds a run \\(metrics.jsonl\\)"):
+        prepare_run_dir(early, {"run": {}}, resume=False)
+    with pytest.raises(FileNotFoundError, match="no readable checkpoint"):
+        prepare_run_dir(early, {"run": {}}, resume=True)
+    assert prepare_run_dir(early, {"run": {"seed": 3}}, resume=False, overwrite=True) is None
+    assert not (early / "metrics.jsonl").exists() and (early / "notes.txt").read_text() == "mine"
+    assert "seed: 3" in (early / "config.yaml").read_text()
+
+
 def test_cli_errors_before_compile(run_dir, capsys):
     from train.cli import main
     assert main(["--config", "configs/nope.yaml"]) == 2
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--set", "ppo.nope=1"]) == 2
     assert main(["--resume"]) == 2
+    assert main(["--resume", "--overwrite", "--run-dir", str(run_dir)]) == 2
     err = capsys.readouterr().err
+    assert "give one" in err
     assert "not found" in err and "unknown config key" in err and "--run-dir" in err
 
 

@@ -90,6 +90,24 @@ def latest(run_dir: str | Path) -> Path:
     return found[-1]
 
 
+def latest_readable(run_dir: str | Path) -> tuple[Path, list[str]]:
+    """The newest checkpoint whose metadata and state decode, and why each newer one was skipped.
+
+    A crash while a checkpoint is written leaves no partial one (temp dir + rename), but a disk
+    fault or a hand edit can; resuming then falls back to the newest good one instead of failing.
+    """
+    skipped = []
+    for path in reversed(list_checkpoints(run_dir)):
+        try:
+            read_meta(path)
+            serialization.msgpack_restore((path / STATE_FILE).read_bytes())
+            return path, skipped
+        except Exception as err:  # msgpack raises several unrelated types on garbage
+            skipped.append(f"{path.name}: {type(err).__name__}: {err}")
+    raise FileNotFoundError(f"no readable checkpoint in {checkpoint_dir(run_dir)}"
+                            + (f" (unreadable: {skipped})" if skipped else " (expected directories named step_<12 digits>)"))
+
+
 def read_meta(path: str | Path) -> dict:
     """The JSON metadata of a checkpoint directory (ValueError if missing or corrupt)."""
     path = Path(path)

@@ -33,7 +33,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                         help="override a config value, e.g. --set ppo.learning_rate=1e-4 (repeatable)")
     parser.add_argument("--run-dir", default=None, help="output directory (default runs/<config name>-<time>)")
-    parser.add_argument("--resume", action="store_true", help="continue from the run dir's latest checkpoint")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue from the run dir's newest readable checkpoint (later log records are dropped)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the run already in --run-dir (its checkpoints, logs and plots)")
     parser.add_argument("--init-from", default=None, metavar="PATH",
                         help="start from the networks of another run (a run dir or checkpoint dir): "
                              "sets run.init_from; fresh optimiser, curriculum and step count")
@@ -72,15 +75,21 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m train`` and the ``hsa-train`` console script."""
     args = parse_args(argv)
+    run_dir = args.run_dir or "the run dir"
     try:
         spec = distributed.resolve_spec(args.coordinator, args.num_processes, args.process_id)
         distributed.initialize(spec)  # before anything asks JAX for its devices
         config, run_dir = resolve(args)
         from train.trainer import train  # imports JAX; config errors above come first
-        summary = train(config, run_dir, resume=args.resume, quiet=args.quiet)
+        if args.resume and args.overwrite:
+            raise ValueError("--resume continues the run in --run-dir and --overwrite replaces it: give one")
+        summary = train(config, run_dir, resume=args.resume, quiet=args.quiet, overwrite=args.overwrite)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before the training loop (set-up, compile): nothing to checkpoint yet
+        print(f"\ninterrupted before the first epoch finished: no checkpoint written in {run_dir}", file=sys.stderr)
+        return 130
     print(f"\nrun dir: {run_dir}")
     for key, value in summary.items():
         print(f"  {key}: {value:.4g}" if isinstance(value, float) else f"  {key}: {value}")

@@ -121,7 +121,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line's arguments."""
     parser = argparse.ArgumentParser(prog="python -m train.export", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run_dir", help="a run directory written by python -m train")
+    parser.add_argument("run_dir", help="a run directory written by python -m train, or a policy directory "
+                                        "(e.g. policies/flat) to convert")
     parser.add_argument("--checkpoint", default=None, help="a checkpoint directory (default: the run's latest)")
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("--out", default=None, help="output directory (default: RUN_DIR/export_<format>)")
@@ -135,7 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else run_dir / f"export_{args.format}"
     try:
         check_output(out, args.format)
-        policy = load_numpy_policy(run_dir, Path(args.checkpoint) if args.checkpoint else None)
+        if (run_dir / pol.META_FILE).is_file():  # a policy directory: the same policy in another format
+            if args.checkpoint:
+                raise ValueError("--checkpoint needs a run directory; a policy directory holds one policy")
+            policy = pol.load_policy(run_dir)
+            policy.meta["source"]["converted_from"] = str(run_dir)
+        else:
+            policy = load_numpy_policy(run_dir, Path(args.checkpoint) if args.checkpoint else None)
         policy.meta["source"]["command"] = " ".join(["python -m train.export", *(argv or sys.argv[1:])])
         written = write(policy, out, args.format)
     except (ValueError, FileNotFoundError) as err:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -13,23 +14,33 @@ HEADLINE = ("episode/success_rate", "episode/return", "curriculum/max_distance",
 
 
 class ProgressBar:
-    """A one-line text progress bar on a terminal (plain lines when not a terminal)."""
+    """A one-line text progress bar on a terminal (plain lines when not a terminal).
+
+    The rate and ETA count from the first update on: the first epoch's time holds the compile,
+    which would make the first ETA several times too long (its line says ``compiled``).
+    """
 
     def __init__(self, total: int, start: int = 0, stream: TextIO = sys.stderr, width: int = 28):
         self.total, self.start, self.stream, self.width = total, start, stream, width
         self.t0 = time.perf_counter()
+        self.first: tuple[float, int] | None = None  # (time, step) of the first update
         self.tty = stream.isatty()
 
     def update(self, step: int, extra: dict[str, float]) -> str:
         """Redraw for ``step`` with a few headline numbers; returns the line."""
-        elapsed = time.perf_counter() - self.t0
-        rate = (step - self.start) / elapsed if elapsed > 0 else 0.0
-        eta = (self.total - step) / rate if rate > 0 else math.inf
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, step)
+            rate, eta = 0.0, math.nan  # the compile is in this interval
+        else:
+            elapsed = now - self.first[0]
+            rate = (step - self.first[1]) / elapsed if elapsed > 0 else 0.0
+            eta = (self.total - step) / rate if rate > 0 else math.inf
         frac = min(step / self.total, 1.0) if self.total else 1.0
         bar = "#" * int(frac * self.width) + "-" * (self.width - int(frac * self.width))
         fields = " ".join(f"{k.split('/')[-1]} {v:.3g}" for k, v in extra.items())
-        line = (f"[{bar}] {step:,}/{self.total:,} {100 * frac:5.1f}% | {rate:,.0f} env-steps/s | "
-                f"ETA {_duration(eta)} | {fields}")
+        speed = "compiled" if math.isnan(eta) else f"{rate:,.0f} env-steps/s"
+        line = f"[{bar}] {step:,}/{self.total:,} {100 * frac:5.1f}% | {speed} | ETA {_duration(eta)} | {fields}"
         self.stream.write(("\r" + line + "\x1b[K") if self.tty else line + "\n")
         self.stream.flush()
         return line
@@ -48,16 +59,24 @@ def _duration(seconds: float) -> str:
 
 
 class MetricsLogger:
-    """Append one JSON record per log to ``metrics.jsonl`` and mirror scalars to TensorBoard."""
+    """Append one JSON record per log to ``metrics.jsonl`` and mirror scalars to TensorBoard.
 
-    def __init__(self, run_dir: str | Path, tensorboard: bool = True):
+    ``resume_step``: the step of the checkpoint a resumed run starts from. Records a crashed run
+    wrote after it are dropped from ``metrics.jsonl`` (rewritten atomically) and hidden in
+    TensorBoard (its purge step), so the logs hold every step once and in order.
+    """
+
+    def __init__(self, run_dir: str | Path, tensorboard: bool = True, resume_step: int | None = None):
         self.path = Path(run_dir) / "metrics.jsonl"
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        if resume_step is not None:
+            truncate_after(self.path, resume_step)
         self.writer = None
         if tensorboard:
             try:
                 from tensorboardX import SummaryWriter  # a Brax dependency
-                self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"))
+                purge = None if resume_step is None else resume_step + 1
+                self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"), purge_step=purge)
             except ImportError:  # pragma: no cover - logged to JSONL only
                 self.writer = None
 
@@ -82,6 +101,19 @@ def _plain(value: Any) -> Any:
         return float(value)
     except (TypeError, ValueError):
         return value
+
+
+def truncate_after(path: Path, step: int) -> int:
+    """Keep the records of ``path`` up to ``step`` (and drop a truncated last line); returns how many
+    were dropped. Written to a temp file and renamed: a crash here loses nothing."""
+    if not path.is_file():
+        return 0
+    records = read_jsonl(path)
+    kept = [r for r in records if int(r.get("step", 0)) <= step]
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in kept))
+    os.replace(tmp, path)
+    return len(records) - len(kept)
 
 
 def read_jsonl(path: str | Path) -> list[dict]:

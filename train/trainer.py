@@ -7,6 +7,7 @@ only process 0 writes the run dir.
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import time
 from pathlib import Path
@@ -105,14 +106,27 @@ def restore_terrain(config: tcfg.TrainConfig, meta: dict, batch: int) -> tcur.Te
     return tcur.from_host(restored, batch, config.run.seed)
 
 
-def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | None:
-    """Create the run dir (process 0), refuse to overwrite, and read the checkpoint to resume (before any compile)."""
-    existing = checkpoint.list_checkpoints(run_dir)
-    if existing and not resume:
-        raise ValueError(f"{run_dir} already holds checkpoints ({existing[-1].name}); pass --resume to continue "
-                         f"it or choose another --run-dir")
+RUN_FILES = ("checkpoints", "metrics.jsonl", "tensorboard", "config.yaml", "summary.json", "learning_curve.png")
+
+
+def run_files(run_dir: Path) -> list[str]:
+    """What a run left in ``run_dir`` (its own file names only)."""
+    return [name for name in RUN_FILES if (run_dir / name).exists()]
+
+
+def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: bool = False) -> dict | None:
+    """Create the run dir (process 0), refuse to write into another run's files, and read the checkpoint
+    to resume (the newest readable one; before any compile)."""
+    found = run_files(run_dir)
+    if found and not resume and not overwrite:
+        raise ValueError(f"{run_dir} already holds a run ({', '.join(found)}); pass --resume to continue it, "
+                         f"--overwrite to start it afresh, or choose another --run-dir")
     if resume:
-        path = checkpoint.latest(run_dir)
+        path, skipped = checkpoint.latest_readable(run_dir)
+        for reason in skipped:
+            print(f"warning: skipping unreadable checkpoint {reason}", flush=True)
+        if skipped:
+            print(f"resuming from the newest readable checkpoint, {path.name}", flush=True)
         meta = checkpoint.read_meta(path)
         now = json.loads(json.dumps(config_dict))
         defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
@@ -123,6 +137,9 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool) -> dict | No
         meta["path"] = path
         return meta
     if distributed.is_main():
+        for name in found:  # --overwrite: only the run's own files go
+            target = run_dir / name
+            shutil.rmtree(target) if target.is_dir() else target.unlink()
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
     return None
@@ -179,13 +196,20 @@ def restart_count(stats: Any, count: int) -> Any:
     return stats.replace(count=new_count, summed_variance=jax.tree.map(lambda v: v * factor, stats.summed_variance))
 
 
-def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False) -> dict:
-    """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary."""
+def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False,
+          overwrite: bool = False) -> dict:
+    """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary.
+
+    ``resume`` continues the run in ``run_dir`` from its newest readable checkpoint; ``overwrite``
+    replaces a run already there (otherwise a run dir holding one is refused).
+    """
     run_dir = Path(run_dir)
     config_dict = tcfg.to_dict(config)
     devices = select_devices(config)
     init = None if resume else read_init_from(config)
-    meta = prepare_run_dir(run_dir, config_dict, resume)
+    meta = prepare_run_dir(run_dir, config_dict, resume, overwrite)
+    if distributed.is_main() and not quiet:
+        print(_announce(config, run_dir, devices), flush=True)
     env = HSAEnv(config.env, num_envs=config.run.num_envs // distributed.global_device_count(devices),
                  privileged=config.ppo.privileged_critic)
     learner = make_learner(config, env, devices)
@@ -208,13 +232,25 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     ts_r = replicate_for_pmap(ts, devices)
     state = learner.reset(env_keys, cstate, levels)
     extra = {"physics_backend": env.physics_backend}
-    return _loop(config, learner, devices, run_dir, ts_r, state, key, step, quiet, extra)
+    if distributed.is_main() and not quiet:
+        print(f"compiling the training epoch on the {env.physics_backend} backend (the first epoch includes it)...",
+              flush=True)
+    return _loop(config, learner, devices, run_dir, ts_r, state, key, step, quiet, extra, resumed=meta is not None)
 
 
-def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra) -> dict:
+def _announce(config: tcfg.TrainConfig, run_dir: Path, devices: list) -> str:
+    """The lines printed before anything compiles: where the run goes and what it trains."""
+    env, run = config.env, config.run
+    return (f"run dir: {run_dir}\n"
+            f"  env {env.name} ({env.scene} scene, goals {env.goal.mode}, physics.backend {env.physics.backend}), "
+            f"{run.num_envs:,} envs on {len(devices)} {devices[0].platform.upper()} device(s), "
+            f"{run.num_timesteps:,} env steps, seed {run.seed}")
+
+
+def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra, resumed: bool = False) -> dict:
     """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
     main = distributed.is_main()
-    logger = MetricsLogger(run_dir) if main else _NoLogger()
+    logger = MetricsLogger(run_dir, resume_step=step if resumed else None) if main else _NoLogger()
     bar = ProgressBar(config.run.num_timesteps, start=step)
     t_start, last_ckpt, epoch, record = time.perf_counter(), step, 0, {}
     first_epoch_s, stopped = None, False

@@ -15,14 +15,11 @@ import mujoco
 import numpy as np
 
 from hsa_mjx.env import HSAEnv
+from hsa_mjx.gl import has_display
 from hsa_mjx.types import EnvState
 
 RENDER_MODES = ("human", "rgb_array")
 DEFAULT_CAMERA = "track"
-
-
-def _has_display() -> bool:
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def check_render_mode(render_mode: str | None) -> str | None:
@@ -63,6 +60,7 @@ class StateRenderer:
         self._renderer: mujoco.Renderer | None = None
         self._viewer = None
         self._warned_no_display = False
+        self._gl_error: str | None = None  # a failed GL context is not retried (a retry can crash the process)
         self._data = mujoco.MjData(env.robot.mj_model)
 
     def render(self, state: EnvState) -> np.ndarray | None:
@@ -70,10 +68,22 @@ class StateRenderer:
         data = self._sync(state)
         if self.render_mode == "rgb_array":
             if self._renderer is None:
-                self._renderer = mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
+                self._renderer = self._offscreen()
             self._renderer.update_scene(data, camera=self.camera)
             return self._renderer.render()
         return self._render_human(data)
+
+    def _offscreen(self) -> mujoco.Renderer:
+        """The offscreen renderer, or a RuntimeError saying how to get one (raised again without retrying)."""
+        if self._gl_error is None:
+            try:
+                return mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
+            except Exception as err:  # mujoco.FatalError and friends: no usable OpenGL platform
+                self._gl_error = (f"no OpenGL context for offscreen frames ({type(err).__name__}: {err}); MUJOCO_GL is "
+                                  f"{os.environ.get('MUJOCO_GL')!r}. On a machine without a display set MUJOCO_GL=egl "
+                                  "(or osmesa) before mujoco is first imported; import hsa_mjx does so when EGL or "
+                                  "OSMesa is installed and mujoco was not imported before it")
+        raise RuntimeError(self._gl_error)
 
     def _sync(self, state: EnvState) -> mujoco.MjData:
         """Copy the MJX state (its terrain tile through the floor's mocap body) into the C data used for drawing."""
@@ -86,7 +96,7 @@ class StateRenderer:
         return data
 
     def _render_human(self, data: mujoco.MjData) -> None:
-        if not _has_display():
+        if not has_display():
             if not self._warned_no_display:
                 gymnasium.logger.warn("render_mode='human' needs a display (DISPLAY is unset): "
                                       "nothing is shown; use render_mode='rgb_array' for frames")
