@@ -91,6 +91,20 @@ def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool
         raise ValueError("; ".join([str(err), *named])) from None
 
 
+def _spawn_by_default() -> None:
+    """Make ``spawn`` the start method of ``multiprocessing`` when the program has chosen none.
+
+    JAX runs threads, so a process forked after JAX started can deadlock (JAX warns so);
+    Gymnasium's ``async`` vectorization forks by default on Linux and hung on ``reset``. With
+    ``spawn`` its workers start clean (Python 3.14 moves Linux's default away from fork as well).
+    A start method set before ``import hsa_mjx`` is kept. Spawned workers import the main module, so
+    a script that creates them needs the usual ``if __name__ == "__main__":`` guard.
+    """
+    import multiprocessing
+    if multiprocessing.get_start_method(allow_none=True) is None:
+        multiprocessing.set_start_method("spawn")
+
+
 def _register_gymnasium() -> None:
     """Register ``hsa_mjx/HSA-v0`` with Gymnasium when it is installed."""
     try:
@@ -102,6 +116,7 @@ def _register_gymnasium() -> None:
                            vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env")
 
 
+_spawn_by_default()
 _register_gymnasium()
 
 __all__ = ["make_env", "build_config", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",

@@ -160,3 +160,46 @@ def test_render_draws_the_chosen_env(vector_env):
 def test_bad_constructor_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):  # raised before anything is built or compiled
         gymnasium.make_vec("hsa_mjx/HSA-v0", vectorization_mode="vector_entry_point", **kwargs)
+
+
+def test_next_step_autoreset_suits_gymnasiums_vector_wrappers():
+    """autoreset_mode="next_step": the ending step shows the terminal state, the next one the new
+    episode's first observation with reward 0 and no flags (its action ignored); Gymnasium's
+    NormalizeObservation, which refuses same-step autoreset, wraps it."""
+    from gymnasium.wrappers.vector import NormalizeObservation
+    envs = gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                              autoreset_mode="next_step", termination__max_episode_steps=3)
+    assert envs.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+    norm = NormalizeObservation(envs)
+    obs, _ = norm.reset(seed=0)
+    first, _ = envs.reset(seed=0)
+    flags, rewards, observations = [], [], [first]
+    for i in range(8):
+        obs, reward, terminated, truncated, info = envs.step(_actions(i)[:2])
+        flags.append(bool(truncated[0])), rewards.append(reward), observations.append(obs)
+        assert not terminated.any() and "final_obs" not in info
+    assert flags == [False, False, True, False, False, False, True, False]  # 3 steps, a reset step, 3 steps
+    assert np.all(rewards[3] == 0.0) and np.all(rewards[2] != 0.0)
+    np.testing.assert_array_equal(observations[4][:, 16:18], first[:, 16:18])  # back at the start position (robot xy)
+    assert not np.allclose(observations[3][:, 16:18], first[:, 16:18])  # the terminal step is not the start
+    assert np.all(np.isfinite(norm.step(_actions(9)[:2])[0]))
+    with pytest.raises(ValueError, match=r"autoreset_mode 'disabled'.*same_step.*next_step"):
+        HSAVectorEnv(2, autoreset_mode="disabled")
+
+
+def test_async_vectorization_resets_and_steps_without_extra_arguments(tmp_path):
+    """make_vec(..., vectorization_mode="async") as a user's script runs it (its own process, the main guard)."""
+    import subprocess
+    import sys
+    script = tmp_path / "run_async.py"
+    script.write_text(
+        "import multiprocessing, gymnasium, numpy as np, hsa_mjx\n"
+        "if __name__ == '__main__':\n"
+        "    envs = gymnasium.make_vec('hsa_mjx/HSA-v0', num_envs=2, vectorization_mode='async')\n"
+        "    obs, _ = envs.reset(seed=0)\n"
+        "    obs, reward, *_ = envs.step(np.zeros((2, 8), np.float32))\n"
+        "    print(multiprocessing.get_start_method(), obs.shape, np.isfinite(reward).all())\n"
+        "    envs.close()\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "spawn (2, 24) True"

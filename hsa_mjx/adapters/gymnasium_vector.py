@@ -6,11 +6,14 @@ The ``vector_entry_point`` of ``hsa_mjx/HSA-v0``::
     envs = gymnasium.make_vec(..., output="jax")        # device arrays (torch: wrap in JaxToTorch)
     envs = gymnasium.make_vec(..., frame_skip=20, terrain__types=["craters"])   # as gymnasium.make
 
-Autoreset mode ``SAME_STEP``: the step that ends an env's episode already returns the first
-observation of its next episode, which was reset inside the same jitted call from the env's own
-key (a new goal, and on the terrain scene a new terrain, at every reset). The terminal observation
-and info are in ``info["final_obs"]`` / ``info["final_info"]``, masked by ``_final_obs`` /
-``_final_info``. docs/environment.md has the full contract.
+Autoreset mode ``SAME_STEP`` (the default): the step that ends an env's episode already returns
+the first observation of its next episode, which was reset inside the same jitted call from the
+env's own key (a new goal, and on the terrain scene a new terrain, at every reset). The terminal
+observation and info are in ``info["final_obs"]`` / ``info["final_info"]``, masked by
+``_final_obs`` / ``_final_info``. ``autoreset_mode="next_step"`` (Gymnasium's default, which its
+vector wrappers such as ``NormalizeObservation`` need): the ending step returns the terminal
+observation, and the next step returns the new episode's first observation with reward 0 and
+both flags false, ignoring that env's action. docs/environment.md has the full contract.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.wrappers.array_conversion import array_conversion
 from gymnasium.wrappers.vector import JaxToNumpy
 
+from hsa_mjx import backend
 from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.gymnasium import pick_camera
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
@@ -40,6 +44,7 @@ from hsa_mjx.training_env import AutoResetEnv, BatchState
 from hsa_mjx.types import EnvState
 
 OUTPUTS = ("numpy", "jax")
+AUTORESET_MODES = {"same_step": AutoresetMode.SAME_STEP, "next_step": AutoresetMode.NEXT_STEP}
 SEED_LIMIT = 2**32  # per-env seeds are uint32: env i of reset(seed=s) uses (s + i) mod 2**32
 
 
@@ -73,6 +78,7 @@ class HSAVectorEnv(VectorEnv):
         check_finite: refuse non-finite actions with a ValueError (costs one device read of a
             bool per step when actions are JAX arrays). False lets the env zero them and count
             them in ``info["nonfinite_action"]``.
+        autoreset_mode: ``"same_step"`` (default) or ``"next_step"`` (or the ``AutoresetMode``), above.
         **overrides: config keys and/or the original ``HSAEnv`` arguments (:func:`hsa_mjx.make_env`).
 
     ``step`` returns (obs (N, obs) float32, reward (N,) float32, terminated (N,) bool, truncated
@@ -85,7 +91,7 @@ class HSAVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
                  width: int = 640, height: int = 480, camera: str | int | None = None, render_env: int = 0,
-                 check_finite: bool = True, **overrides: Any):
+                 check_finite: bool = True, autoreset_mode: str | AutoresetMode = "same_step", **overrides: Any):
         from hsa_mjx import build_config  # deferred: hsa_mjx imports the adapters at registration
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -95,12 +101,13 @@ class HSAVectorEnv(VectorEnv):
                 or not 0 <= render_env < num_envs:
             raise ValueError(f"render_env must be an env index in 0..{num_envs - 1}, got {render_env!r}")
         self.render_mode = check_render_mode(render_mode)
+        self.autoreset_mode = _check_autoreset_mode(autoreset_mode)
         camera = pick_camera(camera, overrides)
         self.env = HSAEnv(build_config(config, renderer=True, **overrides), num_envs=self.num_envs)
         self._camera = check_camera(self.env.robot.mj_model, camera)
         self.render_env, self.check_finite = render_env, check_finite
         self._render_size = (width, height)
-        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.env.dt)))
+        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.env.dt)), autoreset_mode=self.autoreset_mode)
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.env.observation_size,), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.env.action_size,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -112,6 +119,8 @@ class HSAVectorEnv(VectorEnv):
         self._device = local_device()
         self._reset_fn = jax.jit(self._reset_outputs)
         self._step_fn = jax.jit(self._step_outputs)
+        self._next_step_fn = jax.jit(self._next_step_outputs)
+        self._pending: jax.Array | None = None  # next_step: envs whose episode ended on the last step
         self._state: BatchState | None = None
         self._all: jax.Array | None = None  # the all-true mask of the per-step info keys
         self._renderer: StateRenderer | None = None
@@ -124,6 +133,7 @@ class HSAVectorEnv(VectorEnv):
             raise ValueError(f"unknown reset option(s) {sorted(options)}; this vector env takes no options")
         seeds = self._seeds(seed)
         self._state, obs, info = self._reset_fn(jax.device_put(np.asarray(seeds, np.uint32), self._device))
+        self._pending = jax.device_put(np.zeros(self.num_envs, bool), self._device)
         return obs, self._info(info)
 
     def step(self, actions: Any):
@@ -131,6 +141,11 @@ class HSAVectorEnv(VectorEnv):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
         actions = check_actions(actions, self.action_space.shape, self.check_finite)
+        if self.autoreset_mode is AutoresetMode.NEXT_STEP:
+            self._state, self._pending, out = self._next_step_fn(self._state, self._pending,
+                                                                 jax.device_put(actions, self._device))
+            obs, reward, terminated, truncated, info = out
+            return obs, reward, terminated, truncated, self._info(info)
         self._state, out = self._step_fn(self._state, jax.device_put(actions, self._device))
         obs, reward, terminated, truncated, info, *final = out
         return obs, reward, terminated, truncated, self._info(info, *final)
@@ -171,6 +186,18 @@ class HSAVectorEnv(VectorEnv):
         return new, (new.env.obs, nxt.reward, done & jnp.logical_not(truncated), truncated,
                      env_info(new.env), nxt.obs, final, done)
 
+    def _next_step_outputs(self, state: BatchState, pending: jax.Array, actions: jax.Array):
+        """``next_step``: envs that ended on the last step show the first state of their next episode
+        (reset then, kept untouched since) with reward 0 and both flags false; the others step, and
+        one that ends now shows its terminal state and is pending for the next call."""
+        new, nxt, _ = self._batch.step_with_final(state, actions, reset_metrics=True)
+        done = (nxt.done > 0) & jnp.logical_not(pending)
+        truncated = (nxt.info["truncation"] > 0) & done
+        kept = keep_pending(pending, state, new)
+        shown = select_envs(pending, state.env, nxt)
+        reward = jnp.where(pending, 0.0, nxt.reward)
+        return kept, done, (shown.obs, reward, done & jnp.logical_not(truncated), truncated, env_info(shown))
+
     def _info(self, info: dict, final_obs: jax.Array | None = None, final: dict | None = None,
               done: jax.Array | None = None) -> dict[str, Any]:
         """Gymnasium's vector info layout: every ``key`` with a boolean ``_key`` saying which envs hold it."""
@@ -198,6 +225,31 @@ class HSAVectorEnv(VectorEnv):
         self._np_random = np.random.Generator(np.random.PCG64([int(s) for s in seeds]))
         self._np_random_seed = -1
         return np.asarray(seeds, np.uint64)
+
+
+def _check_autoreset_mode(mode: Any) -> AutoresetMode:
+    """The ``AutoresetMode`` of a name or enum, or a ValueError listing the supported ones."""
+    if isinstance(mode, AutoresetMode) and mode in AUTORESET_MODES.values():
+        return mode
+    if isinstance(mode, str) and mode.lower() in AUTORESET_MODES:
+        return AUTORESET_MODES[mode.lower()]
+    raise ValueError(f"autoreset_mode {mode!r} is not supported; use one of {list(AUTORESET_MODES)}")
+
+
+def select_envs(mask: jax.Array, a: EnvState, b: EnvState) -> EnvState:
+    """Env states taken from ``a`` where ``mask`` (one bool per env), else from ``b``."""
+    pick = lambda x, y: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 1)), x, y)  # noqa: E731
+    sim = a.pipeline_state.replace(physics=backend.select(mask, a.pipeline_state.physics, b.pipeline_state.physics),
+                                   task=jax.tree.map(pick, a.pipeline_state.task, b.pipeline_state.task))
+    rest = jax.tree.map(pick, a.replace(pipeline_state=None), b.replace(pipeline_state=None))
+    return rest.replace(pipeline_state=sim)
+
+
+def keep_pending(pending: jax.Array, old: BatchState, new: BatchState) -> BatchState:
+    """The batch state after a step in which the ``pending`` envs did not take part."""
+    pick = lambda x, y: jnp.where(pending.reshape(pending.shape + (1,) * (x.ndim - 1)), x, y)  # noqa: E731
+    return new.replace(env=select_envs(pending, old.env, new.env), episode=jax.tree.map(pick, old.episode, new.episode),
+                       terrain=jax.tree.map(pick, old.terrain, new.terrain))
 
 
 def _check_seed(seed: Any) -> None:
