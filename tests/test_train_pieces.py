@@ -249,7 +249,7 @@ def test_multi_device_option_is_checked_and_resolved():
 
 def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     from brax.training.acme import running_statistics as rs
-    from train.trainer import restart_count
+    from train.warm_start import restart_count
     old = rs.init_state(jnp.zeros(3))
     old = rs.update(old, jax.random.normal(jax.random.PRNGKey(0), (100_000, 3)) * jnp.array([1.0, 0.1, 2.0]))
     fresh = restart_count(old, 1_000)
@@ -296,3 +296,28 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
     assert "checkpoints_per_episode" not in evaluate.summarize(traces, dt)  # goals without checkpoints
     json.dumps(result)  # eval.json stays plain JSON
+
+
+def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic():
+    """--init-from flat (the CPU quickstart's start): the policy network and normaliser come from the
+    policy file, so the run's first deterministic actions are the file's; a mismatch is named."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    from hsa_mjx import policy as pol
+    from train.ppo import init_training_state, make_networks
+    from train.warm_start import read_init_from, warm_start
+    config = tcfg.load("configs/train_quickstart_cpu.yaml")
+    init = read_init_from(config)
+    assert init["path"].name == "flat" and init["step"] > 60_000_000 and "policy" in init
+    networks = make_networks(config, 28, 8)
+    fresh = init_training_state(config, networks, jax.random.PRNGKey(0), 28)
+    ts = warm_start(fresh, init, jax.random.PRNGKey(1))
+    shipped = pol.load_policy("policies/flat")
+    obs = (shipped.params["obs_mean"] + shipped.params["obs_std"]
+           * np.random.default_rng(0).normal(size=(16, 28))).astype(np.float32)
+    act = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
+    np.testing.assert_allclose(np.asarray(act(jnp.asarray(obs), jax.random.PRNGKey(2))[0]), shipped(obs), atol=1e-5)
+    assert jax.tree.all(jax.tree.map(np.array_equal, ts.params.value, fresh.params.value))  # the critic is new
+    smaller = tcfg.from_dict(tcfg.apply_overrides(tcfg.to_dict(config), ["ppo.policy_hidden_sizes=[32, 32]"]))
+    with pytest.raises(ValueError, match=r"policy in .*flat does not fit.*ppo.policy_hidden_sizes"):
+        read_init_from(smaller)

@@ -212,7 +212,7 @@ def load_payload(path):
 
 def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
     from train.cli import main
-    from train.trainer import read_init_from
+    from train.warm_start import read_init_from
     heading = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
         "env.observation.heading=true", f"run.init_from={run_dir}"]))
     with pytest.raises(ValueError, match="observation size"):

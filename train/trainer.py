@@ -21,13 +21,13 @@ import yaml
 from hsa_mjx import curriculum as cur
 from hsa_mjx import terrain_curriculum as tcur
 from hsa_mjx.env import HSAEnv
-from hsa_mjx.observation import observation_size
 from hsa_mjx.training_env import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar
 from train.per_device import make_learner
-from train.ppo import AXIS, TrainingState, init_training_state, privileged_size, replicate, unreplicate
+from train.ppo import AXIS, TrainingState, init_training_state, replicate, unreplicate
+from train.warm_start import read_init_from, warm_start
 
 
 class _StopFlag:
@@ -145,57 +145,6 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: b
     return None
 
 
-def read_init_from(config: tcfg.TrainConfig) -> dict | None:
-    """Metadata of the checkpoint named by ``run.init_from``, checked against this config's networks (before any compile)."""
-    if not config.run.init_from:
-        return None
-    source = Path(config.run.init_from)
-    if not source.exists():
-        raise FileNotFoundError(f"run.init_from: {source} not found (give a run dir or one of its checkpoint dirs)")
-    path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
-    meta = checkpoint.read_meta(path)
-    src = tcfg.from_dict(meta["config"])
-    bad = [f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
-           for k in checkpoint.COMPATIBLE_PPO_KEYS if getattr(src.ppo, k) != getattr(config.ppo, k)]
-    if observation_size(src.env.observation) != observation_size(config.env.observation):
-        bad.append(f"observation size ({observation_size(src.env.observation)} vs {observation_size(config.env.observation)}: "
-                   f"env.observation: heading, servo_targets, clock_period_s, hinge_angles)")
-    if privileged_size(src) != privileged_size(config):
-        bad.append(f"privileged critic inputs ({privileged_size(src)} vs {privileged_size(config)}: ppo.privileged_critic, "
-                   "env.observation.height_scan)")
-    if bad:
-        raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
-    return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
-
-
-def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
-    """``ts`` with the parameters and observation statistics of the ``run.init_from`` checkpoint."""
-    template = _payload(ts, cur.init(init["source"].curriculum), key)
-    restored = jax.tree.map(jnp.asarray, checkpoint.load(init["path"], template)["training_state"])
-    # Adam's initial state does not depend on the parameter values: the fresh one stays valid
-    normalizer = restart_count(restored.normalizer, init["count"]) if init.get("count") else restored.normalizer
-    return ts.replace(params=restored.params, normalizer=normalizer)
-
-
-def restart_count(stats: Any, count: int) -> Any:
-    """Observation statistics with the same mean and std as if from ``count`` samples (never more than they had).
-
-    Brax's running statistics weigh a new batch by batch size / total count; a smaller count lets
-    a fine-tune's new observations move them quickly. The summed variance scales with the count.
-    """
-    old = stats.count
-    old = float(old.hi) * 2.0**32 + float(old.lo) if hasattr(old, "hi") else float(old)
-    if old <= count:
-        return stats
-    factor = count / old
-    if hasattr(stats.count, "hi"):  # brax's UInt64 (two uint32 words)
-        new_count = type(stats.count)(hi=jnp.full_like(stats.count.hi, count >> 32),
-                                      lo=jnp.full_like(stats.count.lo, count & 0xFFFFFFFF))
-    else:
-        new_count = jnp.asarray(count, jnp.asarray(stats.count).dtype)
-    return stats.replace(count=new_count, summed_variance=jax.tree.map(lambda v: v * factor, stats.summed_variance))
-
-
 def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False,
           overwrite: bool = False) -> dict:
     """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary.
@@ -225,8 +174,11 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
     elif init is not None:
         ts = warm_start(ts, init, key)
-        print(f"networks and observation statistics from {init['path']} (step {init['step']:,})"
-              + (f", statistics' count restarted at {init['count']:,}" if init["count"] else ""), flush=True)
+        what = ("the policy network and observation statistics of the policy file" if "policy" in init
+                else "networks and observation statistics from")
+        print(f"starting from {what} {init['path']} (trained for {init['step']:,} env steps)"
+              + (f", statistics' count restarted at {init['count']:,}" if init["count"] else "")
+              + ("; the value network starts fresh" if "policy" in init else ""), flush=True)
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
@@ -252,7 +204,7 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
     main = distributed.is_main()
     logger = MetricsLogger(run_dir, resume_step=step if resumed else None) if main else _NoLogger()
     bar = ProgressBar(config.run.num_timesteps, start=step)
-    t_start, last_ckpt, epoch, record = time.perf_counter(), step, 0, {}
+    t_start, last_ckpt, epoch, latest = time.perf_counter(), step, 0, {}  # latest: each headline key's last value
     first_epoch_s, stopped = None, False
     totals_acc: dict[str, float] = {}
     with _StopFlag() as stop:
@@ -269,6 +221,7 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
             if epoch % config.run.epochs_per_log == 0 or step >= config.run.num_timesteps:
                 record = _record(out, totals_acc, state, config, learner.env_steps_per_epoch / dt, t_start)
                 logger.log(step, record)
+                latest.update({k: record[k] for k in HEADLINE if k in record})  # a log without episodes has none
                 totals_acc = {}
                 if main and not quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
@@ -280,7 +233,7 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
     bar.close()
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s,
-               "interrupted": stopped, "checkpoint": None, **extra, **{k: record.get(k) for k in HEADLINE}}
+               "interrupted": stopped, "checkpoint": None, **extra, **{k: latest.get(k) for k in HEADLINE}}
     return _finish(run_dir, summary) if main else summary
 
 
