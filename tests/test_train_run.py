@@ -139,9 +139,11 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 
 def test_evaluate_writes_summary_and_plots(run_dir):
-    from train.evaluate import main
-    assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0  # C MuJoCo substeps
+    from train.evaluate import main, resolve_physics
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0  # auto: C MuJoCo substeps on this CPU
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
+    assert result["physics"] == "c_mujoco"
+    assert resolve_physics("auto", "warp") == resolve_physics("mjx", None) == "mjx"  # a --backend asks for MJX
     assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0
     assert result["mean_final_distance"] > 0
     assert result["policy"] == "deterministic" and result["max_steps"] == 12
