@@ -180,11 +180,9 @@ class AutoResetEnv:
         def fresh(state: EnvState) -> EnvState:
             keys = jax.vmap(lambda k: jax.random.split(k)[1])(state.pipeline_state.task.rng)
             new = self._reset_all(keys, self._goal_range(cstate), levels)
-            pick = lambda a, b: jnp.where(done.reshape(done.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            pick = per_env_picker(done)
             metrics = jax.tree.map(pick, new.metrics, state.metrics) if reset_metrics else state.metrics
-            old, fresh_sim = state.pipeline_state, new.pipeline_state
-            sim = SimState(physics=backend.select(done, fresh_sim.physics, old.physics),
-                           task=jax.tree.map(pick, fresh_sim.task, old.task))
+            sim = select_sim(done, new.pipeline_state, state.pipeline_state)
             info = dict(state.info)  # truncation stays the step's; privileged inputs follow the observation
             if "privileged_obs" in info:
                 info["privileged_obs"] = pick(new.info["privileged_obs"], info["privileged_obs"])
@@ -220,6 +218,17 @@ class AutoResetEnv:
             outcomes = {k: totals.pop(k) for k in tcur.OUTCOME_KEYS}
             totals.update(tcur.name_outcomes(outcomes, tuple(terrain.types), terrain.levels))
         return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), totals
+
+
+def per_env_picker(mask: jax.Array):
+    """``pick(a, b)``: ``a`` where ``mask`` (one bool per env, the leading axis), else ``b``."""
+    return lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+
+
+def select_sim(mask: jax.Array, a: SimState, b: SimState) -> SimState:
+    """Per env, the simulator state of ``a`` where ``mask``, else of ``b`` (Warp's shared buffers kept)."""
+    return SimState(physics=backend.select(mask, a.physics, b.physics),
+                    task=jax.tree.map(per_env_picker(mask), a.task, b.task))
 
 
 def check_batch(env: HSAEnv, batch: int) -> None:

@@ -45,16 +45,29 @@ def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[tcfg.T
     return config, path, int(meta["step"])
 
 
+def layer_paths(tree: dict) -> list[tuple[str, ...]]:
+    """Where each dense layer of a Brax policy's parameters sits, input first: one MLP for a
+    ``tanh_normal`` policy (its last layer outputs mean and scale), or for a ``normal`` one a hidden
+    MLP, then the mean layer (its std is a separate parameter)."""
+    if "MLP_0" in tree:
+        return [("MLP_0", f"hidden_{i}") for i in range(len(tree["MLP_0"]))] + [("Dense_0",)]
+    return [(f"hidden_{i}",) for i in range(len(tree))]
+
+
+def layer_at(tree: dict, path: tuple[str, ...]) -> dict:
+    """The layer dict (``kernel``, ``bias``) at ``path``."""
+    for part in path:
+        tree = tree[part]
+    return tree
+
+
 def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
     """The deterministic policy's float32 arrays (normaliser as applied, dense layers) of a TrainingState."""
     tree = ts.params.policy["params"]
-    if config.ppo.distribution_type == "tanh_normal":  # one MLP; its last layer outputs (mean, scale)
-        dense = [tree[f"hidden_{i}"] for i in range(len(tree))]
-        last = dict(dense[-1])
-        dense[-1] = {"kernel": np.asarray(last["kernel"])[:, :action_size],
-                     "bias": np.asarray(last["bias"])[:action_size]}
-    else:  # hidden MLP, then a mean layer (the std is a separate parameter)
-        dense = [tree["MLP_0"][f"hidden_{i}"] for i in range(len(tree["MLP_0"]))] + [tree["Dense_0"]]
+    dense = [dict(layer_at(tree, path)) for path in layer_paths(tree)]
+    # a tanh_normal policy's last layer also outputs the noise scale: the mean is its first action_size
+    dense[-1] = {"kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
+                 "bias": np.asarray(dense[-1]["bias"])[:action_size]}
     n_obs = np.asarray(dense[0]["kernel"]).shape[0]
     if config.ppo.normalize_observations:
         # the policy's own inputs only: a privileged critic's follow them in the statistics

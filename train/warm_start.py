@@ -105,15 +105,10 @@ def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
 
 def _from_policy(ts: TrainingState, policy: pol.NumpyPolicy, count: int) -> TrainingState:
     """The policy file's layers and normaliser in ``ts``; the value network and noise scale stay fresh."""
-    tree = ts.params.policy["params"]
-    nested = "MLP_0" in tree  # a "normal" policy: hidden MLP, then a mean layer (train.export.policy_params)
-    names = [("MLP_0", f"hidden_{i}") for i in range(len(tree["MLP_0"]))] + [("Dense_0",)] if nested \
-        else [(f"hidden_{i}",) for i in range(len(tree))]
-    new = jax.tree.map(lambda x: x, tree)
-    for where, kernel, bias in zip(names, policy.params["kernels"], policy.params["biases"]):
-        layer = new
-        for part in where:
-            layer = layer[part]
+    from train.export import layer_at, layer_paths
+    new = jax.tree.map(lambda x: x, ts.params.policy["params"])  # fresh containers to write into
+    for path, kernel, bias in zip(layer_paths(new), policy.params["kernels"], policy.params["biases"]):
+        layer = layer_at(new, path)
         out = kernel.shape[1]  # the last tanh_normal layer also outputs the noise scale: that part stays fresh
         layer["kernel"] = jnp.asarray(layer["kernel"]).at[:, :out].set(kernel)
         layer["bias"] = jnp.asarray(layer["bias"]).at[:out].set(bias)

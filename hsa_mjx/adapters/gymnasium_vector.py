@@ -32,7 +32,6 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.wrappers.array_conversion import array_conversion
 from gymnasium.wrappers.vector import JaxToNumpy
 
-from hsa_mjx import backend
 from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.gymnasium import pick_camera
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
@@ -40,7 +39,7 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.env import HSAEnv
 from hsa_mjx.model import local_device
 from hsa_mjx.termination import REASONS
-from hsa_mjx.training_env import AutoResetEnv, BatchState
+from hsa_mjx.training_env import AutoResetEnv, BatchState, per_env_picker, select_sim
 from hsa_mjx.types import EnvState
 
 OUTPUTS = ("numpy", "jax")
@@ -238,16 +237,13 @@ def _check_autoreset_mode(mode: Any) -> AutoresetMode:
 
 def select_envs(mask: jax.Array, a: EnvState, b: EnvState) -> EnvState:
     """Env states taken from ``a`` where ``mask`` (one bool per env), else from ``b``."""
-    pick = lambda x, y: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 1)), x, y)  # noqa: E731
-    sim = a.pipeline_state.replace(physics=backend.select(mask, a.pipeline_state.physics, b.pipeline_state.physics),
-                                   task=jax.tree.map(pick, a.pipeline_state.task, b.pipeline_state.task))
-    rest = jax.tree.map(pick, a.replace(pipeline_state=None), b.replace(pipeline_state=None))
-    return rest.replace(pipeline_state=sim)
+    rest = jax.tree.map(per_env_picker(mask), a.replace(pipeline_state=None), b.replace(pipeline_state=None))
+    return rest.replace(pipeline_state=select_sim(mask, a.pipeline_state, b.pipeline_state))
 
 
 def keep_pending(pending: jax.Array, old: BatchState, new: BatchState) -> BatchState:
     """The batch state after a step in which the ``pending`` envs did not take part."""
-    pick = lambda x, y: jnp.where(pending.reshape(pending.shape + (1,) * (x.ndim - 1)), x, y)  # noqa: E731
+    pick = per_env_picker(pending)
     return new.replace(env=select_envs(pending, old.env, new.env), episode=jax.tree.map(pick, old.episode, new.episode),
                        terrain=jax.tree.map(pick, old.terrain, new.terrain))
 
