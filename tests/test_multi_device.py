@@ -14,6 +14,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,8 @@ TWO_DEVICE_CONFIG = {**TINY, "env": {**TINY["env"], "preset": "mixed", "terrain"
 # tolerance of their episode totals): float rounding gives ~3e-6 on the leaves and 1.3e-5 on a summed
 # reward term after 2 epochs, while the diverged 4-iteration runs differed by 2e-2.
 SAME_RUN_TOLERANCE = 1e-4
+# How late the second training process starts: more than Gloo's 30 s wait, which the barriers cover.
+PROCESS_1_LATE_S = 40
 # The resume on one device: 4 envs with TINY's minibatch, checkpoints every 40 steps, 240 -> 280 steps.
 ONE_DEVICE_RESUME = [f"--set={key}={value}" for key, value in (
     ("run.num_devices", 1), ("run.num_envs", 4), ("ppo.batch_size", TINY["ppo"]["batch_size"]),
@@ -240,9 +243,17 @@ def _scaling_rows(config_path: str, out_dir: Path) -> list[dict]:
 
 
 def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
-    """One of two processes (one CPU device each) training through the CLI."""
+    """One of two processes (one CPU device each) training through the CLI; process 1 comes late to the loop."""
     saved = _record_saves()
+    from train import trainer
     from train.cli import main
+    loop = trainer._loop
+
+    def late_loop(*args, **kwargs):  # later than the 30 s a collective's first use waits for the other processes
+        time.sleep(PROCESS_1_LATE_S if process_id == "1" else 0)
+        return loop(*args, **kwargs)
+
+    trainer._loop = late_loop
     rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", "--coordinator", f"127.0.0.1:{port}",
                "--num-processes", "2", "--process-id", process_id])
     return {"rc": rc, "saved": saved}

@@ -70,6 +70,9 @@ def initialize(spec: ClusterSpec | None) -> None:
         return
     jax.distributed.initialize(coordinator_address=spec.coordinator, num_processes=spec.num_processes,
                                process_id=spec.process_id)
+    # Open the collectives now, while the processes are together: a collective's first use waits only
+    # 30 s for the others, and later set-up and compiles may keep one process longer than that.
+    any_process(False)
 
 
 def is_main() -> bool:
