@@ -38,10 +38,10 @@ import numpy as np
 import hsa_mjx
 from benchmarks import gaits as gait_lib
 from benchmarks.run_info import run_info
-from hsa_mjx import control
+from hsa_mjx.task import control
 from hsa_mjx.config import EnvConfig, TerminationConfig, get_preset, with_overrides
-from hsa_mjx.model import RobotIndex, load_mj_model, load_robot
-from hsa_mjx.termination import FAILURE_REASONS
+from hsa_mjx.sim.model import RobotIndex, load_mj_model, load_robot
+from hsa_mjx.task.termination import FAILURE_REASONS
 
 CONTROL_DT = 0.02
 DISPLACEMENT_TOL = 0.10

@@ -2,7 +2,7 @@
 
 A gait maps time ``t`` (seconds, any shape) to actions in [-1, 1] of shape ``t.shape + (8,)`` in the
 env's action-slot order. The env adds ``max_increment * action`` to the servo targets at every
-0.02 s control step (``hsa_mjx.control``), so an action is a target *velocity*: a square wave of
+0.02 s control step (``hsa_mjx.task.control``), so an action is a target *velocity*: a square wave of
 period T drives each target back and forth by ``max_increment * T / (2 * 0.02)`` rad.
 
 Which servo sits on which block, in which HSA unit, is read from the model by name
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hsa_mjx.model import ACTUATED_JOINTS, BLOCKS
+from hsa_mjx.sim.model import ACTUATED_JOINTS, BLOCKS
 
 PERIOD_S = 4.0
 

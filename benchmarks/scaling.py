@@ -47,9 +47,9 @@ from benchmarks import scaling_report as report
 from benchmarks import throughput
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
-from hsa_mjx import curriculum as cur
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.training_env import AutoResetEnv
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.batch.auto_reset import AutoResetEnv
 from train import config as tcfg
 from train import distributed
 from train.cli import default_config

@@ -3,7 +3,7 @@
 Modes, each one ``env.step`` call per env step with random actions, as a Gymnasium learner makes them:
 
 - ``host_physics``: ``gymnasium.make("hsa_mjx/HSA-v0")`` as it is on a CPU: the physics substeps in
-  C MuJoCo (``hsa_mjx.host_physics``), everything else the env's jitted code.
+  C MuJoCo (``hsa_mjx.sim.host_physics``), everything else the env's jitted code.
 - ``mjx``: the same env with ``host_physics=False``: the whole step in MJX's JAX implementation.
 - ``c_mujoco``: the bare substep loop of the same model in C MuJoCo (``mj_step`` x frame_skip, no
   observation, reward or Python env around it): the ceiling.

@@ -2,7 +2,7 @@
 
 For every (physics backend, terrain, physics setting, batch) it measures, in one process:
 
-- **env**: K env steps per call of the training batch step (``hsa_mjx.training_env.AutoResetEnv``
+- **env**: K env steps per call of the training batch step (``hsa_mjx.batch.auto_reset.AutoResetEnv``
   with the goal curriculum: physics, observation, reward, termination, auto-reset, curriculum)
   under ``lax.scan`` in one jitted call, random actions drawn on the device. If that module is
   missing or its API differs, ``jit(vmap(env.step))`` is timed instead and the row says
@@ -48,9 +48,9 @@ import hsa_mjx
 from benchmarks import throughput_report as report
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from hsa_mjx import backend as backends
-from hsa_mjx import control
-from hsa_mjx.backend import mjx
+from hsa_mjx.sim import backend as backends
+from hsa_mjx.task import control
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -95,7 +95,8 @@ def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int =
 def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
     """``AutoResetEnv`` with the default curriculum, or None and why not."""
     try:
-        from hsa_mjx import curriculum, training_env
+        from hsa_mjx.curricula import goal as curriculum
+        from hsa_mjx.batch import auto_reset as training_env
         return training_env.AutoResetEnv(env, curriculum.CurriculumConfig()), "AutoResetEnv + curriculum"
     except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"

@@ -41,7 +41,7 @@ from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx.adapters.gymnasium_vector import HSAVectorEnv, NumpyOutput
-from hsa_mjx.training_env import AutoResetEnv
+from hsa_mjx.batch.auto_reset import AutoResetEnv
 
 MODES = ("jit_step", "vector_jax", "vector_jax_nocheck", "vector_numpy", "vector_torch")
 HEAD = ["batch", "mode", "env_steps_per_s", "ms_per_step", "vs_jit_step", "first_call_s", "steps", "repeats"]

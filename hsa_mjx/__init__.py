@@ -15,20 +15,20 @@ import importlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hsa_mjx import gl
+from hsa_mjx.sim import gl
 
 gl.choose_platform()  # before anything imports mujoco: offscreen frames on a headless machine
 
 if TYPE_CHECKING:
     from hsa_mjx.config import EnvConfig
-    from hsa_mjx.env import HSAEnv
+    from hsa_mjx.task.env import HSAEnv
 
 
 __version__ = "0.1.0"
-# Public names, imported on first use: ``import hsa_mjx.policy`` (numpy only) must not import JAX.
-_LAZY = {"PRESETS": "hsa_mjx.config", "EnvConfig": "hsa_mjx.config", "get_preset": "hsa_mjx.config",
-         "load_config": "hsa_mjx.config", "with_overrides": "hsa_mjx.config", "HSAEnv": "hsa_mjx.env",
-         "EnvState": "hsa_mjx.types", "SimState": "hsa_mjx.types", "TaskState": "hsa_mjx.types"}
+# Public names, imported on first use: ``import hsa_mjx.deploy.policy`` (numpy only) must not import JAX.
+_LAZY = {"build_config": "hsa_mjx.adapters.original_args", "PRESETS": "hsa_mjx.config", "EnvConfig": "hsa_mjx.config", "get_preset": "hsa_mjx.config",
+         "load_config": "hsa_mjx.config", "with_overrides": "hsa_mjx.config", "HSAEnv": "hsa_mjx.task.env",
+         "EnvState": "hsa_mjx.task.types", "SimState": "hsa_mjx.task.types", "TaskState": "hsa_mjx.task.types"}
 
 
 def __getattr__(name: str) -> Any:
@@ -51,44 +51,16 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", num_envs: int = 1,
         **overrides: applied over the chosen config: dotted config keys with ``__`` for dots, e.g.
             ``reward__forward=3.0`` or ``goal__mode="fixed"``, and/or the original ``hsa_gym``
             ``HSAEnv`` arguments by their names, e.g. ``frame_skip=20`` or ``enable_terrain=True``
-            (``hsa_mjx.original_args``; the table is in docs/environment.md).
+            (``hsa_mjx.adapters.original_args``; the table is in docs/environment.md).
 
     Raises:
         ValueError: unknown preset, argument, config key or value (the message lists the valid
             options), or an original argument and the config key it maps to both given.
         FileNotFoundError: a config path or the robot asset is missing.
     """
-    from hsa_mjx.env import HSAEnv
+    from hsa_mjx.adapters.original_args import build_config
+    from hsa_mjx.task.env import HSAEnv
     return HSAEnv(build_config(name_or_config, **overrides), num_envs=num_envs)
-
-
-def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False,
-                 **overrides: Any) -> EnvConfig:
-    """The :class:`EnvConfig` that ``make_env`` builds its env from (same arguments; nothing compiled).
-
-    ``renderer``: the caller renders, so the original's viewer arguments are not warned about.
-    """
-    from hsa_mjx import original_args
-    from hsa_mjx.config import EnvConfig, get_preset, load_config, with_overrides
-    if isinstance(name_or_config, EnvConfig):
-        config = name_or_config
-    elif isinstance(name_or_config, Path) or str(name_or_config).endswith((".yaml", ".yml")):
-        config = load_config(name_or_config)
-    elif isinstance(name_or_config, str):
-        config = get_preset(name_or_config)
-    else:
-        raise ValueError(f"make_env expects a preset name, a YAML path or an EnvConfig, got {name_or_config!r}")
-    original, keys = original_args.split_arguments(overrides)
-    given = original_args.flatten(keys)
-    mapped, source = original_args.config_from_original(original, config, given, renderer)
-    if not (given or mapped):
-        return config
-    try:
-        return with_overrides(config, **given, **mapped)
-    except ValueError as err:  # name the original argument behind a refused key
-        named = [f"'{key}' comes from the original argument {name}={original[name]!r}"
-                 for key, name in source.items() if f"'{key}'" in str(err)]
-        raise ValueError("; ".join([str(err), *named])) from None
 
 
 def _spawn_by_default() -> None:

@@ -15,16 +15,15 @@ import typing
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
-from hsa_mjx.height_scan import HeightScanConfig
-from hsa_mjx.height_scan import validate as validate_height_scan
+from hsa_mjx.resources import merge, read_yaml
+from hsa_mjx.terrain.height_scan import HeightScanConfig
+from hsa_mjx.terrain.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
 from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_terrain
 from hsa_mjx.terrain.presets import TERRAIN_PRESETS
 
 SCENES = ("flat", "terrain")
-BACKENDS = ("jax", "warp", "auto")  # physics.backend (hsa_mjx.backend)
+BACKENDS = ("jax", "warp", "auto")  # physics.backend (hsa_mjx.sim.backend)
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
@@ -146,7 +145,7 @@ class ObservationConfig:
     # How the 8 actuated hinge angles enter: "raw" (the original: unbounded, they wind up over long
     # episodes), "wrapped" (into [-pi, pi): same size) or "sincos" (sin then cos: 8 more values).
     hinge_angles: str = "raw"
-    # terrain heights on a grid around the robot, turned with its heading (hsa_mjx.height_scan): appended last
+    # terrain heights on a grid around the robot, turned with its heading (hsa_mjx.terrain.height_scan): appended last
     height_scan: HeightScanConfig = HeightScanConfig()
 
 
@@ -336,18 +335,8 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
     """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
-    merged = _merge(to_dict(base or EnvConfig()), sync_terrain_keys(dict(data or {}), MIXED))
+    merged = merge(to_dict(base or EnvConfig()), sync_terrain_keys(dict(data or {}), MIXED))
     return validate(_build(EnvConfig, merged))
-
-
-def _merge(base: dict, update: Mapping[str, Any]) -> dict:
-    out = dict(base)
-    for key, value in update.items():
-        if isinstance(value, Mapping) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
 
 
 def to_dict(config: EnvConfig) -> dict:
@@ -383,14 +372,8 @@ def load_config(path: str | Path) -> EnvConfig:
         FileNotFoundError: the file does not exist.
         ValueError: unknown keys, wrong types or invalid values (the message names the key).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"config file not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ValueError(f"config file {path} is not valid YAML: {err}") from err
-    if isinstance(data, Mapping) and "env" in data:
+    data = read_yaml(path, "config file")
+    if "env" in data:
         data = data["env"]
     return from_dict(data)
 

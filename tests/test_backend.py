@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 import hsa_mjx
-from hsa_mjx import backend
-from hsa_mjx.training_env import AutoResetEnv
+from hsa_mjx.sim import backend
+from hsa_mjx.batch.auto_reset import AutoResetEnv
 from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
 from train.logger import read_jsonl
 
@@ -86,7 +86,7 @@ def test_warp_without_warp_lang_says_how_to_install(monkeypatch):
 def test_importing_the_package_and_its_entry_points_prints_nothing(warp):
     """No "Failed to import warp" lines, also where warp-lang is missing (hidden here) and Brax imports MJX."""
     hide = "import sys; sys.modules['warp'] = None\n" if warp == "missing" else ""
-    modules = ("hsa_mjx.types, hsa_mjx.env, hsa_mjx.training_env, hsa_mjx.adapters.gymnasium, "
+    modules = ("hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
                "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluate, train.export")
     out = subprocess.run([sys.executable, "-c", f"{hide}import {modules}"], capture_output=True, text=True, check=True)
     assert out.stdout == "" and "Failed to import" not in out.stderr, out.stdout + out.stderr

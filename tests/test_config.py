@@ -105,3 +105,41 @@ def test_non_finite_numbers_are_refused_naming_the_key(key):
     value = [1.5, float("inf")] if key == "goal.radial_range" else float("nan")
     with pytest.raises(ValueError, match=f"finite.*{key}"):
         cfg.with_overrides(cfg.get_preset("flat"), **{key: value})
+
+
+# ----- YAML files: base configs ----------------------------------------------------------------
+def _leaves(data: dict, prefix: str = "") -> dict:
+    """Every non-mapping value of nested dicts by its dotted key."""
+    out = {}
+    for key, value in data.items():
+        out.update(_leaves(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value})
+    return out
+
+
+def test_no_training_yaml_restates_its_base():
+    import yaml
+    from hsa_mjx import resources
+    derived = 0
+    for path in sorted(resources.data_dir("configs").glob("train_*.yaml")):
+        raw = yaml.safe_load(path.read_text())
+        if "base" not in raw:
+            continue
+        derived += 1
+        base = _leaves(resources.read_yaml(path.parent / raw.pop("base")))
+        restated = {k: v for k, v in _leaves(raw).items() if k in base and base[k] == v}
+        assert not restated, f"{path.name} restates its base's values: {restated}"
+    assert derived >= 4  # corridor, spiral, rough and the CPU quickstart derive from the flat task
+
+
+def test_base_configs_merge_and_refuse_a_cycle(tmp_path):
+    from hsa_mjx import resources
+    (tmp_path / "a.yaml").write_text("base: b.yaml\nppo: {learning_rate: 1.0e-4}\n")
+    (tmp_path / "b.yaml").write_text("ppo: {learning_rate: 3.0e-4, unroll_length: 20}\nrun: {num_envs: 8}\n")
+    assert resources.read_yaml(tmp_path / "a.yaml") == {"ppo": {"learning_rate": 1.0e-4, "unroll_length": 20},
+                                                         "run": {"num_envs": 8}}
+    (tmp_path / "b.yaml").write_text("base: a.yaml\n")
+    with pytest.raises(ValueError, match="comes back to itself"):
+        resources.read_yaml(tmp_path / "a.yaml")
+    (tmp_path / "c.yaml").write_text("base: missing.yaml\n")
+    with pytest.raises(FileNotFoundError, match="missing.yaml"):
+        resources.read_yaml(tmp_path / "c.yaml")

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import curriculum as cur
+from hsa_mjx.curricula import goal as cur
 
 CFG = cur.CurriculumConfig()  # the original's shipped values
 

@@ -80,7 +80,7 @@ def options_env():
 
 def test_heading_alignment_is_wired_to_the_robot_axis(options_env):
     """With the shaping weight on, the logged term is w * (|cos| after - |cos| before) of axis vs goal."""
-    from hsa_mjx import observation
+    from hsa_mjx.task import observation
     env, reset, step = options_env
     state = reset(jax.random.PRNGKey(4))
     one_sided = jnp.array([1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0])
@@ -152,11 +152,11 @@ def _lapack_calls(lowered) -> int:
 def test_large_batches_lower_without_lapack_on_cpu(env):
     """jit(vmap(step)) over 64 envs has no LAPACK call left, small batches keep LAPACK's fast kernels.
 
-    Before hsa_mjx.cpu_linalg a step over 64 envs hung forever on a 2-core machine (jaxlib's batched
+    Before hsa_mjx.sim.cpu_linalg a step over 64 envs hung forever on a 2-core machine (jaxlib's batched
     LAPACK Cholesky deadlocks its thread pool once a batch exceeds 44 matrices; 1024 envs hung as well).
     The lowering is checked (XLA's own ops have no such pool), and a 64-matrix batch is run against numpy.
     """
-    from hsa_mjx import cpu_linalg
+    from hsa_mjx.sim import cpu_linalg
     assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
     n = 64
     state = jax.eval_shape(jax.vmap(env.reset), jax.random.split(jax.random.PRNGKey(7), n))

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hsa_mjx import policy as pol
+from hsa_mjx.deploy import policy as pol
 from train import config as tcfg
 from train import export
 
@@ -232,7 +232,7 @@ def test_policy_loader_refuses_bad_files(tmp_path):
 
 def test_numpy_policy_loads_and_runs_without_jax(tmp_path):
     small_policy(tmp_path)
-    code = (f"import sys, numpy as np\nfrom hsa_mjx.policy import load_policy\n"
+    code = (f"import sys, numpy as np\nfrom hsa_mjx.deploy.policy import load_policy\n"
             f"p = load_policy({str(tmp_path / 'p')!r})\n"
             f"assert p(np.zeros({N_OBS})).shape == ({N_ACT},) and p(np.zeros((3, {N_OBS}))).shape == (3, {N_ACT})\n"
             "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'brax', 'flax', 'mujoco'))\n"

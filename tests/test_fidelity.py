@@ -10,7 +10,7 @@ import pytest
 
 from benchmarks import fidelity, gaits
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import load_mj_model
+from hsa_mjx.sim.model import load_mj_model
 
 # 3 s of the crawl gait (150 control steps; the robot moves 0.40 m). Same bounds as the 10 s guard:
 # displacement within 10 % of the reference (vector error), final yaw within 10 degrees. Measured

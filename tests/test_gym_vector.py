@@ -12,7 +12,7 @@ from gymnasium.vector.utils import batch_space
 
 from hsa_mjx.adapters.gymnasium import episode_key
 from hsa_mjx.adapters.gymnasium_vector import HSAVectorEnv, NumpyOutput
-from hsa_mjx.termination import REASONS
+from hsa_mjx.task.termination import REASONS
 
 ACTION_SHAPE = (VECTOR_ENVS, 8)
 

@@ -97,7 +97,7 @@ def test_bad_render_mode_and_preset():
 
 
 def test_gl_platform_is_chosen_for_a_headless_machine_and_a_users_choice_kept():
-    from hsa_mjx import gl
+    from hsa_mjx.sim import gl
     assert gl.choose_platform({"MUJOCO_GL": "osmesa"}) == "osmesa"
     assert gl.choose_platform({"DISPLAY": ":0"}) is None  # MuJoCo's default (GLFW) with a display
     headless: dict = {}

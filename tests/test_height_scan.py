@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx import height_scan, observation, privileged
-from hsa_mjx.height_scan import HeightScanConfig
+from hsa_mjx.terrain import height_scan
+from hsa_mjx.task import observation, privileged
+from hsa_mjx.terrain.height_scan import HeightScanConfig
 from train import config as tcfg
 from train.export import policy_params
 from train.ppo import init_training_state, make_networks

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import hsa_mjx
-from hsa_mjx import height_scan
-from hsa_mjx.host_physics import HostPhysics
+from hsa_mjx.terrain import height_scan
+from hsa_mjx.sim.host_physics import HostPhysics
 
 STEPS = 40
 # C MuJoCo (float64) against MJX (float32), same settings, same actions from the same reset, 40 steps:

@@ -6,10 +6,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from hsa_mjx import physics
-from hsa_mjx.backend import mjx
+from hsa_mjx.sim import physics
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import FOOT_GEOMS, load_mj_model, load_robot, scene_path
+from hsa_mjx.resources import scene_path
+from hsa_mjx.sim.model import FOOT_GEOMS, load_mj_model, load_robot
 
 # Parity bound over 100 env steps (2000 physics steps, float32 MJX vs float64 C MuJoCo) under the
 # same random servo increments: measured max |dqpos| ~1e-3 rad and block error ~1.5e-4 m (CPU).

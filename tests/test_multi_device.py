@@ -173,9 +173,9 @@ def _curriculum_facts() -> dict:
     """The curriculum under pmap from per-device outcomes; one update over all of them; each device alone."""
     import jax
     import jax.numpy as jnp
-    from hsa_mjx import curriculum as cur
-    from hsa_mjx.env import HSAEnv
-    from hsa_mjx.training_env import AutoResetEnv
+    from hsa_mjx.curricula import goal as cur
+    from hsa_mjx.task.env import HSAEnv
+    from hsa_mjx.batch.auto_reset import AutoResetEnv
     from train import config as tcfg
     from train.ppo import AXIS, replicate
     config = cur.CurriculumConfig(window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2)

@@ -9,7 +9,7 @@ import pytest
 import hsa_mjx
 from hsa_mjx import build_config
 from hsa_mjx.adapters.rendering import check_camera
-from hsa_mjx.original_args import ORIGINAL_ARGS, RENDER_ARGS, OriginalArgumentWarning
+from hsa_mjx.adapters.original_args import ORIGINAL_ARGS, RENDER_ARGS, OriginalArgumentWarning
 
 # The original HSAEnv's keyword arguments (hsa_gym API reference) and the viewer arguments its base
 # class took through **kwargs.

@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import control, goals, observation, termination
+from hsa_mjx.task import control, goals, observation, termination
+from hsa_mjx.sim import physics
 from hsa_mjx.config import GoalConfig, ObservationConfig, TerminationConfig
 
 
@@ -82,7 +83,7 @@ def test_checkpoint_advance():
 
 def _stats(qvel=0.0, qacc=0.0, bad=False, final_qacc=None):
     final = qacc if final_qacc is None else final_qacc
-    return termination.SubstepStats(jnp.array(qvel), jnp.array(qacc), jnp.array(bad), jnp.array(final))
+    return physics.SubstepStats(jnp.array(qvel), jnp.array(qacc), jnp.array(bad), jnp.array(final))
 
 
 def _reasons(z, stats, obs_finite=True, ground=0.0, config=TerminationConfig()):
@@ -105,7 +106,7 @@ def test_termination_reasons_are_named():
 
 def test_substep_stats_keep_the_worst():
     a, b = _stats(1.0, 5.0, False), _stats(3.0, 2.0, True)
-    m = termination.merge_stats(a, b)
+    m = physics.merge_stats(a, b)
     assert float(m.max_abs_qvel) == 3.0 and float(m.max_abs_qacc) == 5.0 and bool(m.non_finite)
     assert float(m.final_abs_qacc) == 2.0  # the later substep's, not the worst
 

@@ -7,12 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from hsa_mjx import policy as pol
-from hsa_mjx.host_physics import HostPhysics
+from hsa_mjx import resources
+from hsa_mjx.deploy import policy as pol
+from hsa_mjx.sim.host_physics import HostPhysics
 from train import evaluate
 
 
-SHIPPED = sorted(p.name for p in evaluate.POLICIES_DIR.glob("*") if (p / pol.META_FILE).is_file())
+SHIPPED = list(pol.shipped())
 EPISODES, STEPS = 4, 250  # per policy: the corridor policy closes about 0.06 m, the flat one 0.2-1.0 m
 MARGIN_M = 0.02
 
@@ -29,7 +30,7 @@ def goal_progress(traces: dict) -> np.ndarray:
 
 def test_policies_folder_documents_every_shipped_policy():
     assert {"corridor", "flat"} <= set(SHIPPED)
-    readme = (evaluate.POLICIES_DIR / "README.md").read_text()
+    readme = (resources.data_dir("policies") / "README.md").read_text()
     for name in SHIPPED:
         assert f"policies/{name}" in readme, name
 
@@ -43,7 +44,7 @@ def test_shipped_policy_beats_a_zero_policy(name):
     The physics runs in C MuJoCo (the original's engine; the policies trained on MJX)."""
     import jax
     import jax.numpy as jnp
-    config, env, _, policy = evaluate.load_shipped_policy(evaluate.POLICIES_DIR / name)
+    config, env, _, policy = evaluate.load_shipped_policy(pol.shipped()[name])
     trained = jax.tree.map(jnp.asarray, policy.params)
     zero = {**trained, "kernels": tuple(jnp.zeros_like(k) for k in trained["kernels"]),
             "biases": tuple(jnp.zeros_like(b) for b in trained["biases"])}

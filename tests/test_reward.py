@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import reward as R
+from hsa_mjx.task import reward as R
 from hsa_mjx.config import RewardConfig
 
 W = R.RewardWeights.from_config(RewardConfig())

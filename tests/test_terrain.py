@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx import goals
-from hsa_mjx.model import load_mj_model
+from hsa_mjx.task import goals
+from hsa_mjx.sim.model import load_mj_model
 from hsa_mjx.terrain import (
     TERRAIN_TYPES, CorridorParams, FlatSpawnConfig, Grid, InclineParams, PolesParams, StairsParams,
     TerrainConfig, TerrainSampler, generate, surface_height, to_hfield_data,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx import terrain_curriculum as tcur
+from hsa_mjx.curricula import terrain as tcur
 from hsa_mjx.terrain import TERRAIN_TYPES, Grid, TerrainConfig, generate
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, GENERATORS

@@ -11,8 +11,8 @@ import pytest
 import hsa_mjx
 from conftest import TERRAIN_BATCH
 from hsa_mjx import config as cfg
-from hsa_mjx import goals, observation
-from hsa_mjx.model import BLOCKS, load_scene
+from hsa_mjx.task import goals, observation
+from hsa_mjx.sim.model import BLOCKS, load_scene
 from hsa_mjx.terrain import TERRAIN_TYPES, surface_height
 from hsa_mjx.terrain.atlas import TerrainPool
 from hsa_mjx.terrain.world import TerrainWorld

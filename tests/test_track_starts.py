@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx import goals, pose
+from hsa_mjx.task import goals
+from hsa_mjx import pose
 from hsa_mjx.config import GoalConfig
 from train.evaluate import evaluation_env_config
 

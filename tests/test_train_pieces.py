@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx.observation import observation_size
+from hsa_mjx.task.observation import observation_size
 from train import checkpoint, compat, evaluate
 from train import config as tcfg
 
@@ -263,7 +263,7 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
 
 
 def test_terrain_evaluation_counts_how_episodes_ended():
-    from hsa_mjx import termination
+    from hsa_mjx.task import termination
     from train import terrain_eval
     reasons = np.zeros((4, len(termination.REASONS)), bool)
     reasons[0, termination.REASONS.index("goal_reached")] = reasons[1, termination.REASONS.index("goal_reached")] = True
@@ -273,7 +273,7 @@ def test_terrain_evaluation_counts_how_episodes_ended():
 
 def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     """Three hand-made spiral episodes: 2 checkpoints and a time-out, 5 then qacc_limit, 0 and a time-out."""
-    from hsa_mjx import termination
+    from hsa_mjx.task import termination
     episodes, steps, dt = 3, 4, 0.02
     alive = np.array([[1, 1, 1, 1], [1, 1, 0, 0], [1, 1, 1, 1]], float)
     checkpoint_index = np.array([[0, 1, 2, 2], [3, 5, 0, 0], [0, 0, 0, 0]], float)  # episode 2 reset after its end
@@ -303,7 +303,7 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     policy file, so the run's first deterministic actions are the file's; a mismatch is named."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from hsa_mjx import policy as pol
+    from hsa_mjx.deploy import policy as pol
     from train.ppo import init_training_state, make_networks
     from train.warm_start import read_init_from, warm_start
     config = tcfg.load("configs/train_quickstart_cpu.yaml")

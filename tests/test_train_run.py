@@ -160,9 +160,9 @@ def test_evaluate_writes_summary_and_plots(run_dir):
 
 
 def test_auto_reset_draws_fresh_goals_from_curriculum():
-    from hsa_mjx import curriculum as cur
-    from hsa_mjx.env import HSAEnv
-    from hsa_mjx.training_env import AutoResetEnv
+    from hsa_mjx.curricula import goal as cur
+    from hsa_mjx.task.env import HSAEnv
+    from hsa_mjx.batch.auto_reset import AutoResetEnv
     config = tiny()
     env = HSAEnv(tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)),
                                                      ["env.termination.max_episode_steps=3"])).env)
@@ -180,7 +180,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     radius = np.linalg.norm(goals, axis=-1)
     assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
     assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes
-    from hsa_mjx.training_env import summarize
+    from hsa_mjx.batch.auto_reset import summarize
     logged = summarize({k: float(v) for k, v in jax.device_get(state.totals).items()})
     assert logged["env_steps"] == 14  # 7 steps x 2 envs
     distances = np.asarray(state.env.metrics["distance_to_goal"])

@@ -3,8 +3,8 @@
 A training YAML has five sections, each optional (missing keys take the defaults below)::
 
     env: {...}          # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
-    curriculum: {...}   # hsa_mjx.curriculum.CurriculumConfig (goal distances)
-    terrain_curriculum: {...}  # hsa_mjx.terrain_curriculum.TerrainCurriculumConfig (terrain levels)
+    curriculum: {...}   # hsa_mjx.curricula.goal.CurriculumConfig (goal distances)
+    terrain_curriculum: {...}  # hsa_mjx.curricula.terrain.TerrainCurriculumConfig (terrain levels)
     ppo: {...}          # PPOConfig
     run: {...}          # RunConfig
 
@@ -21,8 +21,9 @@ from typing import Any, Mapping
 import yaml
 
 from hsa_mjx import config as env_config
-from hsa_mjx import curriculum as cur
-from hsa_mjx import terrain_curriculum as tcur
+from hsa_mjx import resources
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.curricula import terrain as tcur
 from hsa_mjx.config import EnvConfig, build_section
 
 ACTIVATIONS = ("swish", "tanh", "relu", "elu")
@@ -65,7 +66,7 @@ class PPOConfig:
     # action dim, "scalar" (softplus) or "log" (exp, as SB3's log_std)
     distribution_type: str = "tanh_normal"
     noise_std_type: str = "scalar"
-    # true: the value network also reads the privileged inputs (hsa_mjx.privileged: the noise-free
+    # true: the value network also reads the privileged inputs (hsa_mjx.task.privileged: the noise-free
     # height scan, true block velocities, foot forces, terrain type and level) after the observation;
     # the policy, and every exported policy, reads the observation alone
     privileged_critic: bool = False
@@ -241,17 +242,8 @@ def _parse_value(raw: str) -> Any:
 
 
 def read_yaml(path: str | Path) -> dict:
-    """Read a training YAML file into nested dicts (FileNotFoundError / ValueError on problems)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"training config not found: {path}")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ValueError(f"training config {path} is not valid YAML: {err}") from err
-    if not isinstance(data, Mapping):
-        raise ValueError(f"training config {path} must be a mapping of sections {list(SECTIONS)}")
-    return dict(data)
+    """A training YAML file (or a shipped config's name) as nested dicts, merged over its ``base:``."""
+    return resources.read_yaml(path, "training config")
 
 
 def load(path: str | Path, overrides: list[str] | None = None) -> TrainConfig:

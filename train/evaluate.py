@@ -4,7 +4,7 @@
 checkpoint and runs N episodes at once with the deterministic policy (its mean action;
 ``--stochastic`` samples as in training; each env plays exactly one episode).
 ``python -m train.evaluate --policy NAME_OR_DIR [--episodes N] [--video]``: the same for a policy
-directory (``policies/<NAME>`` or a path; ``hsa_mjx/policy.py``), its env rebuilt from its
+directory (``policies/<NAME>`` or a path; ``hsa_mjx/deploy/policy.py``), its env rebuilt from its
 ``policy.json`` and its network run from its ``policy.npz``; defaults sized for a CPU (4 episodes
 of at most 1,000 steps).
 
@@ -32,7 +32,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-# --video renders offscreen; mujoco picks its GL backend when first imported (below, via hsa_mjx.env).
+# --video renders offscreen; mujoco picks its GL backend when first imported (below, via hsa_mjx.task.env).
 # EGL only where its library exists: mujoco's import fails under MUJOCO_GL=egl on a machine without it.
 if ctypes.util.find_library("EGL"):
     os.environ.setdefault("MUJOCO_GL", "egl")
@@ -41,17 +41,16 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hsa_mjx import backend  # noqa: E402
-from hsa_mjx import curriculum as cur  # noqa: E402
-from hsa_mjx import observation, termination  # noqa: E402
-from hsa_mjx import policy as pol  # noqa: E402
+from hsa_mjx.sim import backend  # noqa: E402
+from hsa_mjx.curricula import goal as cur  # noqa: E402
+from hsa_mjx.task import observation, termination  # noqa: E402
+from hsa_mjx.deploy import policy as pol  # noqa: E402
 from hsa_mjx.config import BACKENDS, EnvConfig  # noqa: E402
-from hsa_mjx.env import HSAEnv  # noqa: E402
-from hsa_mjx.host_physics import HostPhysics  # noqa: E402
+from hsa_mjx.task.env import HSAEnv  # noqa: E402
+from hsa_mjx.sim.host_physics import HostPhysics  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train import config as tcfg  # noqa: E402
 
-POLICIES_DIR = Path(__file__).resolve().parent.parent / "policies"
 PHYSICS = ("auto", "mjx", "c")  # --physics
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
@@ -124,7 +123,7 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
     ``policy(obs, key) -> (action, extras)``; with ``params`` (a pytree with a leading episode
     axis) ``policy(params_i, obs, key)`` instead, so that one compiled rollout plays several
     parameter sets (e.g. a policy against a zero policy). ``simulate``: another physics engine for
-    ``env.step_with`` (e.g. ``hsa_mjx.host_physics.HostPhysics``); default the env's MJX step.
+    ``env.step_with`` (e.g. ``hsa_mjx.sim.host_physics.HostPhysics``); default the env's MJX step.
     ``cells``: each episode's terrain cell (type row, level), (N, 2) int32; default a free draw.
     """
     idx = env.index
@@ -208,18 +207,6 @@ def shipped_policy_apply(policy: pol.NumpyPolicy):
     return apply
 
 
-def resolve_policy(name_or_dir: str) -> Path:
-    """A policy directory: a path, or the name of a folder under ``policies/`` (the error lists them)."""
-    path = Path(name_or_dir)
-    if (path / pol.META_FILE).is_file():
-        return path
-    if (POLICIES_DIR / name_or_dir / pol.META_FILE).is_file():
-        return POLICIES_DIR / name_or_dir
-    available = sorted(p.name for p in POLICIES_DIR.glob("*") if (p / pol.META_FILE).is_file())
-    raise FileNotFoundError(f"no policy {name_or_dir!r}: not a directory with {pol.META_FILE} and not one of "
-                            f"the shipped policies {available} (in {POLICIES_DIR})")
-
-
 def load_shipped_policy(directory: Path, backend: str | None = None, num_envs: int = 1,
                         overrides: tuple[str, ...] = ()):
     """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json (on
@@ -264,7 +251,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
                              "not env.observation.*)")
     parser.add_argument("--physics", choices=PHYSICS, default="auto",
-                        help="mjx: the env's MJX physics; c: its substeps in C MuJoCo (hsa_mjx.host_physics), "
+                        help="mjx: the env's MJX physics; c: its substeps in C MuJoCo (hsa_mjx.sim.host_physics), "
                              "several times faster on a CPU; auto (default): c on a CPU unless --backend is "
                              "given, else mjx")
     parser.add_argument("--backend", choices=BACKENDS, default=None,
@@ -285,7 +272,7 @@ def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, An
     if args.policy is not None:
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
-        directory = resolve_policy(args.policy)
+        directory = pol.locate(args.policy)
         config, env, policy, shipped = load_shipped_policy(directory, args.backend, _episodes(args, True),
                                                            tuple(args.overrides))
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"

@@ -1,9 +1,9 @@
 """Export a run's deterministic policy: ``python -m train.export RUN_DIR --format npz|onnx [--out DIR]``.
 
 Reads the run's latest checkpoint (or ``--checkpoint PATH``) and writes its deterministic policy,
-observation normaliser included, as a policy directory (``hsa_mjx/policy.py`` describes the format):
+observation normaliser included, as a policy directory (``hsa_mjx/deploy/policy.py`` describes the format):
 
-- ``--format npz``: ``policy.npz`` + ``policy.json``, run with ``hsa_mjx.policy.load_policy`` (numpy
+- ``--format npz``: ``policy.npz`` + ``policy.json``, run with ``hsa_mjx.deploy.policy.load_policy`` (numpy
   only) or ``python -m train.evaluate --policy DIR``; the format of the shipped ``policies/<task>/``.
 - ``--format onnx``: ``policy.onnx`` (input ``observation`` (batch, obs), output ``action``) + the
   same ``policy.json``; needs the ``onnx`` package (``pip install -e .[export]``).
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_mjx import policy as pol
+from hsa_mjx.deploy import policy as pol
 from train import checkpoint
 from train import config as tcfg
 
@@ -81,8 +81,8 @@ def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
 
 def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPolicy:
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
-    from hsa_mjx import observation
-    from hsa_mjx.model import SERVOS
+    from hsa_mjx.task import observation
+    from hsa_mjx.sim.model import SERVOS
     ppo = config.ppo
     params = policy_params(config, ts, len(SERVOS))
     clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.ppo.make_networks
@@ -98,8 +98,8 @@ def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPoli
 
 def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol.NumpyPolicy:
     """The deterministic policy of a run's latest (or given) checkpoint, with its provenance."""
-    from hsa_mjx.model import SERVOS
-    from hsa_mjx.observation import observation_size
+    from hsa_mjx.sim.model import SERVOS
+    from hsa_mjx.task.observation import observation_size
     from train.evaluate import load_training_state
     config, path, step = read_checkpoint(run_dir, checkpoint_path)
     _, ts = load_training_state(config, path, observation_size(config.env.observation), len(SERVOS))

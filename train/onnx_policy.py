@@ -1,4 +1,4 @@
-"""The deterministic policy of ``hsa_mjx.policy`` as an ONNX graph (normaliser, clip, MLP, output squash).
+"""The deterministic policy of ``hsa_mjx.deploy.policy`` as an ONNX graph (normaliser, clip, MLP, output squash).
 
 Built with the ``onnx`` package's helper API from the same float32 arrays as ``policy.npz``
 (initializers named as the npz keys). Input ``observation`` (batch, obs), output ``action``
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hsa_mjx import policy as pol
+from hsa_mjx.deploy import policy as pol
 
 OPSET, IR_VERSION = 17, 8
 INPUT, OUTPUT = "observation", "action"

@@ -30,10 +30,10 @@ import numpy as np
 from flax import struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
-from hsa_mjx import curriculum as cur
-from hsa_mjx import terrain_curriculum as tcur
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.training_env import AutoResetEnv, BatchState
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
 from train.config import TrainConfig
 from train.ppo import AXIS, PPOLearner, TrainingState
 

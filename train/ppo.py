@@ -27,12 +27,12 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
-from hsa_mjx import curriculum as cur
-from hsa_mjx import privileged
-from hsa_mjx import terrain_curriculum as tcur
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.training_env import AutoResetEnv, BatchState
-from hsa_mjx.types import EnvState
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.task import privileged
+from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
+from hsa_mjx.task.types import EnvState
 from train import compat
 from train.config import TrainConfig
 

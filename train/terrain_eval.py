@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_mjx import termination
+from hsa_mjx.task import termination
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.env import HSAEnv
+from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
 TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral

@@ -18,10 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from hsa_mjx import curriculum as cur
-from hsa_mjx import terrain_curriculum as tcur
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.training_env import summarize
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.batch.auto_reset import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar

@@ -19,9 +19,9 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx import curriculum as cur
-from hsa_mjx import policy as pol
-from hsa_mjx.observation import observation_size
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.deploy import policy as pol
+from hsa_mjx.task.observation import observation_size
 from train import checkpoint
 from train import config as tcfg
 from train.ppo import TrainingState, privileged_size
@@ -29,20 +29,11 @@ from train.ppo import TrainingState, privileged_size
 POLICY_NORMALIZER_COUNT = 100_000  # samples the shipped statistics count as when a run starts from a policy file
 
 
-def policy_directory(source: str) -> Path | None:
-    """The policy directory ``source`` names (a path holding policy.json, or a shipped policy's name), or None."""
-    from train.evaluate import POLICIES_DIR
-    for path in (Path(source), POLICIES_DIR / source):
-        if (path / pol.META_FILE).is_file():
-            return path
-    return None
-
-
 def read_init_from(config: tcfg.TrainConfig) -> dict | None:
     """What ``run.init_from`` names, checked against this config's networks (before any compile)."""
     if not config.run.init_from:
         return None
-    directory = policy_directory(config.run.init_from)
+    directory = pol.find(config.run.init_from)
     if directory is not None:
         return _read_policy(config, directory)
     source = Path(config.run.init_from)

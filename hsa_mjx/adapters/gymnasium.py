@@ -24,11 +24,11 @@ from gymnasium import spaces
 from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.host_physics import HostPhysics
-from hsa_mjx.model import local_device
-from hsa_mjx.termination import REASONS
-from hsa_mjx.types import EnvState
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.sim.host_physics import HostPhysics
+from hsa_mjx.sim.model import local_device
+from hsa_mjx.task.termination import REASONS
+from hsa_mjx.task.types import EnvState
 
 
 def episode_key(seed: int) -> jax.Array:
@@ -61,7 +61,7 @@ def _with_outputs(state: EnvState) -> tuple[EnvState, dict[str, Any]]:
 
 
 class HSAGymEnv(gymnasium.Env):
-    """A single :class:`~hsa_mjx.env.HSAEnv` as a ``gymnasium.Env`` (float32 numpy in and out).
+    """A single :class:`~hsa_mjx.task.env.HSAEnv` as a ``gymnasium.Env`` (float32 numpy in and out).
 
     Args:
         config: preset name, YAML path or :class:`EnvConfig` (default ``"flat"``).
@@ -71,7 +71,7 @@ class HSAGymEnv(gymnasium.Env):
         camera: camera name or id in the asset (None: ``"track"``, which follows the robot;
             ``"overview"`` is fixed; -1 MuJoCo's free camera). The original's ``camera_name`` /
             ``camera_id`` are accepted for it.
-        host_physics: run the physics substeps in C MuJoCo (``hsa_mjx.host_physics``: same model,
+        host_physics: run the physics substeps in C MuJoCo (``hsa_mjx.sim.host_physics``: same model,
             float64, about 4x faster for one env on a CPU) with the env's own control, observation,
             reward and termination. None (default): on when the env runs MJX's JAX implementation on
             a CPU; False always steps MJX.
@@ -88,7 +88,7 @@ class HSAGymEnv(gymnasium.Env):
     def __init__(self, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
                  width: int = 640, height: int = 480, camera: str | int | None = None,
                  host_physics: bool | None = None, **overrides: Any):
-        from hsa_mjx import build_config  # deferred: hsa_mjx imports this module at registration
+        from hsa_mjx.adapters.original_args import build_config
 
         self.render_mode = check_render_mode(render_mode)
         camera = pick_camera(camera, overrides)

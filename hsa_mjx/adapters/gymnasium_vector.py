@@ -36,11 +36,11 @@ from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.gymnasium import pick_camera
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.model import local_device
-from hsa_mjx.termination import REASONS
-from hsa_mjx.training_env import AutoResetEnv, BatchState, per_env_picker, select_sim
-from hsa_mjx.types import EnvState
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.sim.model import local_device
+from hsa_mjx.task.termination import REASONS
+from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState, per_env_picker, select_sim
+from hsa_mjx.task.types import EnvState
 
 OUTPUTS = ("numpy", "jax")
 AUTORESET_MODES = {"same_step": AutoresetMode.SAME_STEP, "next_step": AutoresetMode.NEXT_STEP}
@@ -91,7 +91,7 @@ class HSAVectorEnv(VectorEnv):
     def __init__(self, num_envs: int, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
                  width: int = 640, height: int = 480, camera: str | int | None = None, render_env: int = 0,
                  check_finite: bool = True, autoreset_mode: str | AutoresetMode = "same_step", **overrides: Any):
-        from hsa_mjx import build_config  # deferred: hsa_mjx imports the adapters at registration
+        from hsa_mjx.adapters.original_args import build_config
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")

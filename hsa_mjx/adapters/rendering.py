@@ -14,9 +14,9 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.gl import has_display
-from hsa_mjx.types import EnvState
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.sim.gl import has_display
+from hsa_mjx.task.types import EnvState
 
 RENDER_MODES = ("human", "rgb_array")
 DEFAULT_CAMERA = "track"

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hsa_mjx.model import scene_path  # noqa: E402
+from hsa_mjx.resources import scene_path  # noqa: E402
 from hsa_mjx.terrain.grid import Grid  # noqa: E402
 from hsa_mjx.terrain.params import TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig  # noqa: E402
 from hsa_mjx.terrain.sampler import TerrainSampler  # noqa: E402

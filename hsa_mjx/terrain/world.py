@@ -28,7 +28,7 @@ class TerrainWorld:
 
     Args:
         config: the ``terrain:`` section.
-        pool: the run's terrain tiles (``hsa_mjx.model.load_scene``); None on the plane scene.
+        pool: the run's terrain tiles (``hsa_mjx.sim.model.load_scene``); None on the plane scene.
         mj_model: the loaded scene (for the robot's footprint).
         block_body: body ids of the two blocks.
     """

@@ -5,10 +5,36 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
-from hsa_mjx.backend import mjx
-from hsa_mjx.model import RobotIndex
-from hsa_mjx.termination import SubstepStats, merge_stats, substep_stats
+from hsa_mjx.sim.backend import mjx
+from hsa_mjx.sim.model import RobotIndex
+
+
+@struct.dataclass
+class SubstepStats:
+    """Worst values seen over the substeps of one env step (the original looked at the last only)."""
+
+    max_abs_qvel: jax.Array
+    max_abs_qacc: jax.Array
+    non_finite: jax.Array  # bool: any NaN/Inf in qpos, qvel or qacc at any substep
+    final_abs_qacc: jax.Array  # max |qacc| over the dofs at the last substep (the original's check)
+
+
+def substep_stats(data: mjx.Data) -> SubstepStats:
+    """Stats of one substep's state."""
+    finite = (jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
+              & jnp.all(jnp.isfinite(data.qacc)))
+    qacc = jnp.max(jnp.abs(jnp.nan_to_num(data.qacc)))
+    return SubstepStats(max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))), max_abs_qacc=qacc,
+                        non_finite=jnp.logical_not(finite), final_abs_qacc=qacc)
+
+
+def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
+    """Worst of two substep stats (``b`` the later one: its final |qacc| is kept)."""
+    return SubstepStats(jnp.maximum(a.max_abs_qvel, b.max_abs_qvel),
+                        jnp.maximum(a.max_abs_qacc, b.max_abs_qacc), a.non_finite | b.non_finite,
+                        b.final_abs_qacc)
 
 
 def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array,

@@ -267,3 +267,31 @@ def _check_conflicts(source: Mapping[str, str], given: Mapping[str, Any]) -> Non
             if other == key or other.startswith(key + ".") or key.startswith(other + "."):
                 raise ValueError(f"the original argument {name} and the config key {other.replace('.', '__')} "
                                  f"both set '{key}'; pass only one of them")
+
+
+def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False,
+                 **overrides: Any) -> EnvConfig:
+    """The :class:`EnvConfig` that ``make_env`` builds its env from (same arguments; nothing compiled).
+
+    ``renderer``: the caller renders, so the original's viewer arguments are not warned about.
+    """
+    from hsa_mjx.config import get_preset, load_config, with_overrides
+    if isinstance(name_or_config, EnvConfig):
+        config = name_or_config
+    elif isinstance(name_or_config, Path) or str(name_or_config).endswith((".yaml", ".yml")):
+        config = load_config(name_or_config)
+    elif isinstance(name_or_config, str):
+        config = get_preset(name_or_config)
+    else:
+        raise ValueError(f"make_env expects a preset name, a YAML path or an EnvConfig, got {name_or_config!r}")
+    original, keys = split_arguments(overrides)
+    given = flatten(keys)
+    mapped, source = config_from_original(original, config, given, renderer)
+    if not (given or mapped):
+        return config
+    try:
+        return with_overrides(config, **given, **mapped)
+    except ValueError as err:  # name the original argument behind a refused key
+        named = [f"'{key}' comes from the original argument {name}={original[name]!r}"
+                 for key, name in source.items() if f"'{key}'" in str(err)]
+        raise ValueError("; ".join([str(err), *named])) from None

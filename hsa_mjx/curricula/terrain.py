@@ -10,7 +10,7 @@ every easy level at once instead of all envs starting on level ground.
 
 The state is one pytree of per-env arrays (:class:`TerrainLevels`) that travels with the env batch:
 updated inside the jitted step where an episode ends, sharded with the envs over devices, saved in
-checkpoints. It composes with the goal-distance curriculum (``hsa_mjx.curriculum``), which sets how
+checkpoints. It composes with the goal-distance curriculum (``hsa_mjx.curricula.goal``), which sets how
 far the goals are; this one sets on which ground.
 """
 

@@ -5,18 +5,18 @@ original), ``wrapped`` into [-pi, pi) or ``sincos`` (8 sines, then 8 cosines: 8 
 Optional entries, appended in this order when enabled (``ObservationConfig``):
 ``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
 (the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock),
-``height_scan`` one value per scan point (``hsa_mjx.height_scan``; the env reads it from its terrain).
+``height_scan`` one value per scan point (``hsa_mjx.terrain.height_scan``; the env reads it from its terrain).
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from hsa_mjx.backend import mjx
+from hsa_mjx.sim.backend import mjx
 
-from hsa_mjx import height_scan as scan_module
+from hsa_mjx.terrain import height_scan as scan_module
 from hsa_mjx.config import ObservationConfig
-from hsa_mjx.model import RobotIndex
+from hsa_mjx.sim.model import RobotIndex
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide

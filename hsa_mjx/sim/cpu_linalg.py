@@ -13,7 +13,7 @@ mass matrix and in the Newton solver of every step.
 lowering JAX uses on other platforms; XLA expands them into plain loops), which have no such
 pool, for batches above ``LAPACK_MAX_BATCH`` matrices; smaller batches (never split over the pool,
 and about 3x faster with LAPACK: 19 vs 64 ms per step of 4 envs) keep LAPACK. It changes only the
-CPU lowering, never GPU code; results agree with LAPACK to float32 rounding. ``hsa_mjx.model``
+CPU lowering, never GPU code; results agree with LAPACK to float32 rounding. ``hsa_mjx.sim.model``
 (which every MJX path imports) applies it on import; set ``HSA_MJX_CPU_LAPACK=1`` to keep JAX's default. It relies on JAX internals and
 does nothing (returns False) where they differ.
 """

@@ -15,17 +15,16 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx import backend
-from hsa_mjx.backend import mjx
+from hsa_mjx.sim import backend
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.cpu_linalg import use_xla_linalg_on_cpu
+from hsa_mjx.resources import scene_path
+from hsa_mjx.sim.cpu_linalg import use_xla_linalg_on_cpu
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.grid import HFIELD_NAME, Grid
 
 use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
 
-ASSET_DIR = Path(__file__).resolve().parent.parent / "assets"
-SCENE_FILES = {"flat": "scene_flat.xml", "terrain": "scene_terrain.xml"}
 
 # Action / observation slot order of the original (1A, 2A, 3A, 4A, 1C, 2C, 3C, 4C).
 ACTUATED_JOINTS = (
@@ -73,19 +72,6 @@ class RobotIndex:
     foot_sensors: np.ndarray  # (4, contacts, 3) sensordata addresses of each foot's contact forces
     goal_mocap: int  # mocap index of the goal marker
     terrain_mocap: int  # mocap index of the heightfield's body; -1 on the plane scene
-
-
-def scene_path(scene: str, asset_dir: Path | None = None) -> Path:
-    """Path of the scene XML for ``scene`` ("flat" or "terrain"), checked to exist."""
-    if scene not in SCENE_FILES:
-        raise ValueError(f"unknown scene {scene!r}; valid scenes: {sorted(SCENE_FILES)}")
-    path = Path(asset_dir or ASSET_DIR) / SCENE_FILES[scene]
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"robot asset not found: {path}. The assets ship in the repository's assets/ folder; "
-            "install with `pip install -e .` from a checkout."
-        )
-    return path
 
 
 def load_scene(config: EnvConfig, asset_dir: Path | None = None) -> tuple[mujoco.MjModel, TerrainPool | None]:

@@ -11,18 +11,24 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hsa_mjx.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
+from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
 from brax.envs.base import Env as BraxEnv  # noqa: I001
 
-from hsa_mjx import backend, control, goals, height_scan, observation, physics, pose, privileged, reward, termination
+from hsa_mjx.sim import backend, physics
+
+from hsa_mjx.task import control, goals, observation, privileged, reward, termination
+
+from hsa_mjx.terrain import height_scan
+
+from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.model import RobotModel, compiled_kinematics, load_robot, local_device
+from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
 from hsa_mjx.terrain.placement import Footprint
 from hsa_mjx.terrain.world import TerrainWorld
-from hsa_mjx.types import EnvState, SimState, TaskState
+from hsa_mjx.task.types import EnvState, SimState, TaskState
 
 GOAL_MARKER_Z = 0.1
-Simulate = Callable[[mjx.Data, jax.Array], tuple[mjx.Data, termination.SubstepStats]]
+Simulate = Callable[[mjx.Data, jax.Array], tuple[mjx.Data, physics.SubstepStats]]
 
 
 class HSAEnv(BraxEnv):
@@ -45,7 +51,7 @@ class HSAEnv(BraxEnv):
         num_envs: how many envs ``reset``/``step`` will be vmapped over. Only the Warp backend
             uses it: the envs of a batch share one contact buffer of
             ``physics.contacts_per_env * num_envs`` slots (the batch wrappers check it).
-        privileged: also put the privileged critic inputs (``hsa_mjx.privileged``) into
+        privileged: also put the privileged critic inputs (``hsa_mjx.task.privileged``) into
             ``state.info["privileged_obs"]`` (the PPO learner's ``ppo.privileged_critic``).
     """
 
@@ -186,7 +192,7 @@ class HSAEnv(BraxEnv):
 
     def step_with(self, simulate: Simulate, state: EnvState, action: jax.Array) -> EnvState:
         """``step`` with another physics engine: ``simulate(data, targets (frame_skip, 8)) ->
-        (data, SubstepStats)`` runs the substeps (e.g. ``hsa_mjx.host_physics``: C MuJoCo for one
+        (data, SubstepStats)`` runs the substeps (e.g. ``hsa_mjx.sim.host_physics``: C MuJoCo for one
         env on a CPU); control, observation, reward and termination are this env's own."""
         cfg, idx = self.config, self.index
         data = state.pipeline_state.physics
@@ -198,12 +204,12 @@ class HSAEnv(BraxEnv):
         new_data, stats = simulate(data, targets)
         return self._outcome(state, action, bad_action, before, new_data, stats)
 
-    def _simulate(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, termination.SubstepStats]:
+    def _simulate(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, physics.SubstepStats]:
         """The substeps on this env's MJX model (JAX or Warp implementation)."""
         return physics.simulate(self.robot.mjx_model, data, targets, self.index)
 
     def _outcome(self, state: EnvState, action: jax.Array, bad_action: jax.Array, before: tuple,
-                 new_data: mjx.Data, stats: termination.SubstepStats) -> EnvState:
+                 new_data: mjx.Data, stats: physics.SubstepStats) -> EnvState:
         """Everything after the physics: goal, observation, termination, reward, metrics."""
         cfg, idx = self.config, self.index
         task, data = state.pipeline_state.task, state.pipeline_state.physics

@@ -13,11 +13,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx import height_scan
-from hsa_mjx.backend import mjx
+from hsa_mjx.terrain import height_scan
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import ObservationConfig
-from hsa_mjx.model import RobotIndex
-from hsa_mjx.physics import foot_forces
+from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.sim.physics import foot_forces
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
 FORCE_UNIT = 100.0  # N: contact forces are given in hundreds of newtons (resting feet carry ~12 N each)

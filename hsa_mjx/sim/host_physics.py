@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hsa_mjx.backend import mjx
-from hsa_mjx.model import RobotIndex
-from hsa_mjx.termination import SubstepStats
+from hsa_mjx.sim.backend import mjx
+from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.sim.physics import SubstepStats
 
 STATE_IN = ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat", "qacc_warmstart", "time")
 STATE_OUT = ("qpos", "qvel", "act", "ctrl", "qacc", "qacc_warmstart", "time", "xpos", "xquat", "sensordata")

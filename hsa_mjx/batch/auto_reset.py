@@ -13,11 +13,13 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from hsa_mjx import backend, reward, termination
-from hsa_mjx import curriculum as cur
-from hsa_mjx import terrain_curriculum as tcur
-from hsa_mjx.env import HSAEnv
-from hsa_mjx.types import EnvState, SimState
+from hsa_mjx.sim import backend
+
+from hsa_mjx.task import reward, termination
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.task.types import EnvState, SimState
 
 TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
               "nonfinite_action", "nonfinite_state", "step_reward", "step_distance", "step_checkpoint")
@@ -62,7 +64,7 @@ class AutoResetEnv:
         axis_name: the ``pmap`` axis to gather episode outcomes over (None on one device).
         step_curriculum: update the curriculum inside ``step`` (True); False leaves it to the
             caller (the PPO learner feeds it each collection's outcomes, ``train.ppo``).
-        terrain_curriculum: the per-env terrain level curriculum (``hsa_mjx.terrain_curriculum``);
+        terrain_curriculum: the per-env terrain level curriculum (``hsa_mjx.curricula.terrain``);
             it moves each env's level where its episode ends, before the env is reset.
     """
 

@@ -30,11 +30,32 @@ from typing import Any
 
 import numpy as np
 
-FORMAT = "hsa_mjx.policy"
+FORMAT = "hsa_mjx.policy"  # the file format's name (kept when the module moved)
 FORMAT_VERSION = 1
 WEIGHTS_FILE, META_FILE = "policy.npz", "policy.json"
 ACTIVATIONS = ("swish", "tanh", "relu", "elu")
 SQUASH = {"tanh_normal": "tanh", "normal": "identity"}  # distribution type -> output transform
+
+
+def shipped() -> dict[str, Path]:
+    """The policies that ship with the package, by name (``policies/`` in a checkout, package data once installed)."""
+    from hsa_mjx.resources import data_dir
+    return {p.name: p for p in sorted(data_dir("policies").glob("*")) if (p / META_FILE).is_file()}
+
+
+def find(name_or_dir: str | Path) -> Path | None:
+    """The policy directory that ``name_or_dir`` names (a path holding the metadata, or a shipped name), else None."""
+    path = Path(name_or_dir)
+    return path if (path / META_FILE).is_file() else shipped().get(str(name_or_dir))
+
+
+def locate(name_or_dir: str | Path) -> Path:
+    """Like :func:`find`, but a FileNotFoundError listing the shipped policies when there is none."""
+    found = find(name_or_dir)
+    if found is None:
+        raise FileNotFoundError(f"no policy {str(name_or_dir)!r}: not a directory with {META_FILE} and not one of "
+                                f"the shipped policies {list(shipped())}")
+    return found
 
 
 def activate(x: Any, name: str, xp: Any = np) -> Any:

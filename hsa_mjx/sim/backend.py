@@ -11,7 +11,7 @@ Everything the env does with ``mjx.Data`` goes through public fields (``qpos``, 
 - :func:`select` merges two states env by env (``Data.where``: Warp's shared buffers are kept, not
   selected, which a plain ``jax.tree.map`` would break).
 
-``from hsa_mjx.backend import mjx`` imports MJX without the "Failed to import warp" lines it prints
+``from hsa_mjx.sim.backend import mjx`` imports MJX without the "Failed to import warp" lines it prints
 when ``warp-lang`` is absent (the CPU install does not need it).
 """
 

@@ -1,0 +1,1 @@
+"""Curricula: the goal-distance and terrain-level state machines, pure functions of their state."""

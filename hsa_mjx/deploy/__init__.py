@@ -1,0 +1,1 @@
+"""Deployment: the exported policy as a numpy network (no JAX)."""
