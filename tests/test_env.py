@@ -1,5 +1,7 @@
 """The jitted env: determinism, a finite batch, retracing, NaN handling, Brax compatibility."""
 
+import itertools
+
 import brax.envs.wrappers.training as brax_wrappers
 import jax
 import jax.numpy as jnp
@@ -167,6 +169,29 @@ def test_large_batches_lower_without_lapack_on_cpu(env):
         lowered = jax.jit(jnp.linalg.cholesky).lower(spd[:batch])
         assert (_lapack_calls(lowered) > 0) == lapack, batch
     np.testing.assert_allclose(jax.jit(jnp.linalg.cholesky)(spd), np.linalg.cholesky(spd), atol=1e-4)
+
+
+
+@pytest.mark.parametrize("batch", [4, 64])  # LAPACK's kernels, then XLA's ops
+def test_cpu_triangular_solves_and_failed_factorisations_match_numpy(batch):
+    """Every triangular-solve variant MJX can reach, and NaN for a matrix that is not positive definite."""
+    from hsa_mjx.sim import cpu_linalg
+    assert cpu_linalg.use_xla_linalg_on_cpu()
+    rng = np.random.default_rng(1)
+    lower = np.tril(rng.normal(size=(batch, 24, 24))).astype(np.float32) + 5 * np.eye(24, dtype=np.float32)
+    b = rng.normal(size=(batch, 24, 3)).astype(np.float32)
+    for is_lower, transpose, left in itertools.product((True, False), repeat=3):
+        a = lower if is_lower else np.swapaxes(lower, 1, 2)
+        rhs = b if left else np.swapaxes(b, 1, 2)
+        solve = jax.jit(lambda a, r: jax.lax.linalg.triangular_solve(  # noqa: B023
+            a, r, left_side=left, lower=is_lower, transpose_a=transpose))
+        assert (_lapack_calls(solve.lower(a, rhs)) > 0) == (batch <= cpu_linalg.LAPACK_MAX_BATCH)
+        op = np.swapaxes(a, 1, 2) if transpose else a
+        expected = np.linalg.solve(op, rhs) if left else np.swapaxes(
+            np.linalg.solve(np.swapaxes(op, 1, 2), np.swapaxes(rhs, 1, 2)), 1, 2)
+        np.testing.assert_allclose(solve(a, rhs), expected, rtol=1e-4, atol=1e-5)
+    factor = np.asarray(jax.jit(jnp.linalg.cholesky)(-np.eye(24, dtype=np.float32)[None].repeat(batch, 0)))
+    assert np.isnan(factor[:, 0, 0]).all()  # as JAX's own CPU lowering
 
 
 def _yaw(physics, env):

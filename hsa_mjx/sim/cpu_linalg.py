@@ -4,52 +4,115 @@ On the CPU, JAX lowers ``cholesky`` and ``triangular_solve`` to LAPACK custom ca
 batch over XLA's intra-op thread pool and block until the pieces finish. When two such calls run
 at once and the pool is small (the 2-core CI machine), both wait for work that no free thread can
 pick up: a vmapped MJX step over a large batch (44 or more envs: jaxlib splits a batch once it exceeds
-2e5 FLOP, i.e. 44 of the 24 x 24 Cholesky factorizations) hangs
-forever at 0 % CPU (seen with gdb: two threads in ``jax::ParallelBatchMap`` ->
-``BlockingCounter::Wait`` under ``lapack_spotrf_ffi``; jaxlib 0.10.2). MJX calls Cholesky for the
-mass matrix and in the Newton solver of every step.
+2e5 FLOP, i.e. 44 of the 24 x 24 Cholesky factorizations) hangs forever at 0 % CPU (seen with gdb:
+two threads in ``jax::ParallelBatchMap`` -> ``BlockingCounter::Wait`` under ``lapack_spotrf_ffi``;
+jaxlib 0.10.2). MJX calls Cholesky for the mass matrix and in the Newton solver of every step.
 
-``use_xla_linalg_on_cpu()`` makes the CPU use XLA's own Cholesky and triangular-solve ops (the
-lowering JAX uses on other platforms; XLA expands them into plain loops), which have no such
-pool, for batches above ``LAPACK_MAX_BATCH`` matrices; smaller batches (never split over the pool,
-and about 3x faster with LAPACK: 19 vs 64 ms per step of 4 envs) keep LAPACK. It changes only the
-CPU lowering, never GPU code; results agree with LAPACK to float32 rounding. ``hsa_mjx.sim.model``
-(which every MJX path imports) applies it on import; set ``HSA_MJX_CPU_LAPACK=1`` to keep JAX's default. It relies on JAX internals and
-does nothing (returns False) where they differ.
+``use_xla_linalg_on_cpu()`` registers CPU lowerings (through JAX's public ``jax.interpreters.mlir``,
+``jax.ffi`` and ``jax.extend.mlir`` APIs) that emit XLA's own Cholesky and triangular-solve ops,
+which XLA expands into plain loops with no such pool, for batches above ``LAPACK_MAX_BATCH``
+matrices; smaller batches (never split over the pool, and about 3x faster with LAPACK: 19 vs 64 ms
+per step of 4 envs) call the same LAPACK kernels JAX calls, a failed factorisation giving NaN as in
+JAX. Only the CPU lowering changes, never GPU code; results agree with LAPACK to float32 rounding.
+``hsa_mjx.sim.model`` (which every MJX path imports) applies it on import; set
+``HSA_MJX_CPU_LAPACK=1`` to keep JAX's default.
 """
 
 from __future__ import annotations
 
-import os
-
 import math
+import os
+import warnings
 
-_installed = False
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.extend.mlir import ir
+from jax.extend.mlir.dialects import stablehlo as hlo
+from jax.interpreters import mlir
+from jax.lax import linalg
+
 LAPACK_MAX_BATCH = 32  # below the 44-matrix split point of jaxlib's LAPACK kernels
+_LAPACK_PREFIX = {np.dtype(np.float32): "s", np.dtype(np.float64): "d"}  # real types: what MJX uses
+_installed = False
 
 
-def _by_batch(lapack_rule, xla_rule):
-    """A lowering rule that uses LAPACK for small batches and XLA's op for large ones."""
-    def rule(ctx, *args, **kwargs):
-        batch = math.prod(ctx.avals_in[0].shape[:-2])
-        chosen = lapack_rule if batch <= LAPACK_MAX_BATCH else xla_rule
-        return chosen(ctx, *args, **kwargs)
-    return rule
+def _uses_lapack(aval) -> bool:
+    """Whether a batch of matrices keeps JAX's LAPACK kernels (a small batch of a real type)."""
+    return math.prod(aval.shape[:-2]) <= LAPACK_MAX_BATCH and np.dtype(aval.dtype) in _LAPACK_PREFIX
+
+
+def _column_major(ndim: int) -> tuple[int, ...]:
+    """Major-to-minor axis order of a batch of column-major matrices (what LAPACK reads)."""
+    return (*range(ndim - 2), ndim - 1, ndim - 2)
+
+
+def _char(c: str) -> np.uint8:
+    """A LAPACK character option as the FFI handlers take it."""
+    return np.uint8(ord(c))
+
+
+def _lapack_cholesky(x: jax.Array) -> jax.Array:
+    """Lower Cholesky factors by LAPACK ``potrf`` (NaN where a matrix is not positive definite)."""
+    layout = _column_major(x.ndim)
+    factor, info = jax.ffi.ffi_call(
+        f"lapack_{_LAPACK_PREFIX[x.dtype]}potrf_ffi",
+        (jax.ShapeDtypeStruct(x.shape, x.dtype), jax.ShapeDtypeStruct(x.shape[:-2], jnp.int32)),
+        input_layouts=[layout], output_layouts=[layout, None], input_output_aliases={0: 0})(x, uplo=_char("L"))
+    return jnp.where((info == 0)[..., None, None], factor, jnp.nan)
+
+
+def _cholesky_rule(ctx, x, **params):
+    """LAPACK for small real batches, XLA's op otherwise (the wrapper keeps the lower triangle)."""
+    if _uses_lapack(ctx.avals_in[0]):
+        return mlir.lower_fun(_lapack_cholesky, multiple_results=False)(ctx, x)
+    return [hlo.cholesky(x, lower=ir.BoolAttr.get(True))]
+
+
+def _lapack_triangular_solve(a, b, *, left_side, lower, transpose_a, unit_diagonal):
+    """``op(a) x = b`` (or ``x op(a) = b``) by LAPACK ``trsm``, for real ``a``."""
+    return jax.ffi.ffi_call(
+        f"lapack_{_LAPACK_PREFIX[a.dtype]}trsm_ffi", jax.ShapeDtypeStruct(b.shape, b.dtype),
+        input_layouts=[_column_major(a.ndim), _column_major(b.ndim)], output_layouts=_column_major(b.ndim),
+        input_output_aliases={1: 0})(
+        a, b, side=_char("L" if left_side else "R"), uplo=_char("L" if lower else "U"),
+        trans_x=_char("T" if transpose_a else "N"), diag=_char("U" if unit_diagonal else "N"))
+
+
+def _triangular_solve_rule(ctx, a, b, *, left_side, lower, transpose_a, conjugate_a, unit_diagonal, **params):
+    """LAPACK for small real batches, XLA's op otherwise (conjugation applies to complex ``a`` only)."""
+    if _uses_lapack(ctx.avals_in[0]) and _uses_lapack(ctx.avals_in[1]):
+        solve = lambda a, b: _lapack_triangular_solve(  # noqa: E731
+            a, b, left_side=left_side, lower=lower, transpose_a=transpose_a, unit_diagonal=unit_diagonal)
+        return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
+    if conjugate_a and not transpose_a:  # only complex types: conjugate first, then solve plainly
+        solve = lambda a, b: linalg.triangular_solve(  # noqa: E731
+            jnp.conj(a), b, left_side=left_side, lower=lower, unit_diagonal=unit_diagonal)
+        return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
+    transpose = ("ADJOINT" if conjugate_a else "TRANSPOSE") if transpose_a else "NO_TRANSPOSE"
+    return [hlo.triangular_solve(a, b, ir.BoolAttr.get(left_side), ir.BoolAttr.get(lower),
+                                 ir.BoolAttr.get(unit_diagonal), hlo.TransposeAttr.get(transpose))]
+
+
+def _load_lapack() -> None:
+    """Have JAX load its LAPACK kernels (it does so when it first lowers a LAPACK call for the CPU)."""
+    eye = np.eye(2, dtype=np.float32)
+    jax.jit(lambda x: linalg.triangular_solve(jnp.linalg.cholesky(x), x, left_side=True, lower=True)).trace(
+        eye).lower(lowering_platforms=("cpu",))
 
 
 def use_xla_linalg_on_cpu() -> bool:
-    """Lower Cholesky and triangular solves on the CPU to XLA ops; True if the lowering is active."""
+    """Lower large batches of Cholesky and triangular solves on the CPU to XLA ops; True if active."""
     global _installed
     if _installed or os.environ.get("HSA_MJX_CPU_LAPACK") == "1":
         return _installed
     try:
-        from jax._src.interpreters import mlir
-        from jax._src.lax import linalg
-        mlir.register_lowering(linalg.cholesky_p, _by_batch(linalg._cholesky_cpu_lowering,
-                                                            linalg._cholesky_lowering), platform="cpu")
-        mlir.register_lowering(linalg.triangular_solve_p, _by_batch(linalg._triangular_solve_cpu_lower,
-                                                                    linalg._triangular_solve_lowering), platform="cpu")
-    except (ImportError, AttributeError):  # a JAX version with other internals: keep its default
+        _load_lapack()
+    except Exception as err:  # noqa: BLE001 - a JAX without these APIs or CPU lowering: keep its default
+        warnings.warn(f"hsa_mjx keeps JAX's CPU LAPACK lowering ({type(err).__name__}: {err}); large vmapped "
+                      "batches may deadlock on a CPU with few cores", stacklevel=2)
         return False
+    mlir.register_lowering(linalg.cholesky_p, _cholesky_rule, platform="cpu")
+    mlir.register_lowering(linalg.triangular_solve_p, _triangular_solve_rule, platform="cpu")
     _installed = True
     return True
