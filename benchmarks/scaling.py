@@ -150,16 +150,15 @@ class Bench:
         """(i) ``steps`` random-action steps of the training batch env per call on every device."""
         if self.per_device:
             return self._env_loop_per_device(steps, repeats)
-        batch_env = AutoResetEnv(self.env, self.config.curriculum, axis_name=AXIS)  # outcomes gathered per step
-        _, run = throughput.env_loop(self.env, batch_env, steps)
+        _, run = throughput.env_loop(self.env, AutoResetEnv(self.env), steps)
         pmapped = jax.pmap(run, axis_name=AXIS, donate_argnums=(0,) if self.donate else ())
-        return time_calls(lambda carry: (pmapped(carry[0], self.keys())[0],), (self.reset(),), repeats)
+        return time_calls(lambda carry: (pmapped(carry[0], self.keys())[0],), (self.reset().envs,), repeats)
 
     def _env_loop_per_device(self, steps: int, repeats: int) -> Timed:
-        """The env loop jitted once per device (each with its own env and curriculum), one thread each."""
+        """The env loop jitted once per device (each with its own env), one thread each."""
         learner, runs = self.learner, []
         for env in learner.batch_envs:
-            batch_env = AutoResetEnv(env.env, self.config.curriculum)
+            batch_env = AutoResetEnv(env.env)
             runs.append(jax.jit(throughput.env_loop(env.env, batch_env, steps)[1],
                                 donate_argnums=(0,) if self.donate else ()))
 
@@ -167,7 +166,7 @@ class Bench:
             keys = [jax.device_put(np.asarray(k), d) for k, d in zip(np.asarray(self.keys()), self.devices)]
             return tuple(learner._on_each(lambda i, s, k: runs[i](s, k)[0], carry, keys))
 
-        return time_calls(call, tuple(self.reset().envs), repeats)
+        return time_calls(call, tuple(piece.envs for piece in self.reset().pieces), repeats)
 
     def ppo_epochs(self, epochs: int) -> Timed:
         """(ii) PPO epochs with updates, as the trainer runs them."""

@@ -93,11 +93,10 @@ def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int =
 
 
 def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
-    """``AutoResetEnv`` with the default curriculum, or None and why not."""
+    """The batch env with auto-reset (``AutoResetEnv``), or None and why not."""
     try:
-        from hsa_mjx.curricula import goal as curriculum
-        from hsa_mjx.batch import auto_reset as training_env
-        return training_env.AutoResetEnv(env, curriculum.CurriculumConfig()), "AutoResetEnv + curriculum"
+        from hsa_mjx.batch.auto_reset import AutoResetEnv
+        return AutoResetEnv(env), "AutoResetEnv"
     except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
 

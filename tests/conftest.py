@@ -135,7 +135,8 @@ SHARED_RUN_MODULES = ("tests/test_train_run.py", "tests/test_export.py", "tests/
 # test_backend second: it compiles Warp's CPU kernels into Warp's kernel cache early, on the other worker,
 # before the shared run's Warp evaluation needs them (each process compiling them at once would pay twice).
 LONGEST_FIRST = ("tests/test_multi_device.py", "tests/test_backend.py", *SHARED_RUN_MODULES, "tests/test_sb3.py",
-                 "tests/test_gym_vector.py", "tests/test_quickstart.py", "tests/test_env.py", "tests/test_terrain_env.py")
+                 "tests/test_gym_vector.py", "tests/test_quickstart.py", "tests/test_checkpoint_compat.py", "tests/test_env.py",
+                 "tests/test_terrain_env.py", "tests/test_install.py")
 
 
 def _module(nodeid: str) -> str:

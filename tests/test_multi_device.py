@@ -152,16 +152,17 @@ def _learner_facts(seen: dict) -> dict:
     cells before and after, recompiles at the second epoch, replicas after it."""
     import jax
     start, (ts, state, out) = seen["resets"][0], seen["epochs"][1]
-    terrain = {"terrain_rows": start.terrain.row.tolist(), "terrain_start": start.terrain.level.tolist(),
-               "terrain_after": state.terrain.level.tolist(),
+    terrain = {"terrain_rows": start.curricula.terrain.row.tolist(),
+               "terrain_start": start.curricula.terrain.level.tolist(),
+               "terrain_after": state.curricula.terrain.level.tolist(),
                "terrain_totals": {k: np.asarray(v).tolist() for k, v in out["totals"].items()
                                   if k.startswith("terrain_")}}
-    leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curriculum})
+    leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curricula.goal})
     differing = [jax.tree_util.keystr(path) for path, x in leaves
                  if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))]
-    return {"goals": start.env.pipeline_state.task.goal_xy.tolist(), "epoch_compiles": list(seen["epoch_compiles"]),
+    return {"goals": start.envs.env.pipeline_state.task.goal_xy.tolist(), "epoch_compiles": list(seen["epoch_compiles"]),
             "leaves": len(leaves), "replicas_differing": differing,
-            "episodes_seen": int(state.curriculum.episode_count[0]), **terrain}
+            "episodes_seen": int(state.curricula.goal.episode_count[0]), **terrain}
 
 
 # Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
@@ -170,20 +171,22 @@ SUCCESS = [[[1, 1, 0, 0], [1, 0, 0, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[0, 0, 0
 
 
 def _curriculum_facts() -> dict:
-    """The curriculum under pmap from per-device outcomes; one update over all of them; each device alone."""
+    """The goal curriculum under pmap from per-device outcomes gathered over the devices (as the learner
+    gathers a collection's); one update over all of them; each device alone."""
     import jax
     import jax.numpy as jnp
     from hsa_mjx.curricula import goal as cur
+    from hsa_mjx.curricula.state import CurriculumRules
     from hsa_mjx.task.env import HSAEnv
-    from hsa_mjx.batch.auto_reset import AutoResetEnv
     from train import config as tcfg
     from train.ppo import AXIS, replicate
     config = cur.CurriculumConfig(window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2)
-    batch = AutoResetEnv(HSAEnv(tcfg.from_dict({}).env), config, axis_name=AXIS)
+    rules = CurriculumRules(HSAEnv(tcfg.from_dict({}).env), config)
     done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
 
-    def steps(cstate, success, done):
-        return jax.lax.scan(lambda c, sd: (batch._update_curriculum(c, *sd), None), cstate, (success, done))[0]
+    def steps(cstate, success, done):  # (steps, envs) per device -> (steps, all envs), device order
+        gather = lambda x: jax.lax.all_gather(x, AXIS, axis=1, tiled=True)  # noqa: E731
+        return rules.after_collection(cstate, gather(success), gather(done))
 
     start = replicate(cur.init(config), jax.local_devices()[:done.shape[1]])
     gathered = jax.pmap(steps, axis_name=AXIS)(start, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))

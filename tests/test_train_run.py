@@ -160,23 +160,29 @@ def test_evaluate_writes_summary_and_plots(run_dir):
 
 
 def test_auto_reset_draws_fresh_goals_from_curriculum():
+    """The batch env resets finished envs with the parameters the curricula give; it holds no curriculum."""
+    import dataclasses
+    from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
     from hsa_mjx.curricula import goal as cur
+    from hsa_mjx.curricula.state import CurriculumRules
     from hsa_mjx.task.env import HSAEnv
-    from hsa_mjx.batch.auto_reset import AutoResetEnv
     config = tiny()
     env = HSAEnv(tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)),
                                                      ["env.termination.max_episode_steps=3"])).env)
-    batch = AutoResetEnv(env, config.curriculum)
-    state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
+    batch, rules = AutoResetEnv(env), CurriculumRules(env, config.curriculum)
+    assert [f.name for f in dataclasses.fields(BatchState)] == ["env", "episode", "totals"]
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    curricula = rules.init(keys)
+    state = jax.jit(batch.reset)(keys, rules.params(curricula))
     step = jax.jit(batch.step)
     goals = []
     for _ in range(7):
-        state = step(state, jnp.zeros((2, 8)))
+        state = step(state, jnp.zeros((2, 8)), rules.params(curricula))
         goals.append(np.asarray(state.env.pipeline_state.task.goal_xy))
     goals = np.stack(goals)  # (7, 2 envs, 2)
     distinct = {tuple(np.round(g, 5)) for g in goals[:, 0]}
     assert len(distinct) >= 3  # three episodes of env 0, three different goals
-    lo, hi = np.asarray(cur.goal_range(state.curriculum, config.curriculum))
+    lo, hi = np.asarray(cur.goal_range(curricula.goal, config.curriculum))
     radius = np.linalg.norm(goals, axis=-1)
     assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
     assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes

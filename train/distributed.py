@@ -110,6 +110,14 @@ def all_devices(tree: Any) -> Any:
     return multihost_utils.process_allgather(tree, tiled=True)
 
 
+def all_processes(values: np.ndarray) -> np.ndarray:
+    """Every process's ``values`` stacked in process order, (processes, ...); ``values[None]`` with one."""
+    if jax.process_count() == 1:
+        return np.asarray(values)[None]
+    from jax.experimental import multihost_utils
+    return np.asarray(multihost_utils.process_allgather(np.asarray(values)))
+
+
 def any_process(flag: bool) -> bool:
     """True when ``flag`` is set on any process (a host-side all-gather; no communication with one process)."""
     if jax.process_count() == 1:

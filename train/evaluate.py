@@ -47,6 +47,7 @@ from hsa_mjx.task import observation, termination  # noqa: E402
 from hsa_mjx.deploy import policy as pol  # noqa: E402
 from hsa_mjx.config import BACKENDS, EnvConfig  # noqa: E402
 from hsa_mjx.task.env import HSAEnv  # noqa: E402
+from hsa_mjx.task.params import FREE_CELL, EnvParams  # noqa: E402
 from hsa_mjx.sim.host_physics import HostPhysics  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train import config as tcfg  # noqa: E402
@@ -131,7 +132,7 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
 
     def one(key, p, cell):
         act = policy if params is None else functools.partial(policy, p)
-        state = env.reset_with_goal_range(key, goal_range, cell)
+        state = env.reset(key, EnvParams.make(goal_range, FREE_CELL if cell is None else cell))
 
         def step(carry, k_act):
             s, alive = carry

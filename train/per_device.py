@@ -30,20 +30,22 @@ import numpy as np
 from flax import struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
+from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.curricula.state import CurriculumRules
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
 from train.config import TrainConfig
-from train.ppo import AXIS, PPOLearner, TrainingState
+from train.ppo import AXIS, LoopState, PPOLearner, TrainingState
 
 
 @struct.dataclass
 class DeviceStates:
-    """The env batches of every GPU (each on its GPU) and the curriculum (one copy per GPU, ``pmap`` layout)."""
+    """Every GPU's loop state (its env batch and curricula, on its GPU) and the goal curriculum that
+    learning updates (one copy per GPU, ``pmap`` layout; copied into each GPU's curricula to collect)."""
 
-    envs: tuple[BatchState, ...]
-    curriculum: cur.CurriculumState
+    pieces: tuple[LoopState, ...]
+    goal: cur.CurriculumState
 
 
 def split(tree: Any, devices: Sequence[jax.Device]) -> list[Any]:
@@ -82,9 +84,10 @@ def _unlead(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def _drain_piece(state: BatchState, batch_env: AutoResetEnv) -> tuple[BatchState, dict]:
+def _drain_piece(state: LoopState, learner: PPOLearner, batch_env: AutoResetEnv,
+                 rules: CurriculumRules) -> tuple[LoopState, dict]:
     """One GPU's drained state and its totals with a leading device axis of 1."""
-    state, totals = batch_env.drain(state)
+    state, totals = learner._drain(state, batch_env, rules)
     return state, _lead(totals)
 
 
@@ -100,17 +103,19 @@ class PerDeviceLearner(PPOLearner):
     def __init__(self, config: TrainConfig, env: HSAEnv, devices: Sequence[jax.Device]):
         super().__init__(config, env, len(devices) * jax.process_count())
         self.devices = list(devices)
-        self.batch_envs = []
+        self.batch_envs, self.piece_rules = [], []
         for device in self.devices:
             with jax.default_device(device):
                 piece = HSAEnv(config.env, num_envs=self.envs_per_device, privileged=config.ppo.privileged_critic)
-                self.batch_envs.append(AutoResetEnv(piece, config.curriculum, step_curriculum=False,
-                                                    terrain_curriculum=config.terrain_curriculum))
+                self.batch_envs.append(AutoResetEnv(piece))
+                self.piece_rules.append(CurriculumRules(piece, config.curriculum, config.terrain_curriculum))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated
-        self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b), donate_argnums=donate)
-                            for b in self.batch_envs]
-        self.reset_fns = [jax.jit(b.reset) for b in self.batch_envs]
-        self.drain_fns = [jax.jit(functools.partial(_drain_piece, batch_env=b)) for b in self.batch_envs]
+        self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b, rules=r), donate_argnums=donate)
+                            for b, r in zip(self.batch_envs, self.piece_rules)]
+        self.reset_fns = [jax.jit(functools.partial(self._reset, batch_env=b, rules=r))
+                          for b, r in zip(self.batch_envs, self.piece_rules)]
+        self.drain_fns = [jax.jit(functools.partial(_drain_piece, learner=self, batch_env=b, rules=r))
+                          for b, r in zip(self.batch_envs, self.piece_rules)]
         self.learn_fn = jax.pmap(self._learn, axis_name=AXIS)
         self.sum_fn = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
@@ -124,12 +129,13 @@ class PerDeviceLearner(PPOLearner):
         """One key per device (leading axis 1), each made on its own device (no wait on another GPU)."""
         return [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
 
-    def _collect_piece(self, ts: TrainingState, cstate: cur.CurriculumState, state: BatchState, key: jax.Array,
-                       batch_env: AutoResetEnv):
+    def _collect_piece(self, ts: TrainingState, goal: cur.CurriculumState, state: LoopState, key: jax.Array,
+                       batch_env: AutoResetEnv, rules: CurriculumRules):
         """One GPU's collection (arguments and outputs with a leading device axis of 1, ``state`` without)."""
-        ts, cstate, key = _unlead((ts, cstate, key))
+        ts, goal, key = _unlead((ts, goal, key))
         key, k_collect, k_sgd = jax.random.split(key, 3)
-        state, data = self._collect(ts, state.replace(curriculum=cstate), k_collect, batch_env)
+        state = state.replace(curricula=state.curricula.replace(goal=goal))
+        state, data = self._collect(ts, state, k_collect, batch_env, rules)
         return state, _lead((data, key, k_sgd))
 
     def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
@@ -143,38 +149,42 @@ class PerDeviceLearner(PPOLearner):
         envs = self._on_each(lambda i, k, t: self.reset_fns[i](*jax.device_put((k, host, t), self.devices[i])),
                              keys, levels)
         pieces = [jax.device_put(jax.tree.map(lambda x: np.asarray(x)[None], host), d) for d in self.devices]
-        return DeviceStates(envs=tuple(envs), curriculum=stack(pieces, self.devices))
+        return DeviceStates(pieces=tuple(envs), goal=stack(pieces, self.devices))
 
     def epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
         """``iterations_per_epoch`` PPO iterations; returns (ts, states, drained totals and mean losses)."""
         keys = self._device_keys(keys)
-        envs, cstate, losses = list(states.envs), states.curriculum, []
+        envs, goal, losses = list(states.pieces), states.goal, []
         for _ in range(self.iterations_per_epoch):
             outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices),
-                                 split(cstate, self.devices), envs, keys)
+                                 split(goal, self.devices), envs, keys)
             envs, keys = [o[0] for o in outs], [o[1][1] for o in outs]
             data, k_sgd = stack([o[1][0] for o in outs], self.devices), stack([o[1][2] for o in outs], self.devices)
-            ts, cstate, metrics = self.learn_fn(ts, cstate, data, k_sgd)
+            ts, goal, metrics = self.learn_fn(ts, goal, data, k_sgd)
             losses.append(metrics)
         drained = self._on_each(lambda i, s: self.drain_fns[i](s), envs)
         totals = self.sum_fn(stack([d[1] for d in drained], self.devices))
         losses = jax.tree.map(lambda *xs: np.mean(np.stack([np.asarray(x) for x in xs]), axis=0), *losses)
-        return ts, DeviceStates(envs=tuple(d[0] for d in drained), curriculum=cstate), {"totals": totals,
-                                                                                        "losses": losses}
+        return ts, DeviceStates(pieces=tuple(d[0] for d in drained), goal=goal), {"totals": totals, "losses": losses}
 
     def terrain_levels(self, states: DeviceStates) -> dict:
-        """Every env's terrain type row and level as host arrays (envs,), in device order (checkpoints)."""
-        return tcur.to_host([jax.device_get(s.terrain) for s in states.envs])
+        """This process's envs' terrain type rows and levels as host arrays (envs,), in device order."""
+        return tcur.to_host([jax.device_get(s.curricula.terrain) for s in states.pieces])
+
+    @staticmethod
+    def goal_curriculum(states: DeviceStates) -> cur.CurriculumState:
+        """The goal curriculum's state (the first device's copy; all are equal)."""
+        return jax.tree.map(lambda x: x[0], states.goal)
 
     def collect_epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
         """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling)."""
         keys = self._device_keys(keys)
-        envs, cs = list(states.envs), split(states.curriculum, self.devices)
+        envs, cs = list(states.pieces), split(states.goal, self.devices)
         for _ in range(self.iterations_per_epoch):
             outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices), cs, envs, keys)
             envs, keys = [o[0] for o in outs], [o[1][1] for o in outs]
         jax.block_until_ready(envs)
-        return ts, DeviceStates(envs=tuple(envs), curriculum=states.curriculum)
+        return ts, DeviceStates(pieces=tuple(envs), goal=states.goal)
 
 
 def use_per_device(config: TrainConfig, devices: Sequence[jax.Device]) -> bool:

@@ -27,11 +27,12 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
-from hsa_mjx.curricula import goal as cur
-from hsa_mjx.task import privileged
-from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
+from hsa_mjx.curricula import goal as cur
+from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.curricula.state import Curricula, CurriculumRules
+from hsa_mjx.task import privileged
+from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.types import EnvState
 from train import compat
 from train.config import TrainConfig
@@ -39,6 +40,14 @@ from train.config import TrainConfig
 AXIS = "devices"
 ACTIVATIONS: dict[str, Callable] = {"swish": linen.swish, "tanh": linen.tanh, "relu": linen.relu,
                                     "elu": linen.elu}
+
+
+@struct.dataclass
+class LoopState:
+    """What the training loop carries besides the learner: the env batch and the curricula it owns."""
+
+    envs: BatchState
+    curricula: Curricula
 
 
 @struct.dataclass
@@ -124,9 +133,10 @@ class PPOLearner:
 
     def __init__(self, config: TrainConfig, env: HSAEnv, num_devices: int):
         self.config, self.env, self.num_devices = config, env, num_devices
-        # the curriculum learns from each collection's outcomes in ``_learn`` (gathered over devices)
-        self.batch_env = AutoResetEnv(env, config.curriculum, step_curriculum=False,
-                                      terrain_curriculum=config.terrain_curriculum)
+        # the goal curriculum learns from each collection's outcomes in ``_learn`` (gathered over devices),
+        # the terrain curriculum from each step's episode ends, before those envs reset
+        self.batch_env = AutoResetEnv(env)
+        self.rules = CurriculumRules(env, config.curriculum, config.terrain_curriculum)
         self.privileged = config.ppo.privileged_critic
         if self.privileged and not env.privileged:
             raise ValueError("ppo.privileged_critic needs an env built with HSAEnv(..., privileged=True)")
@@ -145,12 +155,20 @@ class PPOLearner:
             vf_coefficient=ppo.vf_loss_coefficient)
         self.update_fn = gradients.gradient_update_fn(self.loss_fn, self.optimizer, pmap_axis_name=AXIS,
                                                       has_aux=True)
-        self.reset_fn = jax.pmap(self.batch_env.reset, axis_name=AXIS)
+        self.reset_fn = jax.pmap(functools.partial(self._reset, batch_env=self.batch_env, rules=self.rules),
+                                 axis_name=AXIS)
         self.epoch_fn = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self.collect_epoch_fn = jax.pmap(self._collect_epoch, axis_name=AXIS)
 
+    @staticmethod
+    def _reset(keys: jax.Array, goal: cur.CurriculumState, levels: tcur.TerrainLevels | None,
+               batch_env: AutoResetEnv, rules: CurriculumRules) -> LoopState:
+        """One device's fresh envs on the curricula's start (or restored) state."""
+        curricula = rules.init(keys, goal, levels)
+        return LoopState(envs=batch_env.reset(keys, rules.params(curricula)), curricula=curricula)
+
     def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
-              terrain: tcur.TerrainLevels | None = None) -> BatchState:
+              terrain: tcur.TerrainLevels | None = None) -> LoopState:
         """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)
         and, when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
         devices = jax.local_devices()[:env_keys.shape[0]]
@@ -158,16 +176,21 @@ class PPOLearner:
             terrain = jax.tree.map(lambda x: jnp.reshape(x, env_keys.shape[:2]), terrain)
         return self.reset_fn(jax.device_put(env_keys), replicate(curriculum, devices), terrain)
 
-    def terrain_levels(self, state: BatchState) -> dict:
-        """Every env's terrain type row and level as host arrays (envs,), in device order (checkpoints)."""
-        return tcur.to_host([jax.device_get(state.terrain)])
+    def terrain_levels(self, state: LoopState) -> dict:
+        """This process's envs' terrain type rows and levels as host arrays (envs,), in device order."""
+        return tcur.to_host([jax.device_get(state.curricula.terrain)])
 
-    def epoch(self, ts: TrainingState, state: BatchState, keys: jax.Array):
+    @staticmethod
+    def goal_curriculum(state: LoopState) -> cur.CurriculumState:
+        """The goal curriculum's state (the first device's copy; all are equal)."""
+        return jax.tree.map(lambda x: x[0], state.curricula.goal)
+
+    def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
         """``iterations_per_epoch`` PPO iterations on every device (one key per device); returns
         (ts, state, {"totals": episode totals summed over devices, "losses": mean losses per device})."""
         return self.epoch_fn(ts, state, keys)
 
-    def collect_epoch(self, ts: TrainingState, state: BatchState, keys: jax.Array):
+    def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
         """The epoch's collections alone, no learning (for timing the update's share)."""
         return self.collect_epoch_fn(ts, state, keys)
 
@@ -177,36 +200,39 @@ class PPOLearner:
         return self.iterations_per_epoch * self.config.env_steps_per_iteration
 
     # ----- rollout ------------------------------------------------------------------------
-    def _unroll(self, ts: TrainingState, state: BatchState, key: jax.Array,
-                batch_env: AutoResetEnv) -> tuple[BatchState, types.Transition]:
-        """``unroll_length`` steps of every env under the current stochastic policy."""
+    def _unroll(self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv,
+                rules: CurriculumRules) -> tuple[LoopState, types.Transition]:
+        """``unroll_length`` steps of every env under the current stochastic policy; the terrain
+        curriculum moves the envs whose episode ended before they reset."""
         policy = self.make_policy((ts.normalizer, ts.params.policy))
 
         def step(carry, _):
-            s, k = carry
+            loop, k = carry
             k, k_act = jax.random.split(k)
-            obs = network_obs(s.env, self.privileged)
+            obs = network_obs(loop.envs.env, self.privileged)
             actions, extras = policy(obs, k_act)
-            ns = batch_env.step(s, actions)
+            stepped, _ = batch_env.advance(loop.envs, actions)
+            curricula = rules.after_step(loop.curricula, stepped.env)
+            ns = batch_env.reset_done(stepped, rules.params(curricula))
             state_extras = {"truncation": ns.env.info["truncation"], "episode_done": ns.env.done,
                             "goal_reached": ns.env.metrics["termination/goal_reached"]}
             transition = types.Transition(
                 observation=obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
                 next_observation=network_obs(ns.env, self.privileged), extras={"policy_extras": extras, "state_extras": state_extras})
-            return (ns, k), transition
+            return (LoopState(envs=ns, curricula=curricula), k), transition
 
         (state, _), data = jax.lax.scan(step, (state, key), None, length=self.config.ppo.unroll_length)
         return state, data
 
-    def _collect(self, ts: TrainingState, state: BatchState, key: jax.Array,
-                 batch_env: AutoResetEnv | None = None) -> tuple[BatchState, types.Transition]:
+    def _collect(self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv | None = None,
+                 rules: CurriculumRules | None = None) -> tuple[LoopState, types.Transition]:
         """Several unrolls, reshaped to (sequences, unroll_length, ...), sequences unroll-major."""
-        batch_env = batch_env or self.batch_env
+        batch_env, rules = batch_env or self.batch_env, rules or self.rules
 
         def one(carry, _):
             s, k = carry
             k, k_unroll = jax.random.split(k)
-            s, data = self._unroll(ts, s, k_unroll, batch_env)
+            s, data = self._unroll(ts, s, k_unroll, batch_env, rules)
             return (s, k), data
 
         (state, _), data = jax.lax.scan(one, (state, key), None, length=self.unrolls_per_iteration)
@@ -236,7 +262,7 @@ class PPOLearner:
         carry, metrics = jax.lax.scan(self._minibatch_step, (params, opt_state, normalizer, key, skipped), shuffled)
         return carry, metrics
 
-    def _curriculum(self, cstate: cur.CurriculumState, data: types.Transition) -> cur.CurriculumState:
+    def _curriculum(self, goal: cur.CurriculumState, data: types.Transition) -> cur.CurriculumState:
         """Feed the collection's episode ends to the curriculum in step order, all devices' envs per step.
 
         The same sequence of updates as one update per env step with outcomes gathered over the
@@ -244,7 +270,7 @@ class PPOLearner:
         start (a lag of at most ``unroll_length x unrolls`` steps, see docs/training.md).
         """
         if not self.config.curriculum.enabled:
-            return cstate
+            return goal
         unrolls, length = self.unrolls_per_iteration, self.config.ppo.unroll_length
 
         def step_major(x: jax.Array) -> jax.Array:  # (unrolls * B, T) -> (unrolls * T, B)
@@ -252,11 +278,10 @@ class PPOLearner:
             return jax.lax.all_gather(x.reshape((unrolls * length, -1)), AXIS, axis=1, tiled=True)
 
         extras = data.extras["state_extras"]
-        outcomes = (step_major(extras["goal_reached"]) > 0, step_major(extras["episode_done"]) > 0)
-        update = lambda c, sd: (cur.update(c, sd[0], sd[1], self.config.curriculum), None)  # noqa: E731
-        return jax.lax.scan(update, cstate, outcomes)[0]
+        return self.rules.after_collection(goal, step_major(extras["goal_reached"]) > 0,
+                                           step_major(extras["episode_done"]) > 0)
 
-    def _learn(self, ts: TrainingState, cstate: cur.CurriculumState, data: types.Transition,
+    def _learn(self, ts: TrainingState, goal: cur.CurriculumState, data: types.Transition,
                key: jax.Array) -> tuple[TrainingState, cur.CurriculumState, dict]:
         """Observation statistics, curriculum, then ``num_updates_per_batch`` SGD passes over ``data``."""
         obs = data.observation.reshape((-1, data.observation.shape[-1]))
@@ -270,27 +295,33 @@ class PPOLearner:
             functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch)
         metrics = jax.tree.map(jnp.mean, metrics)
         metrics["skipped_updates"] = skipped
-        return TrainingState(params, opt_state, normalizer), self._curriculum(cstate, data), metrics
+        return TrainingState(params, opt_state, normalizer), self._curriculum(goal, data), metrics
 
     def _iteration(self, carry, _):
         """Collect, then learn from the collection; new episodes see the updated curriculum."""
         ts, state, key = carry
         key, k_collect, k_sgd = jax.random.split(key, 3)
         state, data = self._collect(ts, state, k_collect)
-        ts, cstate, metrics = self._learn(ts, state.curriculum, data, k_sgd)
-        return (ts, state.replace(curriculum=cstate), key), metrics
+        ts, goal, metrics = self._learn(ts, state.curricula.goal, data, k_sgd)
+        return (ts, state.replace(curricula=state.curricula.replace(goal=goal)), key), metrics
 
-    def _epoch(self, ts: TrainingState, state: BatchState, key: jax.Array):
+    def _epoch(self, ts: TrainingState, state: LoopState, key: jax.Array):
         """``iterations_per_epoch`` PPO iterations; returns the drained episode totals and losses."""
         (ts, state, _), metrics = jax.lax.scan(self._iteration, (ts, state, key), None,
                                                length=self.iterations_per_epoch)
-        state, totals = self.batch_env.drain(state)
+        state, totals = self._drain(state, self.batch_env, self.rules)
         totals = jax.lax.psum(totals, AXIS)
         metrics = jax.tree.map(jnp.mean, metrics)
         return ts, state, {"totals": totals, "losses": metrics}
 
 
-    def _collect_epoch(self, ts: TrainingState, state: BatchState, key: jax.Array):
+    def _drain(self, state: LoopState, batch_env: AutoResetEnv, rules: CurriculumRules) -> tuple[LoopState, dict]:
+        """The episode totals and the curricula's per-cell sums since the last drain; both zeroed."""
+        envs, totals = batch_env.drain(state.envs)
+        curricula, cell_totals = rules.drain(state.curricula)
+        return LoopState(envs=envs, curricula=curricula), {**totals, **cell_totals}
+
+    def _collect_epoch(self, ts: TrainingState, state: LoopState, key: jax.Array):
         """``iterations_per_epoch`` collections with the same keys as ``_epoch``, without learning."""
         def one(carry, _):
             state, key = carry

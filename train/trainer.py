@@ -94,7 +94,7 @@ def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array,
 
 
 def restore_terrain(config: tcfg.TrainConfig, meta: dict, batch: int) -> tcur.TerrainLevels | None:
-    """The checkpoint's per-env terrain levels for ``batch`` envs (None: start them afresh)."""
+    """The checkpoint's per-env terrain levels for this process's ``batch`` envs (None: start them afresh)."""
     saved = meta.get("terrain_envs")
     if not config.terrain_curriculum.enabled or not saved:
         return None
@@ -103,6 +103,9 @@ def restore_terrain(config: tcfg.TrainConfig, meta: dict, batch: int) -> tcur.Te
     if int(np.max(restored["row"], initial=0)) >= len(config.env.terrain.types) or \
             int(np.max(restored["level"], initial=0)) >= config.env.terrain.levels:
         raise ValueError(f"checkpoint {meta['path']}: its terrain levels do not fit env.terrain (types, levels)")
+    if saved == batch * jax.process_count():  # every process's envs, in process order: this one's share
+        start = jax.process_index() * batch
+        restored = {k: v[start:start + batch] for k, v in restored.items()}
     return tcur.from_host(restored, batch, config.run.seed)
 
 
@@ -219,7 +222,8 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
             for k, v in out["totals"].items():
                 totals_acc[k] = totals_acc.get(k, 0.0) + float(np.asarray(v)[0])
             if epoch % config.run.epochs_per_log == 0 or step >= config.run.num_timesteps:
-                record = _record(out, totals_acc, state, config, learner.env_steps_per_epoch / dt, t_start)
+                record = _record(out, totals_acc, learner.goal_curriculum(state), config, learner.env_steps_per_epoch / dt,
+                                 t_start)
                 logger.log(step, record)
                 latest.update({k: record[k] for k in HEADLINE if k in record})  # a log without episodes has none
                 totals_acc = {}
@@ -245,24 +249,27 @@ def _finish(run_dir: Path, summary: dict) -> dict:
     return summary
 
 
-def _record(out: dict, totals: dict, state, config, sps: float, t_start: float) -> dict:
+def _record(out: dict, totals: dict, goal: cur.CurriculumState, config, sps: float, t_start: float) -> dict:
     """One log record: episode statistics, losses, curriculum and throughput."""
     record = summarize(totals, config.env.terrain.levels)
     losses = distributed.all_devices(out["losses"])  # every process's devices, not only this one's
     record.update({f"loss/{k}": float(np.mean(v)) for k, v in losses.items()})
-    cstate = jax.device_get(unreplicate(state.curriculum))
-    record.update({k: float(v) for k, v in cur.metrics(cstate, config.curriculum).items()})
+    record.update({k: float(v) for k, v in cur.metrics(jax.device_get(goal), config.curriculum).items()})
     record["training/env_steps_per_s"] = sps
     record["training/walltime"] = time.perf_counter() - t_start
     return record
 
 
 def _save(run_dir: Path, step: int, ts, state, key, config: tcfg.TrainConfig, learner, extra: dict) -> None:
-    """Checkpoint the learner (first device's copy), curricula and rng; process 0 only (its own envs' levels)."""
+    """Checkpoint the learner (first device's copy), both curricula (every process's envs' terrain levels,
+    gathered) and rng; process 0 writes."""
+    terrain = None
+    if config.terrain_curriculum.enabled:  # every process takes part in the gather
+        mine = learner.terrain_levels(state)
+        terrain = {k: np.asarray(distributed.all_processes(v)).reshape(-1) for k, v in mine.items()}
     if not distributed.is_main():
         return
-    terrain = learner.terrain_levels(state) if config.terrain_curriculum.enabled else None
     if terrain is not None:
         extra = {**extra, "terrain_envs": int(terrain["row"].shape[0])}
-    payload = _payload(unreplicate(ts), unreplicate(state.curriculum), key, terrain)
+    payload = _payload(unreplicate(ts), learner.goal_curriculum(state), key, terrain)
     checkpoint.save(run_dir, step, payload, tcfg.to_dict(config), keep=config.run.keep_checkpoints, extra=extra)

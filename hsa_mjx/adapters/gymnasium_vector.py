@@ -244,8 +244,7 @@ def select_envs(mask: jax.Array, a: EnvState, b: EnvState) -> EnvState:
 def keep_pending(pending: jax.Array, old: BatchState, new: BatchState) -> BatchState:
     """The batch state after a step in which the ``pending`` envs did not take part."""
     pick = per_env_picker(pending)
-    return new.replace(env=select_envs(pending, old.env, new.env), episode=jax.tree.map(pick, old.episode, new.episode),
-                       terrain=jax.tree.map(pick, old.terrain, new.terrain))
+    return new.replace(env=select_envs(pending, old.env, new.env), episode=jax.tree.map(pick, old.episode, new.episode))
 
 
 def _check_seed(seed: Any) -> None:

@@ -1,10 +1,10 @@
-"""A batch of envs for training: per-env auto-reset with fresh goals, the curriculum, episode statistics.
+"""A batch of envs: per-env auto-reset with fresh episodes, and episode statistics on the device.
 
 Brax's ``AutoResetWrapper`` restores each env's cached first state, so every episode of an env
-would replay the same goal (and terrain). Here a finished env is reset from its own PRNG key with a
-goal drawn from the curriculum's current range: every episode differs. The batch-level wrapper
-also owns the curriculum state (one copy, updated from all envs, gathered across devices under
-``pmap``) and sums episode statistics on the device until the host drains them.
+would replay the same goal (and terrain). Here a finished env is reset from its own PRNG key with
+the episode parameters it is given (``EnvParams``, one per env: the training loop's curricula choose
+them, ``HSAEnv.default_params`` otherwise): every episode differs. Episode statistics are summed on
+the device until the host drains them. The batch holds no curriculum state.
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from flax import struct
 from hsa_mjx.sim import backend
 
 from hsa_mjx.task import reward, termination
-from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
 from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState
 
 TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
@@ -36,13 +36,11 @@ class EpisodeAccumulator:
 
 @struct.dataclass
 class BatchState:
-    """State of a batch of training envs (``env`` fields have a leading batch axis)."""
+    """State of a batch of envs (``env`` fields have a leading batch axis)."""
 
     env: EnvState
-    curriculum: cur.CurriculumState
     episode: EpisodeAccumulator
     totals: dict[str, jax.Array]  # scalar sums over episodes finished since the last drain
-    terrain: tcur.TerrainLevels  # every env's terrain type and level (zeros without the terrain curriculum)
 
     @property
     def obs(self) -> jax.Array:
@@ -56,28 +54,16 @@ def _zero_totals() -> dict[str, jax.Array]:
 
 
 class AutoResetEnv:
-    """Batched ``reset(keys)`` / ``step(state, actions)`` over an :class:`HSAEnv` with curriculum.
+    """Batched ``reset(keys, params)`` / ``step(state, actions, params)`` over an :class:`HSAEnv`.
 
-    Args:
-        env: the single-env :class:`HSAEnv`.
-        curriculum: curriculum settings; when enabled the env must use ``goal.mode: radial``.
-        axis_name: the ``pmap`` axis to gather episode outcomes over (None on one device).
-        step_curriculum: update the curriculum inside ``step`` (True); False leaves it to the
-            caller (the PPO learner feeds it each collection's outcomes, ``train.ppo``).
-        terrain_curriculum: the per-env terrain level curriculum (``hsa_mjx.curricula.terrain``);
-            it moves each env's level where its episode ends, before the env is reset.
+    ``params`` (``EnvParams`` with a leading batch axis) are the parameters of the episodes that
+    start: at ``reset`` for every env, at ``step`` for the envs whose episode ended.
+    ``advance`` and ``reset_done`` are the two halves of ``step``, for a caller that updates its
+    curricula from the episodes that ended before the envs reset (``train.ppo``).
     """
 
-    def __init__(self, env: HSAEnv, curriculum: cur.CurriculumConfig | None = None,
-                 axis_name: str | None = None, step_curriculum: bool = True,
-                 terrain_curriculum: tcur.TerrainCurriculumConfig | None = None):
+    def __init__(self, env: HSAEnv):
         self.env = env
-        self.curriculum = curriculum or cur.CurriculumConfig(enabled=False)
-        if self.curriculum.enabled and env.config.goal.mode != "radial":
-            raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
-        self.terrain_curriculum = tcur.validate(terrain_curriculum or tcur.TerrainCurriculumConfig(),
-                                                env.config.terrain, env.world.per_env, env.config.goal.mode)
-        self.axis_name, self.step_curriculum = axis_name, step_curriculum
 
     @property
     def observation_size(self) -> int:
@@ -87,49 +73,26 @@ class AutoResetEnv:
     def action_size(self) -> int:
         return self.env.action_size
 
-    def _goal_range(self, state: cur.CurriculumState) -> jax.Array:
-        if self.curriculum.enabled:
-            return cur.goal_range(state, self.curriculum)
-        return jnp.asarray(self.env.config.goal.radial_range, jnp.float32)
+    def default_params(self, batch: int) -> EnvParams:
+        """The env's default episode parameters for every env of a batch."""
+        return self.env.default_params().repeat(batch)
 
-    def reset(self, keys: jax.Array, curriculum_state: cur.CurriculumState | None = None,
-              terrain_levels: tcur.TerrainLevels | None = None) -> BatchState:
-        """Reset a batch (one key per env); given curriculum states are kept (resume)."""
+    def reset(self, keys: jax.Array, params: EnvParams | None = None) -> BatchState:
+        """Reset a batch (one key per env) with per-env ``params`` (default: the env's defaults)."""
         check_batch(self.env, keys.shape[0])
         batch = keys.shape[0]
-        cstate = curriculum_state if curriculum_state is not None else cur.init(self.curriculum)
-        levels = terrain_levels if terrain_levels is not None else self._initial_levels(keys)
-        env_state = self._reset_all(keys, self._goal_range(cstate), levels)
+        params = self.default_params(batch) if params is None else params
+        env_state = jax.vmap(self.env.reset)(keys, params)
         zeros = jnp.zeros((batch,), jnp.float32)
         episode = EpisodeAccumulator(ret=zeros, length=zeros, terms={k: zeros for k in reward.TERM_NAMES})
-        return BatchState(env=env_state, curriculum=cstate, episode=episode, totals=self._zero_totals(), terrain=levels)
+        return BatchState(env=env_state, episode=episode, totals=_zero_totals())
 
-    def _zero_totals(self) -> dict[str, jax.Array]:
-        """Zeroed totals; with the terrain curriculum also per-cell episode and success sums, (cells,) each."""
-        totals = _zero_totals()
-        if self.terrain_curriculum.enabled:
-            cells = len(self.env.config.terrain.types) * self.env.config.terrain.levels
-            totals.update({k: jnp.zeros((cells,), jnp.float32) for k in tcur.OUTCOME_KEYS})
-        return totals
+    def step(self, state: BatchState, actions: jax.Array, params: EnvParams | None = None) -> BatchState:
+        """Step every env; reset the finished ones with ``params``; add finished episodes to the totals."""
+        return self.step_with_final(state, actions, params)[0]
 
-    def _initial_levels(self, keys: jax.Array) -> tcur.TerrainLevels:
-        """The terrain curriculum's start levels, or the placeholder without it."""
-        if self.terrain_curriculum.enabled:
-            return tcur.init(keys, self.terrain_curriculum, self.env.config.terrain)
-        return tcur.placeholder(keys.shape[0])
-
-    def _reset_all(self, keys: jax.Array, goal_range: jax.Array, levels: tcur.TerrainLevels) -> EnvState:
-        """Fresh episodes for every env: on its curriculum cell, or on a freely drawn tile without it."""
-        if self.terrain_curriculum.enabled:
-            return jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None, 0))(keys, goal_range, levels.cells())
-        return jax.vmap(self.env.reset_with_goal_range, in_axes=(0, None))(keys, goal_range)
-
-    def step(self, state: BatchState, actions: jax.Array) -> BatchState:
-        """Step every env; reset the finished ones with fresh goals; update curriculum and totals."""
-        return self.step_with_final(state, actions)[0]
-
-    def step_with_final(self, state: BatchState, actions: jax.Array, reset_metrics: bool = False
-                        ) -> tuple[BatchState, EnvState, EpisodeAccumulator]:
+    def step_with_final(self, state: BatchState, actions: jax.Array, params: EnvParams | None = None,
+                        reset_metrics: bool = False) -> tuple[BatchState, EnvState, EpisodeAccumulator]:
         """``step``, also returning what the auto-reset replaces.
 
         Returns (new batch state, every env's state after the step and before the auto-reset:
@@ -137,59 +100,40 @@ class AutoResetEnv:
         continued). ``reset_metrics`` (static) also gives the reset envs their fresh episodes'
         metrics (zero rewards, no reasons, the new goal distance) instead of the terminal ones.
         """
+        stepped, episode = self.advance(state, actions)
+        params = self.default_params(actions.shape[0]) if params is None else params
+        return self.reset_done(stepped, params, reset_metrics), stepped.env, episode
+
+    def advance(self, state: BatchState, actions: jax.Array) -> tuple[BatchState, EpisodeAccumulator]:
+        """Step every env without resetting: the state holding the stepped envs (finished ones still
+        terminal, their running sums zeroed), and the sums of each env's episode up to this step."""
         nxt = jax.vmap(self.env.step)(state.env, actions)
         done = nxt.done > 0
         episode = EpisodeAccumulator(
             ret=state.episode.ret + nxt.reward, length=state.episode.length + 1.0,
             terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
         totals = self._add_totals(state.totals, nxt, episode, done)
-        if self.terrain_curriculum.enabled:  # per cell, on the level each ended episode ran on
-            terrain = self.env.config.terrain
-            outcomes = tcur.cell_outcomes(state.terrain, done, nxt.metrics["termination/goal_reached"] > 0,
-                                          len(terrain.types) * terrain.levels, terrain.levels)
-            totals = {**totals, **{k: totals[k] + v for k, v in outcomes.items()}}
-        cstate = self._update_curriculum(state.curriculum, nxt.metrics["termination/goal_reached"] > 0, done)
-        levels = self._update_levels(state.terrain, nxt, done)
-        env_state = self._reset_done(nxt, done, cstate, levels, reset_metrics)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
         running = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
                                      terms={k: keep(v) for k, v in episode.terms.items()})
-        return BatchState(env=env_state, curriculum=cstate, episode=running, totals=totals,
-                          terrain=levels), nxt, episode
+        return BatchState(env=nxt, episode=running, totals=totals), episode
 
-    def _update_levels(self, levels: tcur.TerrainLevels, nxt: EnvState, done: jax.Array) -> tcur.TerrainLevels:
-        """Move the envs whose episode ended up or down a terrain level (their next episode's level)."""
-        if not self.terrain_curriculum.enabled:
-            return levels
-        start = jnp.linalg.norm(nxt.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
-        progress = 1.0 - nxt.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
-        return tcur.update(levels, done, nxt.metrics["termination/goal_reached"] > 0, progress,
-                           self.terrain_curriculum, self.env.config.terrain.levels, nxt.pipeline_state.task.rng)
+    def reset_done(self, state: BatchState, params: EnvParams, reset_metrics: bool = False) -> BatchState:
+        """Replace the finished envs of an advanced state by fresh episodes drawn from their own keys
+        with their ``params`` (skipped when none ended)."""
+        done = state.env.done > 0
 
-    def _update_curriculum(self, cstate: cur.CurriculumState, success: jax.Array,
-                           done: jax.Array) -> cur.CurriculumState:
-        """Feed this step's episode ends (from every device) to the curriculum."""
-        if not (self.curriculum.enabled and self.step_curriculum):
-            return cstate
-        if self.axis_name is not None:
-            success = jax.lax.all_gather(success, self.axis_name)
-            done = jax.lax.all_gather(done, self.axis_name)
-        return cur.update(cstate, success, done, self.curriculum)
-
-    def _reset_done(self, nxt: EnvState, done: jax.Array, cstate: cur.CurriculumState,
-                    levels: tcur.TerrainLevels, reset_metrics: bool = False) -> EnvState:
-        """Replace finished envs by fresh episodes drawn from their own keys (skipped if none ended)."""
-        def fresh(state: EnvState) -> EnvState:
-            keys = jax.vmap(lambda k: jax.random.split(k)[1])(state.pipeline_state.task.rng)
-            new = self._reset_all(keys, self._goal_range(cstate), levels)
+        def fresh(current: EnvState) -> EnvState:
+            keys = jax.vmap(lambda k: jax.random.split(k)[1])(current.pipeline_state.task.rng)
+            new = jax.vmap(self.env.reset)(keys, params)
             pick = per_env_picker(done)
-            metrics = jax.tree.map(pick, new.metrics, state.metrics) if reset_metrics else state.metrics
-            sim = select_sim(done, new.pipeline_state, state.pipeline_state)
-            info = dict(state.info)  # truncation stays the step's; privileged inputs follow the observation
+            metrics = jax.tree.map(pick, new.metrics, current.metrics) if reset_metrics else current.metrics
+            sim = select_sim(done, new.pipeline_state, current.pipeline_state)
+            info = dict(current.info)  # truncation stays the step's; privileged inputs follow the observation
             if "privileged_obs" in info:
                 info["privileged_obs"] = pick(new.info["privileged_obs"], info["privileged_obs"])
-            return state.replace(pipeline_state=sim, obs=pick(new.obs, state.obs), metrics=metrics, info=info)
-        return jax.lax.cond(jnp.any(done), fresh, lambda s: s, nxt)
+            return current.replace(pipeline_state=sim, obs=pick(new.obs, current.obs), metrics=metrics, info=info)
+        return state.replace(env=jax.lax.cond(jnp.any(done), fresh, lambda s: s, state.env))
 
     @staticmethod
     def _add_totals(totals: dict, nxt: EnvState, episode: EpisodeAccumulator, done: jax.Array) -> dict:
@@ -212,14 +156,8 @@ class AutoResetEnv:
         return {**totals, **{k: totals[k] + add[k] for k in add}}
 
     def drain(self, state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
-        """Return the totals (with the terrain levels' snapshot) and the state with them zeroed (between jitted chunks)."""
-        totals = dict(state.totals)
-        if self.terrain_curriculum.enabled:
-            terrain = self.env.config.terrain
-            totals.update(tcur.totals(state.terrain, tuple(terrain.types), terrain.levels))
-            outcomes = {k: totals.pop(k) for k in tcur.OUTCOME_KEYS}
-            totals.update(tcur.name_outcomes(outcomes, tuple(terrain.types), terrain.levels))
-        return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), totals
+        """Return the totals and the state with them zeroed (between jitted chunks)."""
+        return state.replace(totals=jax.tree.map(jnp.zeros_like, state.totals)), dict(state.totals)
 
 
 def per_env_picker(mask: jax.Array):

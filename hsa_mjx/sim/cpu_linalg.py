@@ -9,7 +9,7 @@ two threads in ``jax::ParallelBatchMap`` -> ``BlockingCounter::Wait`` under ``la
 jaxlib 0.10.2). MJX calls Cholesky for the mass matrix and in the Newton solver of every step.
 
 ``use_xla_linalg_on_cpu()`` registers CPU lowerings (through JAX's public ``jax.interpreters.mlir``,
-``jax.ffi`` and ``jax.extend.mlir`` APIs) that emit XLA's own Cholesky and triangular-solve ops,
+``jax.ffi`` and ``jax.extend.mlir`` APIs, and jaxlib's LAPACK target names) that emit XLA's own Cholesky and triangular-solve ops,
 which XLA expands into plain loops with no such pool, for batches above ``LAPACK_MAX_BATCH``
 matrices; smaller batches (never split over the pool, and about 3x faster with LAPACK: 19 vs 64 ms
 per step of 4 envs) call the same LAPACK kernels JAX calls, a failed factorisation giving NaN as in
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 
 import jax
 import jax.numpy as jnp
@@ -31,15 +30,16 @@ from jax.extend.mlir import ir
 from jax.extend.mlir.dialects import stablehlo as hlo
 from jax.interpreters import mlir
 from jax.lax import linalg
+from jaxlib import lapack  # the LAPACK kernels' names, loaded on first use as JAX's own lowering does
 
 LAPACK_MAX_BATCH = 32  # below the 44-matrix split point of jaxlib's LAPACK kernels
-_LAPACK_PREFIX = {np.dtype(np.float32): "s", np.dtype(np.float64): "d"}  # real types: what MJX uses
+_LAPACK_TYPES = (np.dtype(np.float32), np.dtype(np.float64))  # real types: what MJX uses
 _installed = False
 
 
 def _uses_lapack(aval) -> bool:
     """Whether a batch of matrices keeps JAX's LAPACK kernels (a small batch of a real type)."""
-    return math.prod(aval.shape[:-2]) <= LAPACK_MAX_BATCH and np.dtype(aval.dtype) in _LAPACK_PREFIX
+    return math.prod(aval.shape[:-2]) <= LAPACK_MAX_BATCH and np.dtype(aval.dtype) in _LAPACK_TYPES
 
 
 def _column_major(ndim: int) -> tuple[int, ...]:
@@ -56,7 +56,7 @@ def _lapack_cholesky(x: jax.Array) -> jax.Array:
     """Lower Cholesky factors by LAPACK ``potrf`` (NaN where a matrix is not positive definite)."""
     layout = _column_major(x.ndim)
     factor, info = jax.ffi.ffi_call(
-        f"lapack_{_LAPACK_PREFIX[x.dtype]}potrf_ffi",
+        lapack.prepare_lapack_call("potrf_ffi", x.dtype),
         (jax.ShapeDtypeStruct(x.shape, x.dtype), jax.ShapeDtypeStruct(x.shape[:-2], jnp.int32)),
         input_layouts=[layout], output_layouts=[layout, None], input_output_aliases={0: 0})(x, uplo=_char("L"))
     return jnp.where((info == 0)[..., None, None], factor, jnp.nan)
@@ -72,7 +72,7 @@ def _cholesky_rule(ctx, x, **params):
 def _lapack_triangular_solve(a, b, *, left_side, lower, transpose_a, unit_diagonal):
     """``op(a) x = b`` (or ``x op(a) = b``) by LAPACK ``trsm``, for real ``a``."""
     return jax.ffi.ffi_call(
-        f"lapack_{_LAPACK_PREFIX[a.dtype]}trsm_ffi", jax.ShapeDtypeStruct(b.shape, b.dtype),
+        lapack.prepare_lapack_call("trsm_ffi", a.dtype), jax.ShapeDtypeStruct(b.shape, b.dtype),
         input_layouts=[_column_major(a.ndim), _column_major(b.ndim)], output_layouts=_column_major(b.ndim),
         input_output_aliases={1: 0})(
         a, b, side=_char("L" if left_side else "R"), uplo=_char("L" if lower else "U"),
@@ -94,24 +94,11 @@ def _triangular_solve_rule(ctx, a, b, *, left_side, lower, transpose_a, conjugat
                                  ir.BoolAttr.get(unit_diagonal), hlo.TransposeAttr.get(transpose))]
 
 
-def _load_lapack() -> None:
-    """Have JAX load its LAPACK kernels (it does so when it first lowers a LAPACK call for the CPU)."""
-    eye = np.eye(2, dtype=np.float32)
-    jax.jit(lambda x: linalg.triangular_solve(jnp.linalg.cholesky(x), x, left_side=True, lower=True)).trace(
-        eye).lower(lowering_platforms=("cpu",))
-
-
 def use_xla_linalg_on_cpu() -> bool:
     """Lower large batches of Cholesky and triangular solves on the CPU to XLA ops; True if active."""
     global _installed
     if _installed or os.environ.get("HSA_MJX_CPU_LAPACK") == "1":
         return _installed
-    try:
-        _load_lapack()
-    except Exception as err:  # noqa: BLE001 - a JAX without these APIs or CPU lowering: keep its default
-        warnings.warn(f"hsa_mjx keeps JAX's CPU LAPACK lowering ({type(err).__name__}: {err}); large vmapped "
-                      "batches may deadlock on a CPU with few cores", stacklevel=2)
-        return False
     mlir.register_lowering(linalg.cholesky_p, _cholesky_rule, platform="cpu")
     mlir.register_lowering(linalg.triangular_solve_p, _triangular_solve_rule, platform="cpu")
     _installed = True

@@ -25,6 +25,7 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
 from hsa_mjx.terrain.placement import Footprint
 from hsa_mjx.terrain.world import TerrainWorld
+from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
 
 GOAL_MARKER_Z = 0.1
@@ -116,15 +117,17 @@ class HSAEnv(BraxEnv):
         """Seconds per env step (timestep x frame_skip)."""
         return self.config.dt
 
-    def reset(self, rng: jax.Array) -> EnvState:
-        """Start an episode: the robot at rest at its spawn pose and a goal drawn from ``rng``."""
-        return self.reset_with_goal_range(rng, self._radial_range)
+    def default_params(self) -> EnvParams:
+        """The episode parameters of the config: its radial goal range, terrain drawn by proportion."""
+        return EnvParams.make(self._radial_range)
 
-    def reset_with_goal_range(self, rng: jax.Array, radius_range: jax.Array,
-                              terrain_cell: jax.Array | None = None) -> EnvState:
-        """Like ``reset`` with the radial goal range (min, max) given as a traced array (curriculum) and,
-        optionally, the terrain cell (type row in ``terrain.types``, level) int32 (2,) to draw a tile of."""
-        return self._reset(rng, radius_range, terrain_cell=terrain_cell)
+    def reset(self, rng: jax.Array, params: EnvParams | None = None) -> EnvState:
+        """Start an episode: the robot at rest at its spawn pose and a goal drawn from ``rng``.
+
+        ``params`` (traced; default :meth:`default_params`): the radial goal range and the terrain cell
+        to draw a tile of, as a curriculum chooses them per env.
+        """
+        return self._reset(rng, self.default_params() if params is None else params)
 
     def reset_at_checkpoint(self, rng: jax.Array, index: int | jax.Array) -> EnvState:
         """Start a spiral episode at checkpoint ``index``, as ``goal.track_starts`` would draw it.
@@ -141,22 +144,21 @@ class HSAEnv(BraxEnv):
         if isinstance(index, (int, np.integer)) and not 0 <= index < goal.num_checkpoints:
             raise ValueError(f"checkpoint index must be in 0..{goal.num_checkpoints - 1}, got {index}")
         index = jnp.clip(jnp.asarray(index, jnp.int32), 0, goal.num_checkpoints - 1)
-        return self._reset(rng, self._radial_range, index)
+        return self._reset(rng, self.default_params(), index)
 
-    def _reset(self, rng: jax.Array, radius_range: jax.Array, start_index: jax.Array | None = None,
-               terrain_cell: jax.Array | None = None) -> EnvState:
+    def _reset(self, rng: jax.Array, params: EnvParams, start_index: jax.Array | None = None) -> EnvState:
         """The reset behind the public ones; ``start_index`` forces a track start there."""
         rng, goal_key = jax.random.split(rng)
         terrain_key = None
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
-        tile, terrain_id = self.world.draw(terrain_key, terrain_cell)
+        tile, terrain_id = self.world.draw(terrain_key, params.terrain_cell)
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)
         else:
             index, move = jnp.zeros((), jnp.int32), None
-            goal_xy = goals.initial_goal(goal_key, self.config, radius_range, self._checkpoints, terrain_id)
+            goal_xy = goals.initial_goal(goal_key, self.config, params.goal_range, self._checkpoints, terrain_id)
         goal_xy = self.world.place_goal(goal_xy, terrain_id)
         data = self._with_goal_marker(self._spawn(tile, move), goal_xy, tile)
         position = observation.robot_xy(data, self.index)

@@ -123,19 +123,25 @@ class TerrainPool:
         self._log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
 
     def draw(self, key: jax.Array, cell: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
-        """(tile index, type id) of one episode; ``cell`` = (type row, level) int32 (2,) picks the cell."""
+        """(tile index, type id) of one episode; ``cell`` = (type row, level) int32 (2,) picks the cell, a
+        negative row draws type and level from the proportions (traced: one compiled draw for both)."""
         if not self.config.per_env:
             return jnp.zeros((), jnp.int32), jnp.asarray(self.tile_type[0], jnp.int32)
         k_type, k_tile = jax.random.split(key)
-        if cell is not None:
-            row, level = cell[0], cell[1]
-        else:
-            row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
-                else jnp.zeros((), jnp.int32)
-            level = jax.random.randint(jax.random.fold_in(k_type, 1), (), 0, self.layout.levels) \
-                if self.layout.levels > 1 else jnp.zeros((), jnp.int32)
+        row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
+            else jnp.zeros((), jnp.int32)
+        level = jax.random.randint(jax.random.fold_in(k_type, 1), (), 0, self.layout.levels) \
+            if self.layout.levels > 1 else jnp.zeros((), jnp.int32)
+        if cell is None:
+            return self._tile(k_tile, row, level)
+        free = cell[0] < 0
+        row, level = jnp.where(free, row, cell[0]), jnp.where(free, level, cell[1])
+        return self._tile(k_tile, row, level)
+
+    def _tile(self, key: jax.Array, row: jax.Array, level: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """A random tile of the cell (row, level) and its type id."""
         count = self._count[row]
-        tile = self._first[row] + level * count + jax.random.randint(k_tile, (), 0, count)
+        tile = self._first[row] + level * count + jax.random.randint(key, (), 0, count)
         return tile, jnp.asarray(self.tile_type)[tile]
 
 

@@ -54,8 +54,8 @@ class TerrainWorld:
         return self.enabled and self.config.per_env
 
     def draw(self, key: jax.Array | None, cell: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
-        """This episode's (tile index, terrain type id); ``key`` (and ``cell`` = (type row, level), from the
-        terrain curriculum) are used only when envs draw their own."""
+        """This episode's (tile index, terrain type id); ``key`` and ``cell`` = (type row, level), or (-1, -1)
+        (or None) to draw both by the proportions, are used only when envs draw their own."""
         if self.per_env:
             return self.pool.draw(key, cell)
         type_id = int(self.pool.tile_type[0]) if self.enabled else FLAT_ID

@@ -1,0 +1,61 @@
+"""A checkpoint written by an earlier version (tests/data/run_format_1) evaluates as it did then and
+resumes with both curricula where they stopped."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+DATA = Path(__file__).resolve().parent / "data"
+COMPARED = ("step", "goal_range", "episodes", "success_rate", "mean_final_distance", "mean_speed_m_per_s",
+            "mean_start_distance", "mean_progress_m", "mean_episode_steps", "not_finished")
+
+
+@pytest.fixture(scope="module")
+def old_run(tmp_path_factory) -> Path:
+    """A writable copy of the saved run."""
+    run = tmp_path_factory.mktemp("compat") / "run"
+    shutil.copytree(DATA / "run_format_1", run)
+    return run
+
+
+def _terrain_levels(run: Path, step: int) -> dict:
+    """The terrain levels a checkpoint holds, (envs,) arrays."""
+    from train import checkpoint
+    path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}"
+    envs = checkpoint.read_meta(path)["terrain_envs"]
+    template = {"terrain_levels": {k: np.zeros((envs,), np.int32) for k in ("row", "level")}}
+    return checkpoint.load(path, template)["terrain_levels"]
+
+
+def test_old_checkpoint_evaluates_the_same(old_run):
+    from train.evaluate import main as evaluate
+    assert evaluate([str(old_run), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0
+    now = json.loads((old_run / "eval" / "eval.json").read_text())
+    then = json.loads((DATA / "expected_eval_run_format_1.json").read_text())
+    for key in COMPARED:
+        assert now[key] == pytest.approx(then[key], rel=1e-5, abs=1e-6), key
+
+
+def test_old_checkpoint_resumes_both_curricula(old_run):
+    from train import config as tcfg
+    from train.logger import read_jsonl
+    from train.trainer import train
+    saved = read_jsonl(old_run / "metrics.jsonl")[-1]
+    assert saved["step"] == 80 and saved["curriculum/episode_count"] > 0
+    config = tcfg.load(old_run / "config.yaml", ["run.num_timesteps=120"])
+    assert train(config, old_run, resume=True, quiet=True)["env_steps"] == 120
+    resumed = read_jsonl(old_run / "metrics.jsonl")[-1]
+    # 40 env steps are 10 per env after the resume's fresh episodes of 15 steps: none ends, so both
+    # curricula must hold exactly what the checkpoint saved (a fresh start would show 0 episodes)
+    assert resumed["step"] == 120
+    for key in ("curriculum/episode_count", "curriculum/max_distance", "curriculum/success_rate"):
+        assert resumed[key] == pytest.approx(saved[key]), key
+    before, after = _terrain_levels(old_run, 80), _terrain_levels(old_run, 120)
+    for key in ("row", "level"):
+        np.testing.assert_array_equal(after[key], before[key])
+    assert resumed["terrain/mean_level"] == pytest.approx(float(np.mean(before["level"])))
