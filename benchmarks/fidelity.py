@@ -144,7 +144,7 @@ def _step_failures(worst_qvel: float, worst_qacc: float, z: np.ndarray, finite: 
 def plane_start(model: mujoco.MjModel, index: RobotIndex, config: EnvConfig) -> np.ndarray:
     """The env's reset qpos on the plane: the model's qpos0 with both blocks at the spawn height."""
     qpos = model.qpos0.copy()
-    qpos[index.block_qpos + 2] = config.spawn_height
+    qpos[index.block_z] = config.spawn_height
     return qpos
 
 

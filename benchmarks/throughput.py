@@ -208,7 +208,7 @@ def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str
     """Single-env C MuJoCo on the host CPU, same model and settings, random increments."""
     model, servos, ctl = env.robot.mj_model, env.index.servo_ids, env.config.control
     data = mujoco.MjData(model)
-    data.qpos[env.index.block_qpos + 2] = env.config.spawn_height
+    data.qpos[env.index.block_z] = env.config.spawn_height
     mujoco.mj_forward(model, data)
     rng, steps, tic = np.random.default_rng(seed), 0, time.perf_counter()
     ramp = np.arange(1, ctl.frame_skip + 1)[:, None] / ctl.frame_skip

@@ -37,7 +37,7 @@ def _ray_scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     physics, model = state.pipeline_state.physics, env.robot.mj_model
     data = mujoco.MjData(model)
     data.mocap_pos[:] = np.asarray(physics.mocap_pos)  # the env's tile under the origin (terrain scene)
-    data.qpos[env.index.block_qpos + 2] = 10.0  # the robot out of the rays' way
+    data.qpos[env.index.block_z] = 10.0  # the robot out of the rays' way
     mujoco.mj_kinematics(model, data)
     blocks = np.asarray(physics.xpos)[env.index.block_body]
     position, axis = blocks[:, :2].mean(axis=0), blocks[1, :2] - blocks[0, :2]

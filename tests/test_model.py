@@ -81,7 +81,7 @@ def test_foot_force_sensors_match_c_contact_forces(robot):
     """The contact sensors give each foot's summed contact force: in C MuJoCo exactly, in MJX from the same state."""
     m, idx = robot.mj_model, robot.index
     data = mujoco.MjData(m)
-    data.qpos[idx.block_qpos + 2] = 0.2
+    data.qpos[idx.block_z] = 0.2
     rng, seen = np.random.default_rng(1), []
     for t in range(600):
         if t % 20 == 0:
@@ -108,7 +108,7 @@ def test_mjx_matches_c_mujoco_for_100_env_steps(robot):
     """Same controls into C MuJoCo and MJX; the trajectories must stay within the stated bound."""
     m, mx, idx = robot.mj_model, robot.mjx_model, robot.index
     data = mujoco.MjData(m)
-    data.qpos[idx.block_qpos + 2] = 0.2
+    data.qpos[idx.block_z] = 0.2
     mujoco.mj_forward(m, data)
     dx = mjx.put_data(m, data)
     step = jax.jit(mjx.step)

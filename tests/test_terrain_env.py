@@ -88,7 +88,7 @@ def test_tile_lookup_matches_mujoco_ray_casts_on_a_moved_atlas():
         rays = [3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
                 for x, y in points]
         np.testing.assert_allclose(np.asarray(world.ground(tile, jnp.asarray(points))), rays, atol=2e-5)
-        own = surface_height(jnp.asarray(world.tile_data(tile)), world.grid, jnp.asarray(points))
+        own = surface_height(jnp.asarray(world.pool.tiles)[tile], world.grid, jnp.asarray(points))
         np.testing.assert_allclose(np.asarray(own), rays, atol=2e-5)  # the tile's own data, as generated
     assert np.ptp(world.pool.tiles, axis=0).max() > 0.05  # the tiles differ
 
@@ -126,7 +126,7 @@ def test_spiral_preset_checkpoints_sit_on_its_track():
     world, _ = _world(config)
     checkpoints = jnp.asarray(goals.spiral_checkpoints(config.goal))
     np.testing.assert_array_equal(np.asarray(world.ground(0, checkpoints)), 0.0)
-    assert float(np.max(world.tile_data(0))) * world.grid.z_scale == pytest.approx(config.terrain.spiral.wall_height)
+    assert float(np.max(world.pool.tiles[0])) * world.grid.z_scale == pytest.approx(config.terrain.spiral.wall_height)
 
 
 def test_spiral_track_starts_stand_the_robot_on_its_track_facing_the_next_checkpoint():

@@ -22,11 +22,11 @@ import yaml
 
 from hsa_mjx import config as env_config
 from hsa_mjx import resources
+from hsa_mjx.deploy.policy import ACTIVATIONS
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
 from hsa_mjx.config import EnvConfig, build_section
 
-ACTIVATIONS = ("swish", "tanh", "relu", "elu")
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
 SECTIONS = ("env", "curriculum", "terrain_curriculum", "ppo", "run")

@@ -31,6 +31,7 @@ from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
 from hsa_mjx.curricula.state import Curricula, CurriculumRules
+from hsa_mjx.deploy import policy as pol
 from hsa_mjx.task import privileged
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.types import EnvState
@@ -38,8 +39,8 @@ from train import compat
 from train.config import TrainConfig
 
 AXIS = "devices"
-ACTIVATIONS: dict[str, Callable] = {"swish": linen.swish, "tanh": linen.tanh, "relu": linen.relu,
-                                    "elu": linen.elu}
+# the activations the exported numpy policy can run, as flax functions of the same names
+ACTIVATIONS: dict[str, Callable] = {name: getattr(linen, name) for name in pol.ACTIVATIONS}
 
 
 @struct.dataclass

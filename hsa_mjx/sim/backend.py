@@ -30,7 +30,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-BACKENDS = ("jax", "warp", "auto")
+from hsa_mjx.config import BACKENDS
+
 WARP_INSTALL = 'pip install -e ".[warp]"  (or: pip install warp-lang)'
 _MJX_IMPORT_NOISE = ("Failed to import warp", "Failed to import mujoco_warp")
 # Warp overflow flags (mujoco_warp OverflowType): contact, constraint and collision buffers that are

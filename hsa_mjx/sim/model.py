@@ -36,6 +36,7 @@ SERVOS = (
     "spring1c_motor", "spring2c_motor", "spring3c_motor", "spring4c_motor",
 )
 DISC_JOINTS = ("disc1b_hinge", "disc2b_hinge", "disc3b_hinge", "disc4b_hinge")
+FREE_JOINT_Z = 2  # a free joint's qpos: x, y, z, then the orientation quaternion
 FOOT_GEOMS = ("cylinder3a_con", "cylinder3c_con", "cylinder4a_con", "cylinder4c_con")
 FOOT_SENSORS = ("foot_3a_force", "foot_3c_force", "foot_4a_force", "foot_4c_force")
 BLOCKS = ("block_a", "block_b")
@@ -67,6 +68,7 @@ class RobotIndex:
     servo_ids: np.ndarray  # (8,) actuator id of each servo, action-slot order
     block_body: np.ndarray  # (2,) body ids of block_a, block_b
     block_qpos: np.ndarray  # (2,) qpos address of each block's free joint
+    block_z: np.ndarray  # (2,) qpos address of each block's height (its free joint's z)
     block_qvel: np.ndarray  # (2,) dof address of each block's free joint
     constraint_pairs: np.ndarray  # (4, 2) action slots of (kA, kC) for units 1..4
     foot_sensors: np.ndarray  # (4, contacts, 3) sensordata addresses of each foot's contact forces
@@ -159,6 +161,7 @@ def build_index(model: mujoco.MjModel) -> RobotIndex:
         servo_ids=servos,
         block_body=_ids(model, mujoco.mjtObj.mjOBJ_BODY, BLOCKS),
         block_qpos=model.jnt_qposadr[block_joints].astype(np.int32),
+        block_z=(model.jnt_qposadr[block_joints] + FREE_JOINT_Z).astype(np.int32),
         block_qvel=model.jnt_dofadr[block_joints].astype(np.int32),
         constraint_pairs=np.asarray(pairs, dtype=np.int32),
         foot_sensors=_foot_sensor_addresses(model),

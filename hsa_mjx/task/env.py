@@ -72,7 +72,7 @@ class HSAEnv(BraxEnv):
         cfg, model = self.config, self.robot.mjx_model
         data = backend.make_data(self.robot.mj_model, self.robot.backend, local_device(), self.num_envs,
                                  cfg.physics.contacts_per_env, cfg.physics.constraints_per_env)
-        qpos = data.qpos.at[self.index.block_qpos + 2].set(cfg.spawn_height)
+        qpos = data.qpos.at[self.index.block_z].set(cfg.spawn_height)
         self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
@@ -166,7 +166,7 @@ class HSAEnv(BraxEnv):
         window = self.config.reward.stagnation_window
         task = TaskState(
             goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=index,
-            prev_action=jnp.zeros(8), prev_joint_vel=jnp.zeros(8), prev_distance=distance,
+            prev_action=jnp.zeros(self.action_size), prev_joint_vel=jnp.zeros(self.action_size), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
             step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id)
         obs, critic, task = self._observe(data, task)
@@ -303,7 +303,7 @@ class HSAEnv(BraxEnv):
         data = self._data0
         qpos = data.qpos
         if self.world.enabled:
-            qpos = qpos.at[self.index.block_qpos + 2].set(self.world.spawn_height(tile, move))
+            qpos = qpos.at[self.index.block_z].set(self.world.spawn_height(tile, move))
             floor = data.mocap_pos.at[self.index.terrain_mocap].set(self.world.floor_position(tile))
             data = data.replace(mocap_pos=floor)
         if move is not None:

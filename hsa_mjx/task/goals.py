@@ -24,11 +24,6 @@ def spiral_checkpoints(goal: GoalConfig) -> np.ndarray:
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1).astype(np.float32)
 
 
-def num_checkpoint_slots(config: EnvConfig) -> int:
-    """Static length of the per-env checkpoint array."""
-    return config.goal.num_checkpoints if config.goal.mode == "spiral" else 1
-
-
 def _random_side(rng: jax.Array, low: float, high: float) -> jax.Array:
     k_side, k_mag = jax.random.split(rng)
     side = jnp.where(jax.random.bernoulli(k_side), 1.0, -1.0)

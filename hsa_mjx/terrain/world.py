@@ -83,10 +83,6 @@ class TerrainWorld:
             return jnp.zeros((), jnp.float32)
         return jnp.asarray(self.pool.tile_level, jnp.float32)[tile] / (levels - 1)
 
-    def tile_data(self, tile: jax.Array) -> jax.Array:
-        """The heightfield data (tile nrow * ncol,) of ``tile``, as its generator made it."""
-        return jnp.asarray(self.pool.tiles)[tile]
-
     def out_of_bounds(self, xy: jax.Array) -> jax.Array:
         """True when the robot position is closer than ``edge_margin`` to its tile's edge (never on a plane)."""
         if not self.enabled:
