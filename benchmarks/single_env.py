@@ -4,7 +4,7 @@ Modes, each one ``env.step`` call per env step with random actions, as a Gymnasi
 
 - ``host_physics``: ``gymnasium.make("hsa_mjx/HSA-v0")`` as it is on a CPU: the physics substeps in
   C MuJoCo (``hsa_mjx.sim.host_physics``), everything else the env's jitted code.
-- ``mjx``: the same env with ``host_physics=False``: the whole step in MJX's JAX implementation.
+- ``mjx``: the same env with ``physics__backend="jax"``: the whole step in MJX's JAX implementation.
 - ``c_mujoco``: the bare substep loop of the same model in C MuJoCo (``mj_step`` x frame_skip, no
   observation, reward or Python env around it): the ceiling.
 
@@ -33,7 +33,7 @@ from benchmarks.fidelity import SETTINGS
 from benchmarks.throughput import cpu_baseline
 from benchmarks.vector_env import write_results
 
-MODES = {"host_physics": {"host_physics": True}, "mjx": {"host_physics": False}}
+MODES = {"host_physics": {"physics__backend": "c"}, "mjx": {"physics__backend": "jax"}}
 
 
 def time_env(overrides: dict[str, Any], steps: int, repeats: int, seed: int = 0) -> dict[str, Any]:

@@ -23,7 +23,7 @@ from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_te
 from hsa_mjx.terrain.presets import TERRAIN_PRESETS
 
 SCENES = ("flat", "terrain")
-BACKENDS = ("jax", "warp", "auto")  # physics.backend (hsa_mjx.sim.backend)
+BACKENDS = ("auto", "jax", "warp", "c")  # physics.backend (hsa_mjx.sim.backend): c = C MuJoCo substeps
 INTEGRATORS = ("euler", "implicitfast", "rk4")
 SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")

@@ -69,10 +69,11 @@ def rollouts():
 
 
 def test_auto_picks_jax_on_a_cpu_and_refuses_unknown_backends():
-    assert backend.resolve("auto") == "jax"
-    with pytest.raises(ValueError, match=r"'physics.backend' = 'cuda' is not valid; choose one of \['jax', 'warp', 'auto'\]"):
+    assert backend.resolve("auto") == "jax" and backend.resolve("c") == "c"
+    assert backend.for_one_env("auto") == "c" and backend.for_one_env("jax") == "jax"  # one env on a CPU: C MuJoCo
+    with pytest.raises(ValueError, match=r"'physics.backend' = 'cuda' is not valid; choose one of \['auto', 'jax', 'warp', 'c'\]"):
         backend.resolve("cuda")
-    with pytest.raises(ValueError, match=r"physics.backend.*'cuda'.*\['jax', 'warp', 'auto'\]"):
+    with pytest.raises(ValueError, match=r"physics.backend.*'cuda'.*\['auto', 'jax', 'warp', 'c'\]"):
         hsa_mjx.build_config("flat", physics__backend="cuda")
 
 

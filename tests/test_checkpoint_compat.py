@@ -34,7 +34,7 @@ def _terrain_levels(run: Path, step: int) -> dict:
 
 def test_old_checkpoint_evaluates_the_same(old_run):
     from train.evaluate import main as evaluate
-    assert evaluate([str(old_run), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0
+    assert evaluate([str(old_run), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0
     now = json.loads((old_run / "eval" / "eval.json").read_text())
     then = json.loads((DATA / "expected_eval_run_format_1.json").read_text())
     for key in COMPARED:

@@ -98,8 +98,8 @@ def test_a_diverging_c_state_terminates_as_non_finite():
 
 def test_gymnasium_env_uses_c_physics_on_a_cpu_unless_asked_not_to():
     fast = gymnasium.make("hsa_mjx/HSA-v0")
-    plain = gymnasium.make("hsa_mjx/HSA-v0", host_physics=False)
-    assert fast.unwrapped.host_physics and not plain.unwrapped.host_physics
+    plain = gymnasium.make("hsa_mjx/HSA-v0", physics__backend="jax")
+    assert fast.unwrapped.env.physics_backend == "c" and plain.unwrapped.env.physics_backend == "jax"
     obs_fast, _ = fast.reset(seed=3)
     obs_plain, _ = plain.reset(seed=3)
     np.testing.assert_array_equal(obs_fast, obs_plain)
@@ -108,3 +108,16 @@ def test_gymnasium_env_uses_c_physics_on_a_cpu_unless_asked_not_to():
         obs_fast, *_ = fast.step(action)
         obs_plain, *_ = plain.step(action)
     np.testing.assert_allclose(obs_fast, obs_plain, atol=1e-2)
+
+
+def test_c_backend_steps_a_batch_in_c_mujoco_like_step_with():
+    """``physics.backend: c`` is the env's own step: each env of a vmapped batch runs HostPhysics."""
+    env_c = hsa_mjx.make_env("flat", physics__backend="c")
+    env_jax = hsa_mjx.make_env("flat", physics__backend="jax")
+    assert env_c.physics_backend == "c" and env_jax.physics_backend == "jax"
+    keys, actions = jax.random.split(jax.random.PRNGKey(5), 2), jnp.full((2, 8), 0.5)
+    own = jax.jit(jax.vmap(env_c.step))(jax.jit(jax.vmap(env_c.reset))(keys), actions)
+    host = HostPhysics(env_jax.robot.mj_model, env_jax.index)
+    via = jax.jit(jax.vmap(functools.partial(env_jax.step_with, host)))(jax.jit(jax.vmap(env_jax.reset))(keys), actions)
+    np.testing.assert_array_equal(np.asarray(own.obs), np.asarray(via.obs))
+    np.testing.assert_array_equal(np.asarray(own.reward), np.asarray(via.reward))

@@ -485,11 +485,11 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     assert meta["config"]["run"]["multi_device"] == "per_device"
     last = _records(run_dir)[-1]
     assert last["step"] == 280 and last["curriculum/episode_count"] >= 8  # the curriculum came along
-    assert evaluate([str(run_dir), "--episodes", "2", "--steps", "12", "--physics", "c"]) == 0  # C MuJoCo: a short compile
+    assert evaluate([str(run_dir), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0  # C MuJoCo: a short compile
     assert json.loads((run_dir / "eval" / "eval.json").read_text())["step"] == 280
     # the table by terrain type and difficulty (one atlas of both types at 0, 0.5 and 1)
     assert evaluate([str(run_dir), "--terrain-types", "all", "--levels", "0,0.5,1", "--episodes", "2",
-                     "--steps", "5", "--physics", "c"]) == 0
+                     "--steps", "5", "--backend", "c"]) == 0
     table = json.loads((run_dir / "eval" / "terrain_eval.json").read_text())
     assert [(r["type"], r["difficulty"], r["episodes"]) for r in table["rows"]] == [
         (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)]

@@ -96,7 +96,7 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
     out = tmp_path / "eval"
     goal = ["--set", "env.goal.mode=fixed", "--set", "env.goal.position=[2.5,0.0]"]  # not the run's radial goals
     assert evaluate.main(["--policy", str(tmp_path / "tiny"), "--episodes", "2", "--steps", "12",
-                          "--physics", "c", "--out", str(out), *goal]) == 0
+                          "--backend", "c", "--out", str(out), *goal]) == 0
     assert f"wrote 4 files to {out}" in capsys.readouterr().out
     result = json.loads((out / "eval.json").read_text())
     assert result["policy_dir"] == str(tmp_path / "tiny") and result["policy"] == "deterministic"

@@ -139,11 +139,10 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 
 def test_evaluate_writes_summary_and_plots(run_dir):
-    from train.evaluate import main, resolve_physics
+    from train.evaluate import main
     assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0  # auto: C MuJoCo substeps on this CPU
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert result["physics"] == "c_mujoco"
-    assert resolve_physics("auto", "warp") == resolve_physics("mjx", None) == "mjx"  # a --backend asks for MJX
     assert result["episodes"] == 2 and 0.0 <= result["success_rate"] <= 1.0
     assert result["mean_final_distance"] > 0
     assert result["policy"] == "deterministic" and result["max_steps"] == 12
@@ -156,6 +155,7 @@ def test_evaluate_writes_summary_and_plots(run_dir):
     assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--stochastic", "--backend", "warp"]) == 0
     sampled = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert sampled["policy"] == "stochastic" and sampled["episodes"] == 2 and sampled["mean_episode_steps"] > 0
+    assert sampled["physics"] == "mjx_warp"  # --backend, the config's physics.backend names, picks the physics
     assert main([str(run_dir / "missing")]) == 2
 
 

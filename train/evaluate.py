@@ -48,11 +48,10 @@ from hsa_mjx.deploy import policy as pol  # noqa: E402
 from hsa_mjx.config import BACKENDS, EnvConfig  # noqa: E402
 from hsa_mjx.task.env import HSAEnv  # noqa: E402
 from hsa_mjx.task.params import FREE_CELL, EnvParams  # noqa: E402
-from hsa_mjx.sim.host_physics import HostPhysics  # noqa: E402
+from hsa_mjx.sim.backend import for_one_env  # noqa: E402
 from train import checkpoint  # noqa: E402
 from train import config as tcfg  # noqa: E402
 
-PHYSICS = ("auto", "mjx", "c")  # --physics
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
 
@@ -251,12 +250,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="env.KEY=VALUE",
                         help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
                              "not env.observation.*)")
-    parser.add_argument("--physics", choices=PHYSICS, default="auto",
-                        help="mjx: the env's MJX physics; c: its substeps in C MuJoCo (hsa_mjx.sim.host_physics), "
-                             "several times faster on a CPU; auto (default): c on a CPU unless --backend is "
-                             "given, else mjx")
-    parser.add_argument("--backend", choices=BACKENDS, default=None,
-                        help="physics backend to evaluate on (default: the run's env.physics.backend)")
+    parser.add_argument("--backend", choices=BACKENDS, default="auto",
+                        help="physics to evaluate on (env.physics.backend): c, the substeps in C MuJoCo "
+                             "(hsa_mjx.sim.host_physics), several times faster on a CPU; jax or warp, MJX's; "
+                             "auto (default): c on a CPU, MJX on a GPU (Warp when installed)"),
     parser.add_argument("--terrain-types", default=None, metavar="all|T1,T2",
                         help="evaluate per terrain type: 'all' (the run's types) or a list (with --levels)")
     parser.add_argument("--levels", default=None, metavar="D1,D2",
@@ -295,18 +292,10 @@ def _episodes(args: argparse.Namespace, shipped: bool) -> int:
     return args.episodes or (CPU_EPISODES if shipped else 16)
 
 
-def resolve_physics(choice: str, backend_name: str | None) -> str:
-    """``--physics auto``: C MuJoCo substeps where JAX runs on a CPU (MJX batches are built for GPUs:
-    a CPU steps one env in C MuJoCo about 15x faster), unless a ``--backend`` asks for MJX's."""
-    if choice != "auto":
-        return choice
-    return "c" if jax.default_backend() == "cpu" and backend_name is None else "mjx"
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m train.evaluate``."""
     args = parse_args(argv)
-    args.physics = resolve_physics(args.physics, args.backend)
+    args.backend = for_one_env(args.backend)  # auto: C MuJoCo on a CPU, where MJX batches of one env are slow
     try:
         config, env, policy, header, out = load_subject(args)
     except (ValueError, FileNotFoundError) as err:
@@ -320,14 +309,12 @@ def main(argv: list[str] | None = None) -> int:
                            else config.env.termination.max_episode_steps)
     goal_range = args.goal_range or default_goal_range(config)
     keys = jax.random.split(jax.random.PRNGKey(args.seed), episodes)
-    simulate = HostPhysics(env.robot.mj_model, env.index) if args.physics == "c" else None
-    traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps,
-                                    simulate=simulate))
+    traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
     traces = {k: np.asarray(v) for k, v in traces.items()}
     radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
     result = {**header, "goal_range": list(goal_range) if radial else None,
               "policy": "stochastic" if args.stochastic else "deterministic", "max_steps": steps,
-              "physics": "c_mujoco" if args.physics == "c" else f"mjx_{env.physics_backend}",
+              "physics": "c_mujoco" if env.physics_backend == "c" else f"mjx_{env.physics_backend}",
               **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral")}
     out.mkdir(parents=True, exist_ok=True)
     from train import diagnostics
@@ -355,8 +342,7 @@ def by_terrain(args: argparse.Namespace, config: tcfg.TrainConfig, policy, heade
     goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
     env_config = evaluation_env_config(config.env, args.backend)
     def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
-        simulate = HostPhysics(env.robot.mj_model, env.index) if args.physics == "c" else None
-        return rollout(env, policy, keys, goal_range, steps, simulate=simulate, cells=cells)
+        return rollout(env, policy, keys, goal_range, steps, cells=cells)
 
     rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed)
     print(terrain_eval.table(rows))

@@ -11,7 +11,6 @@ The batched counterpart is ``hsa_mjx.adapters.gymnasium_vector`` (``gymnasium.ma
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +24,7 @@ from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx.sim.host_physics import HostPhysics
-from hsa_mjx.sim.model import local_device
+from hsa_mjx.sim.backend import one_env_config
 from hsa_mjx.task.termination import REASONS
 from hsa_mjx.task.types import EnvState
 
@@ -71,12 +69,11 @@ class HSAGymEnv(gymnasium.Env):
         camera: camera name or id in the asset (None: ``"track"``, which follows the robot;
             ``"overview"`` is fixed; -1 MuJoCo's free camera). The original's ``camera_name`` /
             ``camera_id`` are accepted for it.
-        host_physics: run the physics substeps in C MuJoCo (``hsa_mjx.sim.host_physics``: same model,
-            float64, about 4x faster for one env on a CPU) with the env's own control, observation,
-            reward and termination. None (default): on when the env runs MJX's JAX implementation on
-            a CPU; False always steps MJX.
         **overrides: config keys and/or the original ``HSAEnv`` arguments, as in
-            :func:`hsa_mjx.make_env`.
+            :func:`hsa_mjx.make_env`. ``physics__backend`` chooses the physics as everywhere; its
+            default ``auto`` runs the substeps in C MuJoCo on a CPU (``c``: same model, float64, about
+            4x faster for one env than MJX there) with the env's own control, observation, reward and
+            termination, and MJX on a GPU; ``jax`` forces MJX.
 
     ``step`` returns ``(obs, reward, terminated, truncated, info)``; ``info`` holds the reward
     components (``reward/<term>``), ``termination_reasons`` (list of names), ``distance_to_goal``,
@@ -87,23 +84,18 @@ class HSAGymEnv(gymnasium.Env):
 
     def __init__(self, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
                  width: int = 640, height: int = 480, camera: str | int | None = None,
-                 host_physics: bool | None = None, **overrides: Any):
+                 **overrides: Any):
         from hsa_mjx.adapters.original_args import build_config
 
         self.render_mode = check_render_mode(render_mode)
         camera = pick_camera(camera, overrides)
-        self.env: HSAEnv = HSAEnv(build_config(config, renderer=True, **overrides))
+        self.env: HSAEnv = HSAEnv(one_env_config(build_config(config, renderer=True, **overrides)))
         self._camera = check_camera(self.env.robot.mj_model, camera)
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.env.dt)))
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.env.observation_size,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (self.env.action_size,), np.float32)
         self._reset_fn = jax.jit(self.env.reset)
-        if host_physics is None:
-            host_physics = self.env.physics_backend == "jax" and local_device().platform == "cpu"
-        self.host_physics = bool(host_physics)
-        step = functools.partial(self.env.step_with, HostPhysics(self.env.robot.mj_model, self.env.index)) \
-            if self.host_physics else self.env.step
-        self._step_fn = jax.jit(lambda state, action: _with_outputs(step(state, action)))
+        self._step_fn = jax.jit(lambda state, action: _with_outputs(self.env.step(state, action)))
         self._goal_fn = jax.jit(self.env.set_goal)
         self._state: EnvState | None = None
         self._width, self._height = width, height

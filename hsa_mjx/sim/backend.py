@@ -18,6 +18,7 @@ when ``warp-lang`` is absent (the CPU install does not need it).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import importlib.util
 import io
 import sys
@@ -30,7 +31,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hsa_mjx.config import BACKENDS
+from hsa_mjx.config import BACKENDS, EnvConfig
 
 WARP_INSTALL = 'pip install -e ".[warp]"  (or: pip install warp-lang)'
 _MJX_IMPORT_NOISE = ("Failed to import warp", "Failed to import mujoco_warp")
@@ -68,7 +69,11 @@ def has_cuda_gpu(device: jax.Device | None = None) -> bool:
 
 
 def resolve(name: str, device: jax.Device | None = None) -> str:
-    """The implementation (``"jax"`` or ``"warp"``) for ``physics.backend = name`` on ``device``.
+    """The physics (``"jax"``, ``"warp"`` or ``"c"``) for ``physics.backend = name`` on ``device``.
+
+    ``auto``: MJX's Warp implementation on a CUDA GPU with ``warp-lang`` installed, else its JAX
+    implementation (batches); :func:`for_one_env` makes ``auto`` C MuJoCo for one env on a CPU.
+    ``c``: the substeps in C MuJoCo (``hsa_mjx.sim.host_physics``), one env after another.
 
     Raises:
         ValueError: an unknown name (the valid ones are listed), or ``warp`` without ``warp-lang``
@@ -78,6 +83,8 @@ def resolve(name: str, device: jax.Device | None = None) -> str:
         raise ValueError(f"config key 'physics.backend' = {name!r} is not valid; choose one of {list(BACKENDS)}")
     if name == "auto":
         return "warp" if warp_installed() and has_cuda_gpu(device) else "jax"
+    if name == "c":
+        return name
     if name == "warp":
         if not warp_installed():
             raise ValueError(f"physics.backend 'warp' needs the warp-lang package, which is not installed: {WARP_INSTALL}; "
@@ -87,6 +94,27 @@ def resolve(name: str, device: jax.Device | None = None) -> str:
                           "(for tests); 'jax' is the CPU path", stacklevel=2)
         _quiet_warp()
     return name
+
+
+def for_one_env(name: str, device: jax.Device | None = None) -> str:
+    """``physics.backend`` for an env stepped one at a time (Gymnasium, evaluation): ``auto`` becomes
+    ``c`` on a CPU (C MuJoCo substeps: MJX is built for batches, one env of it is several times slower)."""
+    if name == "auto" and (device or jax.local_devices()[0]).platform == "cpu":
+        return "c"
+    return name
+
+
+def one_env_config(config: EnvConfig, device: jax.Device | None = None) -> EnvConfig:
+    """``config`` with its ``physics.backend`` as :func:`for_one_env` resolves it."""
+    chosen = for_one_env(config.physics.backend, device)
+    if chosen == config.physics.backend:
+        return config
+    return dataclasses.replace(config, physics=dataclasses.replace(config.physics, backend=chosen))
+
+
+def mjx_impl(physics: str) -> str:
+    """The MJX implementation that holds the model and data of a resolved physics (``c``: JAX's)."""
+    return "jax" if physics == "c" else physics
 
 
 def _quiet_warp() -> None:
@@ -99,7 +127,7 @@ def _quiet_warp() -> None:
 
 def put_model(mj_model: mujoco.MjModel, backend: str, device: jax.Device) -> mjx.Model:
     """The MJX model of ``mj_model`` for ``backend`` on ``device`` (iteration-cap warnings off on Warp)."""
-    model = mjx.put_model(mj_model, impl=backend, device=device)
+    model = mjx.put_model(mj_model, impl=mjx_impl(backend), device=device)
     if backend == "warp":
         warp_opt = model.opt._impl
         model = model.replace(opt=model.opt.replace(_impl=warp_opt.replace(

@@ -11,7 +11,7 @@ public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, 
 It differs from MJX only in arithmetic: float64 C MuJoCo with its own solver (the same settings)
 against float32 MJX; ``tests/test_host_physics.py`` bounds the difference over a gait. C MuJoCo
 resets a diverging state by itself; such a substep is reported as non-finite, as MJX's NaN would
-be. The Gymnasium single env uses it on a CPU (``HSAGymEnv(host_physics=...)``).
+be. ``physics.backend: c`` steps an env with it; the Gymnasium single env and evaluation do so by default on a CPU.
 """
 
 from __future__ import annotations

@@ -15,6 +15,7 @@ from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Fa
 from brax.envs.base import Env as BraxEnv  # noqa: I001
 
 from hsa_mjx.sim import backend, physics
+from hsa_mjx.sim.host_physics import HostPhysics
 
 from hsa_mjx.task import control, goals, observation, privileged, reward, termination
 
@@ -65,6 +66,8 @@ class HSAEnv(BraxEnv):
         self.index = self.robot.index
         self.world = TerrainWorld(config.terrain, self.robot.pool, self.robot.mj_model, self.index.block_body)
         self.weights = reward.RewardWeights.from_config(config.reward)
+        # physics.backend c: the substeps in C MuJoCo on the host (one env after another under vmap)
+        self._host = HostPhysics(self.robot.mj_model, self.index) if self.robot.backend == "c" else None
         self._init_static_arrays()
 
     def _init_static_arrays(self) -> None:
@@ -99,12 +102,12 @@ class HSAEnv(BraxEnv):
 
     @property
     def backend(self) -> str:
-        """Brax's pipeline name (always ``"mjx"``); ``physics_backend`` says which MJX implementation."""
+        """Brax's pipeline name (always ``"mjx"``); ``physics_backend`` says which physics steps it."""
         return "mjx"
 
     @property
     def physics_backend(self) -> str:
-        """The MJX implementation this env runs on: ``"jax"`` or ``"warp"`` (``physics.backend`` resolved)."""
+        """The physics this env steps with: ``"jax"`` or ``"warp"`` (MJX) or ``"c"`` (C MuJoCo substeps)."""
         return self.robot.backend
 
     @property
@@ -207,7 +210,9 @@ class HSAEnv(BraxEnv):
         return self._outcome(state, action, bad_action, before, new_data, stats)
 
     def _simulate(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, physics.SubstepStats]:
-        """The substeps on this env's MJX model (JAX or Warp implementation)."""
+        """The substeps on this env's physics: MJX's JAX or Warp implementation, or C MuJoCo."""
+        if self._host is not None:
+            return self._host(data, targets)
         return physics.simulate(self.robot.mjx_model, data, targets, self.index)
 
     def _outcome(self, state: EnvState, action: jax.Array, bad_action: jax.Array, before: tuple,
