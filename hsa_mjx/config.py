@@ -15,12 +15,11 @@ import typing
 from pathlib import Path
 from typing import Any, Mapping
 
-from hsa_mjx.resources import merge, read_yaml
+from hsa_mjx.resources import data_dir, merge, read_yaml
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
 from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_terrain
-from hsa_mjx.terrain.presets import TERRAIN_PRESETS
 
 SCENES = ("flat", "terrain")
 BACKENDS = ("auto", "jax", "warp", "c")  # physics.backend (hsa_mjx.sim.backend): c = C MuJoCo substeps
@@ -378,12 +377,14 @@ def load_config(path: str | Path) -> EnvConfig:
     return from_dict(data)
 
 
-PRESETS: dict[str, EnvConfig] = {
-    "flat": EnvConfig(),
-    "flat_fixed_goal": EnvConfig(name="flat_fixed_goal", goal=GoalConfig(mode="fixed")),
-    "flat_radial": EnvConfig(name="flat_radial", goal=GoalConfig(mode="radial")),
-}
-PRESETS.update({name: from_dict(data) for name, data in TERRAIN_PRESETS.items()})
+# The presets are the shipped env configs (configs/, package data once installed): each file states
+# its task and why its values differ from the original's flat task.
+PRESET_FILES = {"flat": "flat.yaml", "craters": "craters.yaml", "corridor": "corridor.yaml", "spiral": "spiral.yaml",
+                "mixed": "mixed_terrain.yaml"}
+PRESETS: dict[str, EnvConfig] = {name: load_config(data_dir("configs") / file) for name, file in PRESET_FILES.items()}
+# the flat task with the other goal rules (radial: the training configs' default, for the goal curriculum)
+PRESETS.update({f"flat_{label}": with_overrides(PRESETS["flat"], name=f"flat_{label}", goal__mode=mode)
+                for label, mode in (("fixed_goal", "fixed"), ("radial", "radial"))})
 
 
 def get_preset(name: str) -> EnvConfig:

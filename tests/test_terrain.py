@@ -224,12 +224,14 @@ def test_mixed_sampler_draws_types_in_proportion_and_fresh_terrain_per_key():
 
 
 # ----- config ---------------------------------------------------------------------------------
-def test_terrain_yaml_configs_equal_their_presets():
-    from pathlib import Path
-    root = Path(__file__).resolve().parent.parent / "configs"
-    for file, preset in [("craters", "craters"), ("corridor", "corridor"), ("spiral", "spiral"),
-                         ("mixed_terrain", "mixed")]:
-        assert cfg.load_config(root / f"{file}.yaml") == cfg.get_preset(preset), file
+def test_presets_are_the_shipped_yaml_files():
+    """The flat YAML states the config defaults; every preset is its file (no copy elsewhere)."""
+    from hsa_mjx import resources
+    assert cfg.get_preset("flat") == cfg.EnvConfig()
+    for name, file in cfg.PRESET_FILES.items():
+        assert cfg.get_preset(name) == cfg.load_config(resources.data_dir("configs") / file) and \
+            cfg.get_preset(name).name == name, name
+    assert cfg.get_preset("spiral").goal.mode == "spiral" and cfg.get_preset("corridor").control.servo_target_limit == 6.28
 
 
 def test_terrain_type_and_types_stay_in_step():
