@@ -19,7 +19,7 @@ from hsa_mjx.resources import data_dir, merge, read_yaml
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
-from hsa_mjx.terrain.params import TerrainConfig, sync_terrain_keys, validate_terrain
+from hsa_mjx.terrain.params import TerrainConfig, upgrade_keys, validate_terrain
 
 SCENES = ("flat", "terrain")
 BACKENDS = ("auto", "jax", "warp", "c")  # physics.backend (hsa_mjx.sim.backend): c = C MuJoCo substeps
@@ -118,10 +118,7 @@ class GoalConfig:
     # degrees, either side; (0, 180) = any direction, (60, 120) = beside the robot (a turning task)
     radial_bearing_deg: tuple[float, float] = (0.0, 180.0)
     num_checkpoints: int = 8
-    checkpoint_radius: float = 0.4
-    spiral_start_radius: float = 0.5
-    spiral_end_radius: float = 4.0
-    spiral_turns: float = 2.0
+    checkpoint_radius: float = 0.4  # spiral mode: the checkpoints lie on terrain.spiral's path
     # spiral mode, a training aid: > 0 starts each episode at checkpoint k, k uniform in
     # 0..track_starts (k > 0: on checkpoint k - 1, facing checkpoint k), so that training sees the
     # whole track, not only its start. 0 = the original (always the origin); evaluation uses 0.
@@ -154,7 +151,6 @@ class EnvConfig:
 
     name: str = "flat"
     scene: str = "flat"
-    terrain_type: str = "flat"
     spawn_height: float = 0.2
     physics: PhysicsConfig = PhysicsConfig()
     control: ControlConfig = ControlConfig()
@@ -165,6 +161,12 @@ class EnvConfig:
     observation: ObservationConfig = ObservationConfig()
 
     @property
+    def terrain_type(self) -> str:
+        """The terrain's one type, or ``mixed`` for several (``terrain.types``; the key is a shorthand)."""
+        types = self.terrain.types
+        return types[0] if len(types) == 1 else MIXED
+
+    @property
     def dt(self) -> float:
         """Length of one environment step in seconds."""
         return self.physics.timestep * self.control.frame_skip
@@ -172,7 +174,6 @@ class EnvConfig:
 
 _CHOICES = {
     ("scene",): SCENES,
-    ("terrain_type",): TERRAIN_TYPES,
     ("physics", "integrator"): INTEGRATORS,
     ("physics", "solver"): SOLVERS,
     ("physics", "cone"): CONES,
@@ -303,27 +304,15 @@ def _validate_track_starts(goal: GoalConfig) -> None:
 
 
 def _validate_terrain(config: EnvConfig) -> None:
-    """The terrain section, and how it fits the scene, ``terrain_type`` and the goal mode."""
+    """The terrain section, and how it fits the scene and the goal mode."""
     terrain = validate_terrain(config.terrain)
     types = terrain.types
-    expected = types[0] if len(types) == 1 else MIXED
-    if config.terrain_type != expected:
-        raise ValueError(f"config key 'terrain_type' = {config.terrain_type!r} does not match 'terrain.types' = "
-                         f"{list(types)}; set one of the two ('{MIXED}' means several types)")
     if config.scene == "flat" and types != ("flat",):
         raise ValueError(f"terrain types {list(types)} need a heightfield: set 'scene: terrain' "
                          "(scene 'flat' is a plane)")
-    if "spiral" in types:
-        goal, spiral = config.goal, terrain.spiral
-        if goal.mode != "spiral":
-            raise ValueError("the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', "
-                             f"got {goal.mode!r}")
-        track = (spiral.start_radius, spiral.end_radius, spiral.turns)
-        path = (goal.spiral_start_radius, goal.spiral_end_radius, goal.spiral_turns)
-        if track != path:
-            raise ValueError(f"'terrain.spiral' start_radius / end_radius / turns {track} must equal "
-                             f"'goal' spiral_start_radius / spiral_end_radius / spiral_turns {path}, "
-                             "so the checkpoints lie on the track")
+    if "spiral" in types and config.goal.mode != "spiral":
+        raise ValueError("the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', "
+                         f"got {config.goal.mode!r}")
 
 
 def _get(config: Any, path: tuple[str, ...]) -> Any:
@@ -334,7 +323,7 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
     """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
-    merged = merge(to_dict(base or EnvConfig()), sync_terrain_keys(dict(data or {}), MIXED))
+    merged = merge(to_dict(base or EnvConfig()), upgrade_keys(dict(data or {}), MIXED))
     return validate(_build(EnvConfig, merged))
 
 

@@ -258,7 +258,8 @@ def test_terrain_type_and_types_stay_in_step():
     ({"terrain_type": "corridor", "terrain": {"corridor": {"corridor_width": 0.0}}}, "corridor_width.*> 0"),
     ({"terrain_type": "stairs", "terrain": {"types": ["wavy"]}}, "terrain_type.*does not match"),
     ({"terrain_type": "spiral"}, "goal.mode: spiral"),
-    ({"terrain_type": "spiral", "goal": {"mode": "spiral", "spiral_turns": 3.0}}, "must equal"),
+    ({"terrain_type": "spiral", "goal": {"mode": "spiral", "spiral_turns": 3.0}, "terrain": {"spiral": {"turns": 2.0}}},
+     r"'goal.spiral_turns' = 3.0 differs from 'terrain.spiral.turns' = 2.0"),
 ])
 def test_bad_terrain_config_raises_when_loading(data, message):
     with pytest.raises(ValueError, match=message):
@@ -268,3 +269,15 @@ def test_bad_terrain_config_raises_when_loading(data, message):
 def test_terrain_on_a_plane_is_refused():
     with pytest.raises(ValueError, match="need a heightfield: set 'scene: terrain'"):
         cfg.from_dict({"terrain_type": "craters"})
+
+
+def test_keys_of_older_configs_map_onto_the_current_ones():
+    """Older files (policies, checkpoints) hold ``terrain_type`` and the goal's spiral keys: both load."""
+    old = {"scene": "terrain", "terrain_type": "spiral",
+           "goal": {"mode": "spiral", "spiral_start_radius": 0.7, "spiral_end_radius": 4.0, "spiral_turns": 3.0}}
+    config = cfg.from_dict(old)
+    assert config.terrain.types == ("spiral",) and config.terrain_type == "spiral"
+    assert (config.terrain.spiral.start_radius, config.terrain.spiral.turns) == (0.7, 3.0)
+    saved = cfg.to_dict(config)
+    assert "terrain_type" not in saved and not [k for k in saved["goal"] if k.startswith("spiral_")]
+    assert cfg.from_dict(saved) == config

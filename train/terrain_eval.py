@@ -62,8 +62,7 @@ def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, 
                                   levels=len(levels), difficulty=max(levels), per_env=True, tiles_per_type=1)
     if not np.allclose(terrain.level_difficulties, levels):
         raise ValueError(f"difficulties {levels} are not one value or evenly spaced from 0")
-    return dataclasses.replace(config, scene="terrain", terrain_type=types[0] if len(types) == 1 else "mixed",
-                               terrain=terrain)
+    return dataclasses.replace(config, scene="terrain", terrain=terrain)
 
 
 def level_groups(levels: tuple[float, ...]) -> list[tuple[float, ...]]:

@@ -117,6 +117,15 @@ def run_files(run_dir: Path) -> list[str]:
     return [name for name in RUN_FILES if (run_dir / name).exists()]
 
 
+def _current_keys(saved: dict) -> dict:
+    """A saved config with older keys mapped onto the current ones (as loading it does); as saved when
+    it no longer loads (the comparison then names what differs)."""
+    try:
+        return json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict(saved))))
+    except (ValueError, TypeError):
+        return saved
+
+
 def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: bool = False) -> dict | None:
     """Create the run dir (process 0), refuse to write into another run's files, and read the checkpoint
     to resume (the newest readable one; before any compile)."""
@@ -133,7 +142,7 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: b
         meta = checkpoint.read_meta(path)
         now = json.loads(json.dumps(config_dict))
         defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
-        bad = checkpoint.incompatibilities(meta["config"], now, defaults)
+        bad = checkpoint.incompatibilities(_current_keys(meta["config"]), now, defaults)
         if bad:
             raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
                              f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")

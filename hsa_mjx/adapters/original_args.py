@@ -71,8 +71,8 @@ def _same(*keys: str, note: str = "") -> OriginalArg:
 
 
 def _spiral(key: str) -> OriginalArg:
-    """A spiral parameter: the checkpoints' and the spiral terrain's (the config requires them equal)."""
-    return _same(f"goal.spiral_{key}", f"terrain.spiral.{key}",
+    """A spiral parameter: the path of the checkpoints and of the spiral terrain's track."""
+    return _same(f"terrain.spiral.{key}",
                  note="the spiral terrain's track follows it too (the original's track ignored it)")
 
 

@@ -78,7 +78,7 @@ class HSAEnv(BraxEnv):
         qpos = data.qpos.at[self.index.block_z].set(cfg.spawn_height)
         self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
         self._checkpoints = jnp.asarray(
-            goals.spiral_checkpoints(cfg.goal) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
+            goals.spiral_checkpoints(cfg.goal, cfg.terrain.spiral) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
         self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))

@@ -7,20 +7,21 @@ import jax.numpy as jnp
 import numpy as np
 
 from hsa_mjx.config import EnvConfig, GoalConfig
-from hsa_mjx.terrain.params import TERRAIN_TYPES
+from hsa_mjx.terrain.params import TERRAIN_TYPES, SpiralParams
 
 FLAT_ID = TERRAIN_TYPES.index("flat")
 FULL_CIRCLE = (0.0, 180.0)  # goal.radial_bearing_deg that means any direction
 
 
-def spiral_checkpoints(goal: GoalConfig) -> np.ndarray:
-    """Checkpoints i = 1..N along the clockwise spiral of the original, shape (N, 2).
+def spiral_checkpoints(goal: GoalConfig, path: SpiralParams = SpiralParams()) -> np.ndarray:
+    """Checkpoints i = 1..N along the clockwise spiral of the original, shape (N, 2), on ``path``
+    (``terrain.spiral``: the track's radii and turns).
 
     s = i / N, angle = pi - 2 pi turns s, radius = r0 + (r1 - r0) s.
     """
     s = np.arange(1, goal.num_checkpoints + 1) / goal.num_checkpoints
-    angle = np.pi - 2.0 * np.pi * goal.spiral_turns * s
-    radius = goal.spiral_start_radius + (goal.spiral_end_radius - goal.spiral_start_radius) * s
+    angle = np.pi - 2.0 * np.pi * path.turns * s
+    radius = path.start_radius + (path.end_radius - path.start_radius) * s
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1).astype(np.float32)
 
 

@@ -113,9 +113,9 @@ class CorridorParams:
 class SpiralParams:
     """A walled track along the spiral checkpoint path (clockwise from angle pi), plus a start disc."""
 
-    start_radius: float = 0.5  # m; must equal goal.spiral_start_radius
-    end_radius: float = 4.0  # m; must equal goal.spiral_end_radius
-    turns: float = 2.0  # must equal goal.spiral_turns
+    start_radius: float = 0.5  # m; the spiral goal mode's checkpoints lie on this path too
+    end_radius: float = 4.0  # m
+    turns: float = 2.0
     track_width: float = 0.8  # m, at half the wall height
     wall_height: float = 0.25  # m (original 0.5 x 0.5 m)
 
@@ -297,21 +297,51 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     return config
 
 
-def sync_terrain_keys(data: dict, mixed: str) -> dict:
-    """Keep ``terrain_type`` and ``terrain.types`` in step when only one of them is given.
+SPIRAL_GOAL_KEYS = {"spiral_start_radius": "start_radius", "spiral_end_radius": "end_radius",
+                    "spiral_turns": "turns"}  # goal keys of older configs -> terrain.spiral keys
 
-    ``terrain_type: X`` alone means ``terrain.types: [X]``; ``terrain.types`` alone sets
-    ``terrain_type`` to its single type or to the ``mixed`` name; ``proportions`` default to uniform.
+
+def upgrade_keys(data: dict, mixed: str) -> dict:
+    """Map keys that older configs, policy files and checkpoints hold onto the current ones.
+
+    ``terrain_type: X`` is a shorthand for ``terrain.types: [X]`` (with ``terrain.types`` given it must
+    name the same types, ``mixed`` for several); ``goal.spiral_start_radius`` / ``spiral_end_radius`` /
+    ``spiral_turns`` are ``terrain.spiral``'s ``start_radius`` / ``end_radius`` / ``turns`` (the
+    checkpoints lie on the track). ``terrain.types`` without ``proportions`` get uniform ones.
     """
+    data = dict(data)
     section = data.get("terrain")
-    section = dict(section) if isinstance(section, Mapping) else None
-    has_types = section is not None and "types" in section
-    if "terrain_type" in data and not has_types and data["terrain_type"] != mixed:
-        section = dict(section or {}, types=[data["terrain_type"]], proportions=[1.0])
-    elif has_types and isinstance(section["types"], (list, tuple)) and section["types"]:
-        types = list(section["types"])
-        data.setdefault("terrain_type", types[0] if len(types) == 1 else mixed)
-        section.setdefault("proportions", [1.0 / len(types)] * len(types))
-    if section is not None:
+    section = dict(section) if isinstance(section, Mapping) else ({} if section is None else section)
+    if "terrain_type" in data:
+        _terrain_type_into(data.pop("terrain_type"), section, mixed)
+    goal = data.get("goal")
+    if isinstance(goal, Mapping) and isinstance(section, dict) and any(k in goal for k in SPIRAL_GOAL_KEYS):
+        goal, spiral = dict(goal), dict(section.get("spiral") or {})
+        for old, new in SPIRAL_GOAL_KEYS.items():
+            if old in goal:
+                value = goal.pop(old)
+                if new in spiral and spiral[new] != value:
+                    raise ValueError(f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
+                                     f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)")
+                spiral[new] = value
+        data["goal"], section["spiral"] = goal, spiral
+    if isinstance(section, dict) and isinstance(section.get("types"), (list, tuple)) and section["types"]:
+        section.setdefault("proportions", [1.0 / len(section["types"])] * len(section["types"]))
+    if section != {} or "terrain" in data:
         data["terrain"] = section
     return data
+
+
+def _terrain_type_into(kind: Any, section: dict, mixed: str) -> None:
+    """Put the ``terrain_type`` shorthand into the terrain section (checked against its types)."""
+    if kind != mixed and kind not in TERRAIN_TYPES:
+        raise ValueError(f"config key 'terrain_type' = {kind!r} is not valid; choose one of "
+                         f"{list(TERRAIN_TYPES) + [mixed]} (a shorthand for terrain.types: [TYPE])")
+    types = section.get("types") if isinstance(section, dict) else None
+    if types is None:
+        if kind == mixed:
+            raise ValueError(f"terrain_type '{mixed}' needs 'terrain.types' (the types to draw from)")
+        section.update(types=[kind], proportions=[1.0])
+    elif (list(types) != [kind]) if kind != mixed else len(types) < 2:
+        raise ValueError(f"config key 'terrain_type' = {kind!r} does not match 'terrain.types' = {list(types)}; "
+                         f"set 'terrain.types' alone")
