@@ -48,7 +48,6 @@ from benchmarks import throughput
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx.curricula import goal as cur
-from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 from train import config as tcfg
 from train import distributed
@@ -119,9 +118,8 @@ class Bench:
 
     def __init__(self, config: tcfg.TrainConfig, devices: list, seed: int = 0):
         self.config, self.devices = config, devices
-        self.env = HSAEnv(config.env, num_envs=config.run.num_envs // len(devices),
-                          privileged=config.ppo.privileged_critic)
-        self.learner = make_learner(config, self.env, devices)
+        self.learner = make_learner(config, devices)
+        self.env = self.learner.env
         self.per_device = isinstance(self.learner, PerDeviceLearner)
         self.key = jax.random.PRNGKey(seed)
         self.donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)

@@ -1,6 +1,6 @@
 """The package installs like a library: a built wheel carries the robot assets, the configs and the
-shipped policies, and, installed on its own, builds an env, finds its default training config and
-evaluates a shipped policy from an empty folder."""
+shipped policies, and, installed on its own, builds an env, evaluates a shipped policy and trains
+with its default config (``hsa-train``) from an empty folder."""
 
 from __future__ import annotations
 
@@ -70,3 +70,8 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
                                 "--steps", "20"], cwd=work, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     assert (work / "runs" / "eval_flat" / "eval.json").is_file()
+    # the console script with its default config (the CPU quickstart, from the shipped flat policy)
+    trained = subprocess.run([str(site / "bin" / "hsa-train"), "--set", "run.num_timesteps=640", "--run-dir", "runs/q"],
+                             cwd=work, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    assert "policy file" in trained.stdout and (work / "runs" / "q" / "summary.json").is_file()

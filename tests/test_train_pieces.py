@@ -321,3 +321,15 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     smaller = tcfg.from_dict(tcfg.apply_overrides(tcfg.to_dict(config), ["ppo.policy_hidden_sizes=[32, 32]"]))
     with pytest.raises(ValueError, match=r"policy in .*flat does not fit.*ppo.policy_hidden_sizes"):
         read_init_from(smaller)
+
+
+def test_learner_refuses_an_env_built_for_another_batch():
+    """The env is sized for the batch a device steps in one place (make_learner); another size is refused."""
+    from hsa_mjx.task.env import HSAEnv
+    from train.per_device import make_learner
+    from train.ppo import PPOLearner
+    config = tcfg.from_dict({"run": {"num_envs": 8}, "ppo": {"batch_size": 8, "num_minibatches": 1}})
+    learner = make_learner(config, jax.local_devices()[:1])
+    assert learner.env.num_envs == 8
+    with pytest.raises(ValueError, match="built for batches of 1.*steps 8 envs"):
+        PPOLearner(config, HSAEnv(config.env), 1)

@@ -195,8 +195,12 @@ def use_per_device(config: TrainConfig, devices: Sequence[jax.Device]) -> bool:
     return mode == "per_device"
 
 
-def make_learner(config: TrainConfig, env: HSAEnv, devices: Sequence[jax.Device]) -> PPOLearner:
-    """The learner ``run.multi_device`` asks for over ``devices`` (this process's share)."""
+def make_learner(config: TrainConfig, devices: Sequence[jax.Device]) -> PPOLearner:
+    """The learner ``run.multi_device`` asks for over ``devices`` (this process's share), with its env
+    built for the batch each device steps (``run.num_envs`` over every process's devices): the one
+    place that sizes it (Warp's shared contact buffer)."""
+    count = len(devices) * jax.process_count()
+    env = HSAEnv(config.env, num_envs=config.run.num_envs // count, privileged=config.ppo.privileged_critic)
     if use_per_device(config, devices):
         return PerDeviceLearner(config, env, devices)
-    return PPOLearner(config, env, len(devices) * jax.process_count())
+    return PPOLearner(config, env, count)

@@ -147,6 +147,10 @@ class PPOLearner:
         self.optimizer = make_optimizer(config)
         ppo = config.ppo
         self.envs_per_device = config.run.num_envs // num_devices
+        if env.num_envs != self.envs_per_device:
+            raise ValueError(f"the env is built for batches of {env.num_envs}, but each of the {num_devices} devices "
+                             f"steps {self.envs_per_device} envs (run.num_envs {config.run.num_envs}): build it with "
+                             f"HSAEnv(config.env, num_envs={self.envs_per_device}) (train.per_device.make_learner does)")
         self.unrolls_per_iteration = ppo.batch_size * ppo.num_minibatches // config.run.num_envs
         self.iterations_per_epoch = max(1, config.run.steps_per_epoch // config.env_steps_per_iteration)
         self.loss_fn = functools.partial(

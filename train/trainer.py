@@ -20,7 +20,6 @@ import yaml
 
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.batch.auto_reset import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
@@ -171,9 +170,8 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
     meta = prepare_run_dir(run_dir, config_dict, resume, overwrite)
     if distributed.is_main() and not quiet:
         print(_announce(config, run_dir, devices), flush=True)
-    env = HSAEnv(config.env, num_envs=config.run.num_envs // distributed.global_device_count(devices),
-                 privileged=config.ppo.privileged_critic)
-    learner = make_learner(config, env, devices)
+    learner = make_learner(config, devices)
+    env = learner.env
     key = jax.random.PRNGKey(config.run.seed)
     key, k_init = jax.random.split(key)
     ts = init_training_state(config, learner.networks, k_init, learner.network_input_size)
