@@ -28,7 +28,7 @@ from hsa_mjx.terrain.grid import Grid  # noqa: E402
 from hsa_mjx.terrain.params import TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig  # noqa: E402
 from hsa_mjx.terrain.sampler import TerrainSampler  # noqa: E402
 
-OUTPUT = Path(__file__).resolve().parents[2] / "docs" / "terrains.png"
+OUTPUT = Path("docs") / "terrains.png"  # relative to where it runs: the checkout root redraws the README figure
 NO_SPAWN_ZONE = ("corridor", "spiral")  # their task configs disable it
 COLUMNS = 3  # terrain types per figure row (each takes a map and a 3-D panel)
 CMAP = "viridis"
