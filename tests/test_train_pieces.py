@@ -333,3 +333,17 @@ def test_learner_refuses_an_env_built_for_another_batch():
     assert learner.env.num_envs == 8
     with pytest.raises(ValueError, match="built for batches of 1.*steps 8 envs"):
         PPOLearner(config, HSAEnv(config.env), 1)
+
+
+def test_goal_curriculum_starts_from_the_env_goal_range():
+    """One key for the start range (env.goal.radial_range); an older config's curriculum.initial_range maps onto it."""
+    near = {"dead_zone_radius": 0.5}
+    assert tcfg.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": near}
+                          ).curriculum.initial_range == (0.6, 0.9)
+    old = tcfg.from_dict({"curriculum": {**near, "initial_range": [0.7, 1.0]}})
+    assert old.env.goal.radial_range == old.curriculum.initial_range == (0.7, 1.0)
+    with pytest.raises(ValueError, match="differs from env.goal.radial_range"):
+        tcfg.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": {**near, "initial_range": [0.7, 1.0]}})
+    off = tcfg.from_dict({"curriculum": {"enabled": False, "initial_range": [0.7, 1.0]}})  # had no effect: dropped
+    assert off.env.goal.radial_range == (1.5, 1.8)
+    assert tcfg.from_dict(tcfg.to_dict(old)) == old  # a saved config reloads

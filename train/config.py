@@ -126,15 +126,39 @@ def _env_from(data: Any) -> EnvConfig:
     return env_config.from_dict(data, base=base)
 
 
+def _start_range_in_env(env: Any, curriculum: Any) -> tuple[Any, Any]:
+    """The goal curriculum starts from ``env.goal.radial_range``; older configs state that range again as
+    ``curriculum.initial_range``: with the curriculum on it becomes the env's range (refused where both
+    differ), with it off it had no effect and is dropped."""
+    if not (isinstance(curriculum, Mapping) and "initial_range" in curriculum):
+        return env, curriculum
+    curriculum = dict(curriculum)
+    start = curriculum.pop("initial_range")
+    if not curriculum.get("enabled", True) or not isinstance(env if env is not None else {}, Mapping):
+        return env, curriculum
+    env = dict(env or {})
+    goal = dict(env.get("goal") or {}) if isinstance(env.get("goal"), (Mapping, type(None))) else env.get("goal")
+    if isinstance(goal, dict):
+        if "radial_range" in goal and list(goal["radial_range"]) != list(start):
+            raise ValueError(f"curriculum.initial_range {list(start)} differs from env.goal.radial_range "
+                             f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone")
+        goal["radial_range"] = list(start)
+        env["goal"] = goal
+    return env, curriculum
+
+
 def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
     """Build and validate a TrainConfig from nested mappings."""
     data = dict(data or {})
     unknown = sorted(set(data) - set(SECTIONS))
     if unknown:
         raise ValueError(f"unknown config section(s) {unknown}; valid sections: {list(SECTIONS)}")
+    env_data, curriculum_data = _start_range_in_env(data.get("env"), data.get("curriculum"))
+    env = _env_from(env_data)
+    curriculum = build_section(cur.CurriculumConfig, curriculum_data or {}, "curriculum")
     config = TrainConfig(
-        env=_env_from(data.get("env")),
-        curriculum=build_section(cur.CurriculumConfig, data.get("curriculum") or {}, "curriculum"),
+        env=env,
+        curriculum=dataclasses.replace(curriculum, initial_range=tuple(env.goal.radial_range)),
         terrain_curriculum=build_section(tcur.TerrainCurriculumConfig, data.get("terrain_curriculum") or {},
                                          "terrain_curriculum"),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),

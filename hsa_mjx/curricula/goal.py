@@ -29,6 +29,7 @@ class CurriculumConfig:
     """Static curriculum settings (the original's shipped values as defaults)."""
 
     enabled: bool = True
+    # where the range starts: the training config sets it to env.goal.radial_range (not a key of its own)
     initial_range: tuple[float, float] = (1.5, 1.8)
     target_range: tuple[float, float] = (1.5, 4.5)
     success_threshold: float = 0.75
@@ -48,7 +49,8 @@ def validate(config: CurriculumConfig) -> CurriculumConfig:
     """Raise ValueError (naming the key) on inconsistent settings; return the config."""
     (i_lo, i_hi), (t_lo, t_hi) = config.initial_range, config.target_range
     if not 0 <= i_lo <= i_hi:
-        raise ValueError(f"curriculum.initial_range must satisfy 0 <= min <= max, got {config.initial_range}")
+        raise ValueError(f"the curriculum's initial_range (env.goal.radial_range) must satisfy 0 <= min <= max, "
+                         f"got {config.initial_range}")
     if not 0 <= t_lo <= t_hi or t_hi < i_hi:
         raise ValueError(f"curriculum.target_range must satisfy 0 <= min <= max and max >= initial max, "
                          f"got {config.target_range} (initial {config.initial_range})")
@@ -62,7 +64,7 @@ def validate(config: CurriculumConfig) -> CurriculumConfig:
         raise ValueError("curriculum.expansion_step must be > 0 and curriculum.dead_zone_radius >= 0")
     if config.min_distance > i_hi:
         raise ValueError(f"curriculum: max(initial_range[0], dead_zone_radius) = {config.min_distance} "
-                         f"exceeds initial_range[1] = {i_hi}")
+                         f"exceeds initial_range[1] = {i_hi} (initial_range: env.goal.radial_range)")
     return config
 
 
