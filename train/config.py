@@ -133,18 +133,16 @@ def _start_range_in_env(env: Any, curriculum: Any) -> tuple[Any, Any]:
     if not (isinstance(curriculum, Mapping) and "initial_range" in curriculum):
         return env, curriculum
     curriculum = dict(curriculum)
-    start = curriculum.pop("initial_range")
-    if not curriculum.get("enabled", True) or not isinstance(env if env is not None else {}, Mapping):
-        return env, curriculum
-    env = dict(env or {})
-    goal = dict(env.get("goal") or {}) if isinstance(env.get("goal"), (Mapping, type(None))) else env.get("goal")
-    if isinstance(goal, dict):
-        if "radial_range" in goal and list(goal["radial_range"]) != list(start):
-            raise ValueError(f"curriculum.initial_range {list(start)} differs from env.goal.radial_range "
-                             f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone")
-        goal["radial_range"] = list(start)
-        env["goal"] = goal
-    return env, curriculum
+    start = list(curriculum.pop("initial_range"))
+    goal = env.get("goal") if isinstance(env, Mapping) else None
+    if not curriculum.get("enabled", True) or not isinstance(env, (Mapping, type(None))) \
+            or not isinstance(goal, (Mapping, type(None))):
+        return env, curriculum  # off: it had no effect; a malformed section gets its own error later
+    goal = dict(goal or {})
+    if list(goal.setdefault("radial_range", start)) != start:
+        raise ValueError(f"curriculum.initial_range {start} differs from env.goal.radial_range "
+                         f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone")
+    return {**(env or {}), "goal": goal}, curriculum
 
 
 def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
