@@ -9,6 +9,7 @@ cache configured in tests/conftest.py.
 
 from __future__ import annotations
 
+import faulthandler
 import json
 import os
 import socket
@@ -341,7 +342,10 @@ def _run_processes(command: list[str], count: int) -> list[dict]:
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    return [_facts(_check(subprocess.CompletedProcess(p.args, p.returncode, *out))) for p, out in zip(procs, outs)]
+    failed = [f"process {i}: exit {p.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
+              for i, (p, out) in enumerate(zip(procs, outs)) if p.returncode != 0]
+    assert not failed, "\n\n".join(failed)  # every failed process's output: the first to fail may be another
+    return [_facts(out[0]) for out in outs]
 
 
 def _records(run_dir: Path) -> list[dict]:
@@ -558,6 +562,7 @@ def test_one_process_keys_are_the_single_host_split():
 
 
 if __name__ == "__main__":
+    faulthandler.enable(all_threads=True)  # a process aborted by JAX's coordinator shows where it was
     sys.path.insert(0, str(ROOT))  # benchmarks/ (not an installed package) for the scaling rows
     result = SCENARIOS[sys.argv[1]](*sys.argv[2:])
     print(FACTS + json.dumps(result), flush=True)

@@ -127,6 +127,19 @@ def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
     assert "seed: 3" in (early / "config.yaml").read_text()
 
 
+def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_process(tmp_path, monkeypatch):
+    from train import distributed, trainer
+    started = tmp_path / "started"  # process 0 has already written its config.yaml when process 1 looks
+    started.mkdir()
+    (started / "config.yaml").write_text("run: {}\n")
+    monkeypatch.setattr(distributed, "is_main", lambda: False)
+    assert trainer.prepare_run_dir(started, {"run": {}}, resume=False) is None
+    assert (started / "config.yaml").read_text() == "run: {}\n"  # process 1 writes nothing
+    monkeypatch.setattr(distributed, "any_process", lambda flag: True)  # process 0 refused
+    with pytest.raises(ValueError, match="another process refused to start the run"):
+        trainer.prepare_run_dir(started, {"run": {}}, resume=False)
+
+
 def test_cli_errors_before_compile(run_dir, capsys):
     from train.cli import main
     assert main(["--config", "configs/nope.yaml"]) == 2

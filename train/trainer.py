@@ -127,33 +127,49 @@ def _current_keys(saved: dict) -> dict:
 
 def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: bool = False) -> dict | None:
     """Create the run dir (process 0), refuse to write into another run's files, and read the checkpoint
-    to resume (the newest readable one; before any compile)."""
+    to resume (the newest readable one; before any compile). When one process refuses, all stop."""
+    refused = meta = None
+    try:
+        meta = _resume_meta(run_dir, config_dict) if resume else _start_run_dir(run_dir, config_dict, overwrite)
+    except (ValueError, FileNotFoundError) as err:
+        refused = err
+    if distributed.any_process(refused is not None):  # a process going on alone would wait for the others
+        raise refused or ValueError("another process refused to start the run: its output says why")
+    return meta
+
+
+def _start_run_dir(run_dir: Path, config_dict: dict, overwrite: bool) -> None:
+    """Process 0 alone looks at and writes the run dir (the others may see its files appear meanwhile)."""
+    if not distributed.is_main():
+        return None
     found = run_files(run_dir)
-    if found and not resume and not overwrite:
+    if found and not overwrite:
         raise ValueError(f"{run_dir} already holds a run ({', '.join(found)}); pass --resume to continue it, "
                          f"--overwrite to start it afresh, or choose another --run-dir")
-    if resume:
-        path, skipped = checkpoint.latest_readable(run_dir)
-        for reason in skipped:
-            print(f"warning: skipping unreadable checkpoint {reason}", flush=True)
-        if skipped:
-            print(f"resuming from the newest readable checkpoint, {path.name}", flush=True)
-        meta = checkpoint.read_meta(path)
-        now = json.loads(json.dumps(config_dict))
-        defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
-        bad = checkpoint.incompatibilities(_current_keys(meta["config"]), now, defaults)
-        if bad:
-            raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
-                             f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
-        meta["path"] = path
-        return meta
-    if distributed.is_main():
-        for name in found:  # --overwrite: only the run's own files go
-            target = run_dir / name
-            shutil.rmtree(target) if target.is_dir() else target.unlink()
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
+    for name in found:  # --overwrite: only the run's own files go
+        target = run_dir / name
+        shutil.rmtree(target) if target.is_dir() else target.unlink()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
     return None
+
+
+def _resume_meta(run_dir: Path, config_dict: dict) -> dict:
+    """The newest readable checkpoint's metadata (and ``path``), refused when its config differs."""
+    path, skipped = checkpoint.latest_readable(run_dir)
+    for reason in skipped:
+        print(f"warning: skipping unreadable checkpoint {reason}", flush=True)
+    if skipped:
+        print(f"resuming from the newest readable checkpoint, {path.name}", flush=True)
+    meta = checkpoint.read_meta(path)
+    now = json.loads(json.dumps(config_dict))
+    defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
+    bad = checkpoint.incompatibilities(_current_keys(meta["config"]), now, defaults)
+    if bad:
+        raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
+                         f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
+    meta["path"] = path
+    return meta
 
 
 def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False,
