@@ -84,7 +84,7 @@ def _register_gymnasium() -> None:
     except ImportError:  # the adapter is optional
         return
     if "hsa_mjx/HSA-v0" not in gymnasium.registry:
-        gymnasium.register(id="hsa_mjx/HSA-v0", entry_point="hsa_mjx.adapters.gymnasium:HSAGymEnv",
+        gymnasium.register(id="hsa_mjx/HSA-v0", entry_point="hsa_mjx.adapters.gymnasium:from_registry",
                            vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env")
 
 

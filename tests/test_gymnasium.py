@@ -96,6 +96,16 @@ def test_bad_render_mode_and_preset():
         gymnasium.make("hsa_mjx/HSA-v0", config="nope")
 
 
+def test_make_max_episode_steps_is_the_envs_own_limit():
+    longer = gymnasium.make("hsa_mjx/HSA-v0", max_episode_steps=5000)  # built, not compiled
+    assert longer.unwrapped.env.config.termination.max_episode_steps == 5000 == longer.spec.max_episode_steps
+    assert gymnasium.make("hsa_mjx/HSA-v0").unwrapped.env.config.termination.max_episode_steps == 4000
+    spiral = gymnasium.make("hsa_mjx/HSA-v0", config="spiral", max_episode_steps=-1)  # no TimeLimit: the preset's
+    assert spiral.unwrapped.env.config.termination.max_episode_steps == 8000
+    with pytest.raises(ValueError, match="max_episode_steps=50 and termination__max_episode_steps=60"):
+        gymnasium.make("hsa_mjx/HSA-v0", max_episode_steps=50, termination__max_episode_steps=60)
+
+
 def test_gl_platform_is_chosen_for_a_headless_machine_and_a_users_choice_kept():
     from hsa_mjx.sim import gl
     assert gl.choose_platform({"MUJOCO_GL": "osmesa"}) == "osmesa"

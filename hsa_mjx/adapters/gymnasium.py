@@ -11,6 +11,7 @@ The batched counterpart is ``hsa_mjx.adapters.gymnasium_vector`` (``gymnasium.ma
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,34 @@ def _with_outputs(state: EnvState) -> tuple[EnvState, dict[str, Any]]:
     return state, {"obs": state.obs, "reward": state.reward, "done": state.done,
                    "truncation": state.info["truncation"], "metrics": state.metrics,
                    "goal": state.pipeline_state.task.goal_xy}
+
+
+def time_limit_of_make() -> int | None:
+    """The ``max_episode_steps`` that a ``gymnasium.make`` now creating an env was given (None: none).
+
+    Gymnasium keeps that argument for its own ``TimeLimit`` wrapper and never passes it to the env, so
+    the registered entry point reads it from ``make``'s frame: the env must not truncate earlier.
+    """
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code.co_name == "make" and frame.f_globals.get("__name__") == gymnasium.envs.registration.__name__:
+            limit = frame.f_locals.get("max_episode_steps")
+            return int(limit) if isinstance(limit, (int, np.integer)) and limit > 0 else None
+        frame = frame.f_back
+    return None
+
+
+def from_registry(**kwargs: Any) -> "HSAGymEnv":
+    """The entry point of ``hsa_mjx/HSA-v0``: an :class:`HSAGymEnv` whose own episode limit is the
+    ``max_episode_steps`` given to ``gymnasium.make`` (when one is; it must agree with
+    ``termination__max_episode_steps`` when both are given)."""
+    limit = time_limit_of_make()
+    if limit is not None:
+        own = kwargs.setdefault("termination__max_episode_steps", limit)
+        if own != limit:
+            raise ValueError(f"gymnasium.make got max_episode_steps={limit} and termination__max_episode_steps="
+                             f"{own}: give one (both set the episode's length)")
+    return HSAGymEnv(**kwargs)
 
 
 class HSAGymEnv(gymnasium.Env):
@@ -160,3 +189,6 @@ class HSAGymEnv(gymnasium.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+from_registry.metadata = HSAGymEnv.metadata  # what gymnasium.make reads from an entry point (render modes)

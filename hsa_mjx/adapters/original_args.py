@@ -105,9 +105,9 @@ ORIGINAL_ARGS: dict[str, OriginalArg] = {
     "end_radius": _spiral("end_radius"),
     "num_turns": _spiral("turns"),
     "max_episode_steps": _same("termination.max_episode_steps", note="the env truncates there; the original "
-                               "left that to a TimeLimit wrapper. gymnasium.make takes this name itself (it "
-                               "adds its TimeLimit and never passes it on): there pass "
-                               "termination__max_episode_steps for episodes over the preset's 4000 steps"),
+                               "left that to a TimeLimit wrapper. gymnasium.make keeps this name for its own "
+                               "TimeLimit; the registered entry point reads it from there and makes it the "
+                               "env's limit too"),
     "ensure_flat_spawn": _same("terrain.flat_spawn.enabled"),
     "enable_terrain": OriginalArg(("scene", "terrain_type"), "terrain",
                                   "true: the heightfield scene ('terrain'); false: the plane ('flat')"),
