@@ -15,6 +15,8 @@ import typing
 from pathlib import Path
 from typing import Any, Mapping
 
+from hsa_mjx.randomization_config import ObservationNoiseConfig, RandomizationConfig
+from hsa_mjx.randomization_config import validate as validate_randomization
 from hsa_mjx.resources import data_dir, merge, read_yaml
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
@@ -143,6 +145,8 @@ class ObservationConfig:
     hinge_angles: str = "raw"
     # terrain heights on a grid around the robot, turned with its heading (hsa_mjx.terrain.height_scan): appended last
     height_scan: HeightScanConfig = HeightScanConfig()
+    # uniform noise per observation group on the policy's copy (hsa_mjx.randomization_config)
+    noise: ObservationNoiseConfig = ObservationNoiseConfig()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +163,7 @@ class EnvConfig:
     goal: GoalConfig = GoalConfig()
     terrain: TerrainConfig = TerrainConfig()
     observation: ObservationConfig = ObservationConfig()
+    randomization: RandomizationConfig = RandomizationConfig()
 
     @property
     def terrain_type(self) -> str:
@@ -287,6 +292,7 @@ def validate(config: EnvConfig) -> EnvConfig:
         raise ValueError("config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
                          f"got {config.observation.clock_period_s!r}")
     validate_height_scan(config.observation.height_scan)
+    validate_randomization(config.randomization, config.observation.noise)
     _validate_track_starts(config.goal)
     _validate_terrain(config)
     return config

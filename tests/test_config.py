@@ -81,10 +81,10 @@ def test_observation_section_is_opt_in_and_checked():
     assert all(not preset.observation.heading for preset in cfg.PRESETS.values())
     on = cfg.from_dict({"observation": {"heading": True}})
     assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
-    assert cfg.to_dict(on)["observation"] == {"heading": True, "servo_targets": False, "clock_period_s": 0.0,
-                                                "hinge_angles": "raw", "height_scan": cfg.to_dict(on)["observation"][
-                                                    "height_scan"]}
-    assert cfg.to_dict(on)["observation"]["height_scan"]["enabled"] is False  # off by default
+    section = cfg.to_dict(on)["observation"]
+    assert section == {"heading": True, "servo_targets": False, "clock_period_s": 0.0, "hinge_angles": "raw",
+                       "height_scan": section["height_scan"], "noise": section["noise"]}
+    assert section["height_scan"]["enabled"] is False and not any(section["noise"].values())  # off by default
     assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
     with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*'heading'"):
         cfg.from_dict({"observation": {"headng": True}})

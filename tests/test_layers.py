@@ -8,7 +8,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # Bottom to top (docs/architecture.md). A module of layer i may import modules of layers 0..i.
 LAYERS = (
-    ("hsa_mjx.resources", "hsa_mjx.config", "hsa_mjx.pose", "hsa_mjx.terrain"),
+    ("hsa_mjx.resources", "hsa_mjx.config", "hsa_mjx.randomization_config", "hsa_mjx.pose", "hsa_mjx.terrain"),
     ("hsa_mjx.sim",),
     ("hsa_mjx.task",),
     ("hsa_mjx.curricula",),

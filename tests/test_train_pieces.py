@@ -35,6 +35,7 @@ def test_default_and_shipped_configs_validate():
     assert rough.env.observation.height_scan.enabled and rough.env.observation.height_scan.noise > 0
     assert rough.ppo.privileged_critic and rough.terrain_curriculum.top_redraw
     assert not corridor["env"]["observation"].pop("height_scan")["enabled"]
+    assert not any(corridor["env"]["observation"].pop("noise").values())
     assert corridor["env"]["observation"] == {"heading": True, "servo_targets": True, "clock_period_s": 4.0,
                                               "hinge_angles": "raw"}
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range

@@ -78,13 +78,16 @@ def load_policy(run_dir: Path, checkpoint_path: Path | None = None, deterministi
 
 
 def check_env_overrides(overrides: tuple[str, ...] | list[str]) -> None:
-    """Refuse ``--set`` keys an evaluation may not change: goals, terrain, termination, reward and physics
-    may change; the observation (the policy's input) and the ppo, run and curriculum sections may not."""
+    """Refuse ``--set`` keys an evaluation may not change: goals, terrain, termination, reward, physics,
+    randomisation and observation noise may change; the observation's layout (the policy's input) and
+    the ppo, run and curriculum sections may not."""
     for item in overrides:
         key = item.split("=", 1)[0].strip()
-        if not key.startswith("env.") or key.startswith("env.observation"):
+        layout = key.startswith("env.observation") and not key.startswith("env.observation.noise.")
+        if not key.startswith("env.") or layout:
             raise ValueError(f"evaluate --set {key!r}: only env keys may change (env.goal.*, env.terrain.*, "
-                             "env.termination.*, ...), not env.observation.* or the ppo, run and curriculum sections")
+                             "env.randomization.*, env.observation.noise.*, ...), not the observation's layout "
+                             "(env.observation.*) or the ppo, run and curriculum sections")
 
 
 def env_overrides(data: dict, overrides: tuple[str, ...] | list[str]) -> dict:
@@ -117,7 +120,8 @@ def default_goal_range(config: tcfg.TrainConfig) -> tuple[float, float]:
 
 
 def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: int,
-            params: Any = None, simulate: Any = None, cells: jax.Array | None = None) -> dict[str, jax.Array]:
+            params: Any = None, simulate: Any = None, cells: jax.Array | None = None,
+            realism: dict | None = None) -> dict[str, jax.Array]:
     """Play one episode per key (frozen after it ends); return per-step traces, shape (N, T, ...).
 
     ``policy(obs, key) -> (action, extras)``; with ``params`` (a pytree with a leading episode
@@ -125,13 +129,18 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
     parameter sets (e.g. a policy against a zero policy). ``simulate``: another physics engine for
     ``env.step_with`` (e.g. ``hsa_mjx.sim.host_physics.HostPhysics``); default the env's MJX step.
     ``cells``: each episode's terrain cell (type row, level), (N, 2) int32; default a free draw.
+    ``realism``: each episode's physical scales and latency instead of the env's draws,
+    ``{"physics": PhysicsScales, "latency": int32}`` with a leading episode axis (the env must
+    randomise the scales it sets, and allow the latency).
     """
     idx = env.index
     env_step = env.step if simulate is None else functools.partial(env.step_with, simulate)
 
-    def one(key, p, cell):
+    def one(key, p, cell, fixed):
         act = policy if params is None else functools.partial(policy, p)
         state = env.reset(key, EnvParams.make(goal_range, FREE_CELL if cell is None else cell))
+        if fixed is not None:
+            state = with_realism(state, fixed["physics"], fixed["latency"])
 
         def step(carry, k_act):
             s, alive = carry
@@ -154,8 +163,15 @@ def rollout(env: HSAEnv, policy, keys: jax.Array, goal_range: jax.Array, steps: 
         traces["start_distance"] = state.metrics["distance_to_goal"]
         return traces
 
-    in_axes = (0, None if params is None else 0, None if cells is None else 0)
-    return jax.jit(jax.vmap(one, in_axes=in_axes))(keys, params, cells)
+    in_axes = (0, None if params is None else 0, None if cells is None else 0, None if realism is None else 0)
+    return jax.jit(jax.vmap(one, in_axes=in_axes))(keys, params, cells, realism)
+
+
+def with_realism(state: Any, physics: Any, latency: jax.Array) -> Any:
+    """An env state whose episode runs with these physical scales and this action latency."""
+    sim = state.pipeline_state
+    realism = sim.task.realism.replace(physics=physics, latency=jnp.asarray(latency, jnp.int32))
+    return state.replace(pipeline_state=sim.replace(task=sim.task.replace(realism=realism)))
 
 
 def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:

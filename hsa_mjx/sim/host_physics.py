@@ -16,6 +16,8 @@ be. ``physics.backend: c`` steps an env with it; the Gymnasium single env and ev
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -39,23 +41,33 @@ class HostPhysics:
     """
 
     def __init__(self, mj_model: mujoco.MjModel, index: RobotIndex):
-        self.model, self.servos = mj_model, np.asarray(index.servo_ids)
-        self.data = mujoco.MjData(mj_model)
+        # its own copy: per-env model fields are written into it before each env's substeps
+        self.model, self.servos = copy.copy(mj_model), np.asarray(index.servo_ids)
+        self.data = mujoco.MjData(self.model)
 
-    def __call__(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, SubstepStats]:
-        """Run one substep per row of ``targets`` (frame_skip, 8) from ``data``; the new data and stats."""
-        inputs = [getattr(data, name) for name in STATE_IN]
+    def __call__(self, data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array] | None = None
+                 ) -> tuple[mjx.Data, SubstepStats]:
+        """Run one substep per row of ``targets`` (frame_skip, 8) from ``data``; the new data and stats.
+
+        ``fields``: model fields of this env (``hsa_mjx.task.randomization.model_fields``), written into
+        the C model before its substeps."""
+        fields = fields or {}
+        inputs = [getattr(data, name) for name in STATE_IN] + [targets] + list(fields.values())
         shapes = tuple(jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype)
                        for name in STATE_OUT) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
-        *out, stats = jax.pure_callback(lambda *a: self._run(shapes, *a), shapes, *inputs, targets,
+        names = tuple(fields)
+        *out, stats = jax.pure_callback(lambda *a: self._run(shapes, names, *a), shapes, *inputs,
                                         vmap_method="sequential")
         new = data.replace(**dict(zip(STATE_OUT, out)))
         return new, SubstepStats(max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0,
                                  final_abs_qacc=stats[3])
 
-    def _run(self, shapes: tuple, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Host side: load the state, step, return the fields (the env's shapes and dtypes) and the stats."""
-        *state, targets = arrays
+    def _run(self, shapes: tuple, names: tuple[str, ...], *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Host side: load the model fields and state, step, return the fields (the env's shapes and
+        dtypes) and the stats."""
+        state, targets, values = arrays[:len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1:]
+        for name, value in zip(names, values):
+            np.copyto(getattr(self.model, name), np.asarray(value, np.float64))
         d = self.data
         for name, value in zip(STATE_IN, state):
             if name == "time":

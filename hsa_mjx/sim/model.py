@@ -106,7 +106,7 @@ def load_mj_model(config: EnvConfig, asset_dir: Path | None = None) -> mujoco.Mj
 
 
 def _apply_physics(model: mujoco.MjModel, config: EnvConfig) -> None:
-    """Write the ``physics`` section and the servo range into ``model``."""
+    """Write the ``physics`` section, the servo range and a randomised servo torque limit into ``model``."""
     phys = config.physics
     model.opt.timestep = phys.timestep
     model.opt.integrator = _INTEGRATORS[phys.integrator]
@@ -117,6 +117,9 @@ def _apply_physics(model: mujoco.MjModel, config: EnvConfig) -> None:
     model.opt.cone = _CONES[phys.cone]
     limit = config.control.servo_target_limit
     model.actuator_ctrlrange[:] = np.array([-limit, limit])
+    if config.randomization.limits_force:  # each env's own limit goes into actuator_forcerange per step
+        model.actuator_forcelimited[:] = 1
+        model.actuator_forcerange[:] = np.array([-1.0, 1.0]) * config.randomization.servo_force_limit[1]
 
 
 def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> np.ndarray:

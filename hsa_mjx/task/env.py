@@ -17,7 +17,7 @@ from brax.envs.base import Env as BraxEnv  # noqa: I001
 from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.host_physics import HostPhysics
 
-from hsa_mjx.task import control, goals, observation, privileged, reward, termination
+from hsa_mjx.task import control, goals, observation, privileged, randomization, reward, termination
 
 from hsa_mjx.terrain import height_scan
 
@@ -30,7 +30,7 @@ from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
 
 GOAL_MARKER_Z = 0.1
-Simulate = Callable[[mjx.Data, jax.Array], tuple[mjx.Data, physics.SubstepStats]]
+Simulate = Callable[[mjx.Data, jax.Array, dict], tuple[mjx.Data, physics.SubstepStats]]
 
 
 class HSAEnv(BraxEnv):
@@ -82,6 +82,9 @@ class HSAEnv(BraxEnv):
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
         self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))
+        self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index)
+        self._obs_noise = randomization.noise_scales(observation.observation_labels(cfg.observation),
+                                                     cfg.observation.noise)
         # block-origin height above level ground with the robot resting on it: the scan's zero
         self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
 
@@ -156,6 +159,10 @@ class HSAEnv(BraxEnv):
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
         tile, terrain_id = self.world.draw(terrain_key, params.terrain_cell)
+        realism = randomization.nominal_state(self.config.randomization, self.action_size)
+        if self.config.randomization.draws:  # static: without randomization the key stream stays as it was
+            rng, realism_key = jax.random.split(rng)
+            realism = randomization.reset_state(realism_key, self.config.randomization, self.action_size, self.dt)
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)
@@ -171,7 +178,7 @@ class HSAEnv(BraxEnv):
             goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=index,
             prev_action=jnp.zeros(self.action_size), prev_joint_vel=jnp.zeros(self.action_size), prev_distance=distance,
             com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
-            step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id)
+            step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id, realism=realism)
         obs, critic, task = self._observe(data, task)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
@@ -196,24 +203,43 @@ class HSAEnv(BraxEnv):
         return self.step_with(self._simulate, state, action)
 
     def step_with(self, simulate: Simulate, state: EnvState, action: jax.Array) -> EnvState:
-        """``step`` with another physics engine: ``simulate(data, targets (frame_skip, 8)) ->
-        (data, SubstepStats)`` runs the substeps (e.g. ``hsa_mjx.sim.host_physics``: C MuJoCo for one
-        env on a CPU); control, observation, reward and termination are this env's own."""
+        """``step`` with another physics engine: ``simulate(data, targets (frame_skip, 8), fields) ->
+        (data, SubstepStats)`` runs the substeps with this episode's randomised model fields
+        (``hsa_mjx.task.randomization.model_fields``; e.g. ``hsa_mjx.sim.host_physics``: C MuJoCo for
+        one env on a CPU); control, observation, reward and termination are this env's own."""
         cfg, idx = self.config, self.index
-        data = state.pipeline_state.physics
         action, bad_action = control.sanitize_action(jnp.asarray(action, jnp.float32))
+        state, data, applied = self._realism_before_physics(state, action)
         start = data.ctrl[idx.servo_ids]
-        end = control.next_targets(start, action, cfg.control.max_increment, cfg.control.servo_target_limit)
+        end = control.next_targets(start, applied, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
         before = (observation.robot_xy(data, idx), observation.heading(data, idx))
-        new_data, stats = simulate(data, targets)
+        fields = randomization.model_fields(self._nominal, state.pipeline_state.task.realism.physics,
+                                            cfg.randomization)
+        new_data, stats = simulate(data, targets, fields)
         return self._outcome(state, action, bad_action, before, new_data, stats)
 
-    def _simulate(self, data: mjx.Data, targets: jax.Array) -> tuple[mjx.Data, physics.SubstepStats]:
-        """The substeps on this env's physics: MJX's JAX or Warp implementation, or C MuJoCo."""
+    def _simulate(self, data: mjx.Data, targets: jax.Array, fields: dict
+                  ) -> tuple[mjx.Data, physics.SubstepStats]:
+        """The substeps on this env's physics (MJX's JAX or Warp implementation, or C MuJoCo), with
+        this episode's randomised model fields."""
         if self._host is not None:
-            return self._host(data, targets)
-        return physics.simulate(self.robot.mjx_model, data, targets, self.index)
+            return self._host(data, targets, fields)
+        return physics.simulate(self.robot.mjx_model.replace(**fields), data, targets, self.index)
+
+    def _realism_before_physics(self, state: EnvState, action: jax.Array) -> tuple[EnvState, mjx.Data, jax.Array]:
+        """The delayed action the servos see and a push when one is due (state with the queue and key)."""
+        cfg, sim = self.config.randomization, state.pipeline_state
+        task, data, applied = sim.task, sim.physics, action
+        if cfg.max_latency > 0:
+            applied, queue = randomization.delay(task.realism.action_queue, action, task.realism.latency)
+            task = task.replace(realism=task.realism.replace(action_queue=queue))
+        if cfg.pushes:
+            rng, key = jax.random.split(task.rng)
+            qvel, realism = randomization.apply_push(key, task.realism, data.qvel, task.step_count, cfg,
+                                                     self.config.dt, self.index.block_qvel)
+            task, data = task.replace(rng=rng, realism=realism), data.replace(qvel=qvel)
+        return state.replace(pipeline_state=SimState(data, task)), data, applied
 
     def _outcome(self, state: EnvState, action: jax.Array, bad_action: jax.Array, before: tuple,
                  new_data: mjx.Data, stats: physics.SubstepStats) -> EnvState:
@@ -271,6 +297,9 @@ class HSAEnv(BraxEnv):
         if cfg.height_scan.enabled:
             clean, scan, task = self._height_scan(data, task)
         obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan)
+        if cfg.noise.enabled:  # static: without noise the key stream stays as it was
+            rng, key = jax.random.split(task.rng)
+            task, obs = task.replace(rng=rng), randomization.add_noise(obs, key, self._obs_noise)
         if not self.privileged:
             return obs, None, task
         clean = jnp.zeros((0,), jnp.float32) if clean is None else clean

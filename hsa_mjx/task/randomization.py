@@ -1,0 +1,204 @@
+"""Per-env physical randomisation, action latency, pushes and observation noise (pure JAX).
+
+Each env draws its physical scales from its reset key (:func:`draw`) and keeps them for the episode
+(``TaskState.realism``); every step writes them into the model fields below (:func:`model_fields`)
+before the substeps, the same dict for MJX's JAX and Warp implementations (``mjx.Model.replace``:
+both batch these fields per world) and for C MuJoCo substeps (set on the C model). Only the fields
+of scales whose range differs from [1, 1] are written; the others stay the asset's.
+
+=================  =========================================================================
+scale              model fields
+=================  =========================================================================
+friction           ``geom_friction[:, 0]`` of every geom and ``pair_friction[:, :2]`` of the
+                   foot-floor pairs (the sliding coefficients: every contact's friction scales)
+block_mass         ``body_mass`` and ``body_inertia`` of each block (one draw per block)
+hsa_stiffness      ``tendon_stiffness`` of every HSA tendon spring
+hsa_damping        ``tendon_damping`` of every HSA tendon spring
+servo_gain         the servos' ``actuator_gainprm[:, 0]`` and ``actuator_biasprm[:, 1]`` (kp)
+servo_force_limit  the servos' ``actuator_forcerange`` (the model is compiled force-limited)
+=================  =========================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from hsa_mjx.randomization_config import NOISE_GROUPS, NOMINAL, ObservationNoiseConfig, RandomizationConfig
+from hsa_mjx.sim.model import RobotIndex
+
+FIELDS = ("geom_friction", "pair_friction", "body_mass", "body_inertia", "tendon_stiffness", "tendon_damping",
+          "actuator_gainprm", "actuator_biasprm", "actuator_forcerange")
+# observation slot label prefixes of each noise group (hsa_mjx.task.observation.observation_labels)
+NOISE_LABELS = {
+    "hinge_angles": ("hinge_angle_", "hinge_sin_", "hinge_cos_"),
+    "hinge_velocities": ("hinge_velocity_",),
+    "position": ("robot_x", "robot_y"),
+    "velocity": ("block_v",),
+    "goal": ("goal_distance", "goal_dir_x", "goal_dir_y"),
+    "heading": ("heading_", "goal_dir_ahead", "goal_dir_left"),
+}
+
+
+@struct.dataclass
+class PhysicsScales:
+    """One env's physical parameters for an episode (scales of the asset's values; traced arrays)."""
+
+    friction: jax.Array  # ()
+    block_mass: jax.Array  # (2,) block_a, block_b
+    hsa_stiffness: jax.Array  # ()
+    hsa_damping: jax.Array  # ()
+    servo_gain: jax.Array  # ()
+    servo_force_limit: jax.Array  # () N m (inf: no limit)
+
+    @staticmethod
+    def nominal() -> "PhysicsScales":
+        """The asset's own values (all scales 1, no torque limit)."""
+        one = jnp.ones((), jnp.float32)
+        return PhysicsScales(friction=one, block_mass=jnp.ones((2,), jnp.float32), hsa_stiffness=one,
+                             hsa_damping=one, servo_gain=one, servo_force_limit=jnp.full((), jnp.inf, jnp.float32))
+
+
+def _uniform(key: jax.Array, bounds: tuple[float, float], shape: tuple = ()) -> jax.Array:
+    """Uniform in [lo, hi] (exactly lo when lo == hi)."""
+    lo, hi = bounds
+    return lo + (hi - lo) * jax.random.uniform(key, shape, jnp.float32)
+
+
+def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
+    """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
+    keys = jax.random.split(key, 6)
+    limit = _uniform(keys[5], config.servo_force_limit) if config.limits_force else jnp.full((), jnp.inf)
+    return PhysicsScales(friction=_uniform(keys[0], config.friction),
+                         block_mass=_uniform(keys[1], config.block_mass, (2,)),
+                         hsa_stiffness=_uniform(keys[2], config.hsa_stiffness),
+                         hsa_damping=_uniform(keys[3], config.hsa_damping),
+                         servo_gain=_uniform(keys[4], config.servo_gain), servo_force_limit=limit.astype(jnp.float32))
+
+
+@dataclasses.dataclass(frozen=True)
+class NominalModel:
+    """The asset's values of the randomised fields (numpy) and the ids they are written at."""
+
+    values: dict[str, np.ndarray]
+    blocks: np.ndarray
+    servos: np.ndarray
+    tendons: np.ndarray
+
+    @staticmethod
+    def from_model(mj_model: mujoco.MjModel, index: RobotIndex) -> "NominalModel":
+        """Read the fields once from the compiled C model."""
+        values = {name: np.array(getattr(mj_model, name), np.float32) for name in FIELDS}
+        return NominalModel(values, np.asarray(index.block_body), np.asarray(index.servo_ids),
+                            np.arange(mj_model.ntendon))
+
+
+def model_fields(nominal: NominalModel, scales: PhysicsScales, config: RandomizationConfig) -> dict[str, jax.Array]:
+    """The model fields ``config`` randomises, for one env (pass to ``mjx.Model.replace`` or a C model);
+    fields left at their nominal range are not in the dict (the model keeps them unbatched)."""
+    v, blocks, servos = nominal.values, nominal.blocks, nominal.servos
+    fields = {}
+    if config.friction != NOMINAL:
+        fields["geom_friction"] = jnp.asarray(v["geom_friction"]).at[:, 0].multiply(scales.friction)
+        fields["pair_friction"] = jnp.asarray(v["pair_friction"]).at[:, :2].multiply(scales.friction)
+    if config.block_mass != NOMINAL:
+        fields["body_mass"] = jnp.asarray(v["body_mass"]).at[blocks].multiply(scales.block_mass)
+        fields["body_inertia"] = jnp.asarray(v["body_inertia"]).at[blocks].multiply(scales.block_mass[:, None])
+    if config.hsa_stiffness != NOMINAL:
+        fields["tendon_stiffness"] = jnp.asarray(v["tendon_stiffness"]) * scales.hsa_stiffness
+    if config.hsa_damping != NOMINAL:
+        fields["tendon_damping"] = jnp.asarray(v["tendon_damping"]) * scales.hsa_damping
+    if config.servo_gain != NOMINAL:
+        fields["actuator_gainprm"] = jnp.asarray(v["actuator_gainprm"]).at[servos, 0].multiply(scales.servo_gain)
+        fields["actuator_biasprm"] = jnp.asarray(v["actuator_biasprm"]).at[servos, 1].multiply(scales.servo_gain)
+    if config.limits_force:
+        limit = jnp.stack([-scales.servo_force_limit, scales.servo_force_limit])
+        fields["actuator_forcerange"] = jnp.asarray(v["actuator_forcerange"]).at[servos].set(limit)
+    return fields
+
+
+# ----- latency and pushes ---------------------------------------------------------------------
+@struct.dataclass
+class RealismState:
+    """This episode's sim-to-real draws (``randomization``): physical scales, action latency, pushes."""
+
+    physics: PhysicsScales  # the model's scales this episode (nominal when nothing is randomised)
+    action_queue: jax.Array  # (max latency + 1, actions) the last actions, newest first
+    latency: jax.Array  # () int32, control steps an action waits before the servos see it
+    next_push: jax.Array  # () int32, the step count at which the next push comes
+
+
+NEVER = np.iinfo(np.int32).max  # next_push without pushes
+
+
+def nominal_state(config: RandomizationConfig, action_size: int) -> RealismState:
+    """An episode without draws: the asset's model, no latency, no pushes (the queue sized for the config)."""
+    return RealismState(physics=PhysicsScales.nominal(),
+                        action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
+                        latency=jnp.zeros((), jnp.int32), next_push=jnp.asarray(NEVER, jnp.int32))
+
+
+def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, dt: float) -> RealismState:
+    """An episode's draws from ``key``: scales, latency (uniform in ``latency_steps``), first push."""
+    k_physics, k_latency, k_push = jax.random.split(key, 3)
+    physics = draw(k_physics, config) if config.physical else PhysicsScales.nominal()
+    lo, hi = config.latency_steps
+    latency = jax.random.randint(k_latency, (), lo, hi + 1, jnp.int32)
+    next_push = push_interval_steps(k_push, config, dt) if config.pushes else jnp.asarray(NEVER, jnp.int32)
+    return RealismState(physics=physics, action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
+                        latency=latency, next_push=next_push)
+
+
+def apply_push(key: jax.Array, realism: RealismState, qvel: jax.Array, step_count: jax.Array,
+               config: RandomizationConfig, dt: float, block_qvel: np.ndarray) -> tuple[jax.Array, RealismState]:
+    """Push both blocks when this step is the push's (and draw the next one); qvel and the new state."""
+    k_velocity, k_next = jax.random.split(key)
+    due = step_count >= realism.next_push
+    qvel = jnp.where(due, pushed(qvel, push_velocity(k_velocity, config.push_speed), block_qvel), qvel)
+    next_push = jnp.where(due, step_count + push_interval_steps(k_next, config, dt), realism.next_push)
+    return qvel, realism.replace(next_push=next_push)
+
+
+def delay(queue: jax.Array, action: jax.Array, latency: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Queue ``action`` (newest first, (max latency + 1, 8)); the action ``latency`` steps old, and the queue."""
+    queue = jnp.concatenate([action[None], queue[:-1]])
+    return queue[latency], queue
+
+
+def push_interval_steps(key: jax.Array, config: RandomizationConfig, dt: float) -> jax.Array:
+    """Control steps until the next push (at least 1), uniform in ``push_interval_s``."""
+    return jnp.maximum(jnp.round(_uniform(key, config.push_interval_s) / dt), 1).astype(jnp.int32)
+
+
+def push_velocity(key: jax.Array, max_speed: float) -> jax.Array:
+    """A horizontal velocity (3,) of uniform direction and speed in [0, max_speed]."""
+    k_dir, k_speed = jax.random.split(key)
+    angle = jax.random.uniform(k_dir, (), jnp.float32, 0.0, 2.0 * jnp.pi)
+    speed = jax.random.uniform(k_speed, (), jnp.float32, 0.0, max_speed)
+    return jnp.stack([speed * jnp.cos(angle), speed * jnp.sin(angle), jnp.zeros(())])
+
+
+def pushed(qvel: jax.Array, velocity: jax.Array, block_qvel: np.ndarray) -> jax.Array:
+    """``qvel`` with ``velocity`` added to both blocks' linear velocities (their free joints' first 3 dofs)."""
+    dofs = np.asarray(block_qvel)[:, None] + np.arange(3)[None, :]
+    return qvel.at[dofs].add(velocity[None, :])
+
+
+# ----- observation noise ------------------------------------------------------------------------
+def noise_scales(labels: tuple[str, ...], config: ObservationNoiseConfig) -> np.ndarray:
+    """Each observation slot's noise amplitude (0 for slots outside every group, e.g. servo targets)."""
+    scales = np.zeros(len(labels), np.float32)
+    for group in NOISE_GROUPS:
+        hit = [i for i, label in enumerate(labels) if label.startswith(NOISE_LABELS[group])]
+        scales[hit] = getattr(config, group)
+    return scales
+
+
+def add_noise(obs: jax.Array, key: jax.Array, scales: np.ndarray) -> jax.Array:
+    """``obs`` plus uniform noise of +-scale per slot."""
+    return obs + jnp.asarray(scales) * jax.random.uniform(key, obs.shape, jnp.float32, -1.0, 1.0)

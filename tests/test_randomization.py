@@ -1,0 +1,178 @@
+"""Sim-to-real options: per-env physical draws, their effect on the physics, latency, pushes, noise."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hsa_mjx
+from hsa_mjx.randomization_config import RandomizationConfig
+from hsa_mjx.task import randomization
+from hsa_mjx.task.observation import observation_labels
+
+RANGES = dict(friction=(0.5, 1.5), block_mass=(0.8, 1.2), hsa_stiffness=(0.7, 1.3), hsa_damping=(0.9, 1.1),
+              servo_gain=(0.8, 1.2), servo_force_limit=(0.3, 0.6))
+# physics on MJX's JAX implementation: friction and block masses randomised (one compile for both tests)
+PHYSICS = {"randomization__friction": [0.5, 1.5], "randomization__block_mass": [1.0, 1.5],
+           "termination__max_episode_steps": 1000}
+
+
+def _scales(env, state, **values):
+    """``state`` with every env's physical scales replaced by ``values`` (lists over the batch)."""
+    task = state.pipeline_state.task
+    physics = task.realism.physics.replace(**{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
+    task = task.replace(realism=task.realism.replace(physics=physics))
+    return state.replace(pipeline_state=state.pipeline_state.replace(task=task))
+
+
+def test_draws_lie_in_their_ranges_differ_per_env_and_repeat_from_the_key():
+    config = RandomizationConfig(**RANGES)
+    keys = jax.random.split(jax.random.PRNGKey(3), 256)
+    draws = jax.vmap(lambda k: randomization.draw(k, config))(keys)
+    for name, (lo, hi) in RANGES.items():
+        values = np.asarray(getattr(draws, name))
+        assert values.min() >= lo and values.max() <= hi, name
+        assert len(np.unique(values)) == values.size, name  # every env (and block) its own draw
+        assert values.max() - values.min() > 0.8 * (hi - lo), name  # spread over the range
+    again = jax.vmap(lambda k: randomization.draw(k, config))(keys)
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(jnp.array_equal(a, b)), draws, again))
+    fixed = randomization.draw(keys[0], RandomizationConfig(friction=(0.5, 0.5)))
+    assert float(fixed.friction) == 0.5 and float(fixed.servo_force_limit) == np.inf
+
+
+def test_the_same_key_draws_the_same_episode_on_every_backend():
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    overrides = {f"randomization__{k}": list(v) for k, v in RANGES.items()}
+    realism = {}
+    for backend in ("jax", "warp", "c"):
+        env = hsa_mjx.make_env("flat", physics__backend=backend, randomization__latency_steps=[0, 2], **overrides)
+        realism[backend] = jax.device_get(jax.vmap(env.reset)(keys).pipeline_state.task.realism)
+    for backend in ("warp", "c"):
+        same = jax.tree.map(np.array_equal, realism["jax"], realism[backend])
+        assert all(jax.tree.leaves(same)), backend
+    assert len(set(np.asarray(realism["jax"].physics.friction).tolist())) == 3
+
+
+def test_model_fields_scale_the_assets_values_and_leave_the_rest():
+    env = hsa_mjx.make_env("flat", physics__backend="c", **{f"randomization__{k}": list(v) for k, v in RANGES.items()})
+    nominal, mj = env._nominal, env.robot.mj_model
+    scales = randomization.PhysicsScales.nominal().replace(friction=jnp.float32(0.5), servo_gain=jnp.float32(2.0),
+                                                           block_mass=jnp.asarray([1.5, 1.0], jnp.float32),
+                                                           servo_force_limit=jnp.float32(0.4))
+    fields = randomization.model_fields(nominal, scales, env.config.randomization)
+    assert set(fields) == set(randomization.FIELDS)
+    np.testing.assert_allclose(fields["pair_friction"][:, :2], 0.5 * mj.pair_friction[:, :2], rtol=1e-6)
+    np.testing.assert_allclose(fields["pair_friction"][:, 2:], mj.pair_friction[:, 2:], rtol=1e-6)
+    block_a, block_b = env.index.block_body
+    assert fields["body_mass"][block_a] == pytest.approx(1.5 * mj.body_mass[block_a])
+    assert fields["body_mass"][block_b] == pytest.approx(mj.body_mass[block_b])
+    servos = env.index.servo_ids
+    np.testing.assert_allclose(fields["actuator_gainprm"][servos, 0], 2.0 * mj.actuator_gainprm[servos, 0])
+    np.testing.assert_allclose(fields["actuator_biasprm"][servos, 1], 2.0 * mj.actuator_biasprm[servos, 1])
+    np.testing.assert_allclose(fields["actuator_forcerange"][servos], [[-0.4, 0.4]] * len(servos), rtol=1e-6)
+    assert mj.actuator_forcelimited[servos].all()  # compiled force-limited for the drawn limits
+    only = randomization.model_fields(nominal, scales, RandomizationConfig(hsa_damping=(0.5, 2.0)))
+    assert set(only) == {"tendon_damping"}  # the unrandomised fields stay the model's own
+
+
+@pytest.fixture(scope="module")
+def physics_env():
+    """Two envs on MJX's JAX implementation, jitted batch reset and step."""
+    env = hsa_mjx.make_env("flat", physics__backend="jax", **PHYSICS)
+    return env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+def _run(step, state, steps: int, action: jax.Array | None = None):
+    """``steps`` steps with one action for both envs (zeros: the servos hold); every step's state."""
+    action = jnp.zeros((2, 8)) if action is None else action
+    states = []
+    for _ in range(steps):
+        state = step(state, action)
+        states.append(state)
+    return states
+
+
+def test_heavier_blocks_fall_the_same_but_press_harder(physics_env):
+    env, reset, step = physics_env
+    state = reset(jax.random.split(jax.random.PRNGKey(1), 2))
+    state = _scales(env, state, block_mass=[[1.0, 1.0], [1.5, 1.5]], friction=[1.0, 1.0])
+    states = _run(step, state, 40)
+    blocks = env.index.block_body
+    fall = [np.asarray(s.pipeline_state.physics.xpos[:, blocks, 2]) for s in states[:3]]  # before touching down
+    for heights in fall:
+        np.testing.assert_allclose(heights[0], heights[1], atol=2e-4)
+    # at rest (40 steps = 0.8 s later): the floor carries the weight, about 1.5x for the heavier blocks
+    normal = [float(np.abs(np.asarray(states[-1].pipeline_state.physics.sensordata[e])[
+        env.index.foot_sensors[..., 0]]).sum()) for e in range(2)]
+    assert normal[1] > 1.2 * normal[0] > 0
+
+
+def test_a_slicker_floor_slides_further(physics_env):
+    env, reset, step = physics_env
+    state = reset(jax.random.split(jax.random.PRNGKey(1), 2))
+    state = _run(step, _scales(env, state, block_mass=[[1.0, 1.0]] * 2, friction=[0.5, 1.5]), 30)[-1]
+    data = state.pipeline_state.physics
+    shove = jax.vmap(lambda qvel: randomization.pushed(qvel, jnp.asarray([0.4, 0.0, 0.0]), env.index.block_qvel))(
+        data.qvel)  # both envs alike
+    state = state.replace(pipeline_state=state.pipeline_state.replace(physics=data.replace(qvel=shove)))
+    start = np.asarray(state.pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
+    end = np.asarray(_run(step, state, 15)[-1].pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
+    slide = end - start
+    assert slide[0] > 1.3 * slide[1] > 0, slide
+
+
+def test_latency_delays_the_action_by_the_set_steps():
+    steps = {}
+    for latency in (0, 2):
+        env = hsa_mjx.make_env("flat", physics__backend="c", randomization__latency_steps=[latency, latency])
+        state = env.reset(jax.random.PRNGKey(0))
+        step, moved = jax.jit(env.step), []
+        for _ in range(4):
+            state = step(state, jnp.ones(8))
+            moved.append(float(jnp.abs(state.pipeline_state.physics.ctrl[env.index.servo_ids]).max()) > 0)
+        steps[latency] = moved.index(True)
+    assert steps == {0: 0, 2: 2}
+
+
+def test_pushes_come_at_their_interval_and_add_horizontal_speed():
+    config = RandomizationConfig(push_interval_s=(0.1, 0.1), push_speed=0.3)
+    realism = randomization.reset_state(jax.random.PRNGKey(0), config, 8, dt=0.02)
+    assert int(realism.next_push) == 5
+    qvel = jnp.zeros(20)
+    block_qvel = np.array([0, 6])
+    early, _ = randomization.apply_push(jax.random.PRNGKey(1), realism, qvel, jnp.int32(4), config, 0.02, block_qvel)
+    assert not np.any(np.asarray(early))
+    late, after = randomization.apply_push(jax.random.PRNGKey(1), realism, qvel, jnp.int32(5), config, 0.02, block_qvel)
+    late = np.asarray(late)
+    np.testing.assert_array_equal(late[0:3], late[6:9])  # both blocks alike
+    assert 0 < np.hypot(*late[:2]) <= 0.3 and late[2] == 0 and not np.any(late[3:6])
+    assert int(after.next_push) == 10
+
+
+def test_observation_noise_touches_only_its_groups():
+    env = hsa_mjx.make_env("flat", physics__backend="c", observation__noise__position=0.05,
+                           observation__noise__hinge_velocities=0.2, observation__servo_targets=True)
+    labels = observation_labels(env.config.observation)
+    scales = randomization.noise_scales(labels, env.config.observation.noise)
+    noisy = {labels[i] for i in np.flatnonzero(scales)}
+    assert noisy == {"robot_x", "robot_y"} | {f"hinge_velocity_{i}" for i in range(8)}
+    clean_env = hsa_mjx.make_env("flat", physics__backend="c", observation__servo_targets=True)
+    key = jax.random.PRNGKey(0)
+    difference = np.asarray(env.reset(key).obs - clean_env.reset(key).obs)
+    assert np.all(np.abs(difference) <= scales + 1e-6) and np.abs(difference[scales > 0]).min() > 0
+    assert not np.any(difference[scales == 0])
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("randomization__friction", [0.0, 1.0], "randomization.friction' must be a range"),
+    ("randomization__block_mass", [1.2, 0.8], "randomization.block_mass' must be a range"),
+    ("randomization__latency_steps", [-1, 2], "randomization.latency_steps' must be a range"),
+    ("randomization__push_speed", 0.2, "push_interval_s' must be > 0 s when push_speed > 0"),
+    ("observation__noise__goal", -0.1, "observation.noise.goal' must be >= 0"),
+    ("randomization__mass", [1, 1], "valid keys: \\['block_mass'"),
+])
+def test_bad_randomization_values_are_refused(key, value, message):
+    with pytest.raises(ValueError, match=message):
+        hsa_mjx.build_config("flat", **{key: value})
