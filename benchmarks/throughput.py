@@ -24,7 +24,7 @@ but the spiral (``HEIGHTFIELD_TYPES``). ``--backends jax,warp`` measures MJX's J
 implementations side by side (each row records its backend).
 
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
-        [--terrains flat,heightfield] [--settings NAME ...] [--observations original,heading,heading+scan]
+        [--terrains flat,heightfield] [--settings NAME ...] [--observations original,heading,heading+scan,heading+randomized]
         [--steps K] [--repeats R]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
@@ -51,6 +51,7 @@ from benchmarks.run_info import run_info
 from hsa_mjx.sim import backend as backends
 from hsa_mjx.task import control
 from hsa_mjx.sim.backend import mjx
+from hsa_mjx.resources import config_path, read_yaml
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -60,11 +61,21 @@ TERRAINS: dict[str, dict[str, Any]] = {
 }
 # observations the env computes: the original's 24 values, or the rough task's heading (28) with the
 # 63-point height scan (the scan's cost is measured against "heading", the same observation without it)
+def _randomized() -> dict[str, Any]:
+    """configs/train_flat_dr.yaml's randomisation and observation noise as dotted env overrides."""
+    env = read_yaml(config_path("train_flat_dr"))["env"]
+    return {**{f"randomization.{k}": v for k, v in env["randomization"].items()},
+            **{f"observation.noise.{k}": v for k, v in env["observation"]["noise"].items()}}
+
+
+# "heading+randomized": "heading" with the randomised flat task's per-env model, latency, pushes and
+# noise (docs/robustness.md; its cost is measured against "heading")
 OBSERVATIONS: dict[str, dict[str, Any]] = {
     "original": {},
     "heading": {"observation.heading": True},
     "heading+scan": {"observation.heading": True, "observation.height_scan.enabled": True,
                      "observation.height_scan.noise": 0.02},
+    "heading+randomized": {"observation.heading": True, **_randomized()},
 }
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
 ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200

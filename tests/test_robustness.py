@@ -26,3 +26,15 @@ def test_every_cell_runs_its_own_model_and_the_results_are_written(tmp_path):
     lagged = [r for r in rows if (r["friction"], r["block_mass"], r["hsa_stiffness"], r["noise"]) == (1.0, 0.8, 0.7, False)]
     assert len({round(r["mean_final_distance"], 6) for r in lagged}) == 3  # latency 0, 20, 40 ms differ too
     assert "| x0.5 | x0.8 | x0.7 | 0 | off |" in (tmp_path / "robustness_smoke.md").read_text()
+
+
+def test_the_randomised_training_config_covers_the_grid():
+    from train import config as tcfg
+    dr, flat = tcfg.to_dict(tcfg.load("configs/train_flat_dr.yaml")), tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
+    ranges = dr["env"].pop("randomization")
+    assert dr["env"]["observation"].pop("noise") == robustness.NOISE_ON
+    flat["env"].pop("randomization"), flat["env"]["observation"].pop("noise")
+    assert dr == flat  # the flat task otherwise
+    for name in ("friction", "block_mass", "hsa_stiffness"):
+        assert ranges[name] == [min(robustness.GRID[name]), max(robustness.GRID[name])]
+    assert ranges["latency_steps"] == [0, max(robustness.GRID["latency_ms"]) // 20]
