@@ -2,8 +2,9 @@
 
 For every (physics backend, terrain, physics setting, batch) it measures, in one process:
 
-- **env**: K env steps per call of the training batch step (``hsa_mjx.batch.auto_reset.AutoResetEnv``
-  with the goal curriculum: physics, observation, reward, termination, auto-reset, curriculum)
+- **env**: K env steps per call of the training batch step (``hsa_mjx.batch.auto_reset.AutoResetEnv``:
+  physics, observation, reward, termination, auto-reset with each env's episode parameters; results
+  recorded before the curricula moved into the training loop say "AutoResetEnv + curriculum")
   under ``lax.scan`` in one jitted call, random actions drawn on the device. If that module is
   missing or its API differs, ``jit(vmap(env.step))`` is timed instead and the row says
   ``full_step: false``.

@@ -109,18 +109,29 @@ def test_heavier_blocks_fall_the_same_but_press_harder(physics_env):
     assert normal[1] > 1.2 * normal[0] > 0
 
 
-def test_a_slicker_floor_slides_further(physics_env):
-    env, reset, step = physics_env
+def _slide(env, reset, step, **alike) -> np.ndarray:
+    """How far each of two envs (floor friction x0.5 and x1.5, ``alike`` scales the same) slides after
+    both are shoved alike."""
     state = reset(jax.random.split(jax.random.PRNGKey(1), 2))
-    state = _run(step, _scales(env, state, block_mass=[[1.0, 1.0]] * 2, friction=[0.5, 1.5]), 30)[-1]
+    state = _run(step, _scales(env, state, friction=[0.5, 1.5], **alike), 30)[-1]
     data = state.pipeline_state.physics
     shove = jax.vmap(lambda qvel: randomization.pushed(qvel, jnp.asarray([0.4, 0.0, 0.0]), env.index.block_qvel))(
-        data.qvel)  # both envs alike
+        data.qvel)
     state = state.replace(pipeline_state=state.pipeline_state.replace(physics=data.replace(qvel=shove)))
     start = np.asarray(state.pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
     end = np.asarray(_run(step, state, 15)[-1].pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
-    slide = end - start
+    return end - start
+
+
+def test_a_slicker_floor_slides_further(physics_env):
+    slide = _slide(*physics_env, block_mass=[[1.0, 1.0]] * 2)
     assert slide[0] > 1.3 * slide[1] > 0, slide
+
+
+def test_warp_batches_the_randomised_fields_per_world():
+    env = hsa_mjx.make_env("flat", physics__backend="warp", num_envs=2, randomization__friction=[0.5, 1.5])
+    slide = _slide(env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step)))
+    assert slide[0] > 1.3 * slide[1] > 0, slide  # each world its own friction (0.073 and 0.034 m on a CPU)
 
 
 def test_latency_delays_the_action_by_the_set_steps():

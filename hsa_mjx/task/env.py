@@ -47,6 +47,10 @@ class HSAEnv(BraxEnv):
     false`` shares one), spawns resting on it, and measures block heights from the ground under
     each block (see ``docs/terrain.md``).
 
+    With ``config.randomization`` each env draws its own physical scales, action latency and push
+    times at every reset and ``observation.noise`` adds noise to its observation (all off by
+    default; ``hsa_mjx.task.randomization``, ``docs/robustness.md``).
+
     Args:
         config: the environment config.
         asset_dir: where the scene XMLs are (default: the repository's ``assets/``).
