@@ -61,7 +61,7 @@ class RandomizationConfig:
 class ObservationNoiseConfig:
     """``observation.noise``: uniform noise of +-value on each group's entries of the policy's observation."""
 
-    hinge_angles: float = 0.0  # rad (sincos mode: on the angles before sin and cos)
+    hinge_angles: float = 0.0  # rad (hinge_angles: sincos: on the sines and cosines)
     hinge_velocities: float = 0.0  # rad/s
     position: float = 0.0  # m, the robot's x, y
     velocity: float = 0.0  # m/s, the blocks' mean velocity
