@@ -25,9 +25,9 @@ import numpy as np
 
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.task.control import next_targets, substep_targets
+from hsa_mjx.task.observation import GOAL_EPS, HEADING_EPS
 
-HEADING_EPS = 1e-8  # as the env's observation
-DISTANCE_EPS = 1e-8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,15 +76,11 @@ class SimulatedRobot:
     def command(self, targets: np.ndarray) -> None:
         """Move the servo targets to ``targets`` over one control tick (ramped or held)."""
         control = self.config.control
-        if control.smooth_positions:
-            ramp = np.arange(1, control.frame_skip + 1)[:, None] / control.frame_skip
-            substeps = self._targets + ramp * (targets - self._targets)
-        else:
-            substeps = np.broadcast_to(targets, (control.frame_skip, len(targets)))
-        for target in substeps:
+        targets = np.asarray(targets, np.float64)
+        for target in substep_targets(self._targets, targets, control.frame_skip, control.smooth_positions, xp=np):
             self.data.ctrl[self.index.servo_ids] = target
             mujoco.mj_step(self.model, self.data)
-        self._targets = np.array(targets, np.float64)
+        self._targets = targets
 
     def wait(self) -> None:
         """Sleep to the next tick when ``realtime``."""
@@ -111,7 +107,7 @@ def observation_entries(readings: Readings, velocity: np.ndarray, goal_xy: np.nd
     position = blocks[:, :2].mean(axis=0)
     delta = np.asarray(goal_xy, np.float64) - position
     distance = float(np.linalg.norm(delta))
-    direction = delta / (distance + DISTANCE_EPS)
+    direction = delta / (distance + GOAL_EPS)
     heading = (blocks[1, :2] - blocks[0, :2]) / (np.linalg.norm(blocks[1, :2] - blocks[0, :2]) + HEADING_EPS)
     cos, sin = heading
     entries = {**_hinge_entries(readings.hinge_angles, obs_cfg.hinge_angles),
@@ -176,8 +172,7 @@ class Controller:
         self.queue.append(action)
         applied = self.queue.popleft()
         control = self.config.control
-        self.targets = np.clip(self.targets + control.max_increment * applied, -control.servo_target_limit,
-                               control.servo_target_limit)
+        self.targets = next_targets(self.targets, applied, control.max_increment, control.servo_target_limit, xp=np)
         self.steps += 1
         return self.targets
 

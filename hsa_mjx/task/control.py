@@ -13,18 +13,19 @@ def sanitize_action(action: jax.Array) -> tuple[jax.Array, jax.Array]:
     return clean, jnp.logical_not(jnp.all(finite))
 
 
-def next_targets(current: jax.Array, action: jax.Array, max_increment: float, limit: float) -> jax.Array:
-    """Servo targets after adding ``max_increment * action``, clipped to the servo ctrlrange."""
-    return jnp.clip(current + max_increment * action, -limit, limit)
+def next_targets(current: jax.Array, action: jax.Array, max_increment: float, limit: float, xp=jnp) -> jax.Array:
+    """Servo targets after adding ``max_increment * action``, clipped to the servo ctrlrange
+    (``xp=numpy`` for the deployment loop)."""
+    return xp.clip(current + max_increment * action, -limit, limit)
 
 
-def substep_targets(start: jax.Array, end: jax.Array, frame_skip: int, smooth: bool) -> jax.Array:
+def substep_targets(start: jax.Array, end: jax.Array, frame_skip: int, smooth: bool, xp=jnp) -> jax.Array:
     """Targets for each of the ``frame_skip`` substeps, shape (frame_skip, 8).
 
     Smooth: linear ramp start + (i / F) (end - start) for i = 1..F, ending exactly at ``end``.
     Otherwise the new target is held for every substep.
     """
     if not smooth:
-        return jnp.broadcast_to(end, (frame_skip,) + end.shape)
-    fraction = jnp.arange(1, frame_skip + 1, dtype=start.dtype) / frame_skip
+        return xp.broadcast_to(end, (frame_skip,) + end.shape)
+    fraction = xp.arange(1, frame_skip + 1, dtype=start.dtype) / frame_skip
     return start + fraction[:, None] * (end - start)

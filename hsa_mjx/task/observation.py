@@ -20,6 +20,7 @@ from hsa_mjx.sim.model import RobotIndex
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
+GOAL_EPS = 1e-8  # the goal direction's epsilon (the original's)
 ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
 # Slot names in order: the original's 24, then each optional entry when enabled (``observe`` builds
 # them in this order). The heading frame's goal direction is (x ahead, y left).
@@ -80,7 +81,7 @@ def goal_vector(position: jax.Array, goal_xy: jax.Array) -> tuple[jax.Array, jax
     """Distance to the goal and the unit vector towards it (epsilon 1e-8 as in the original)."""
     delta = goal_xy - position
     distance = jnp.linalg.norm(delta)
-    return distance, delta / (distance + 1e-8)
+    return distance, delta / (distance + GOAL_EPS)
 
 
 def heading(data: mjx.Data, index: RobotIndex) -> jax.Array:
