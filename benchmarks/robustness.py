@@ -3,9 +3,11 @@
 The grid crosses floor friction x0.5 / x1 / x1.5, block masses -20 % / +20 %, HSA tendon stiffness
 -30 % / +30 %, action latency 0 / 20 / 40 ms and observation noise off / on (``NOISE_ON``): 72 cells.
 Every cell plays ``--episodes`` episodes from the same starts and goals (the policy's training goal
-range) with the policy's mean action, for at most ``--steps`` steps; a cell's success rate and mean
-net progress towards the goal go into ``robustness_<tag>.json``, a table (``.md``) and a heat map
-(``.png``) under ``--out-dir``.
+range) with the policy's mean action, for at most ``--steps`` steps; a cell's success rate, mean net
+progress towards the goal and how its failed episodes ended (each termination reason's share,
+``time_out`` at the env's episode limit, ``not_finished`` at a shorter ``--steps``) go into
+``robustness_<tag>.json``, a table (``.md``) and a heat map (``.png``) under ``--out-dir``.
+``--where FACTOR=VALUE`` (repeatable) keeps only the matching cells.
 
 One compiled rollout serves every cell of a noise setting: the env randomises the four factors over
 the grid's span and each episode's draws are then set to its cell's values
@@ -49,12 +51,15 @@ def cells() -> list[dict[str, Any]]:
 
 
 def env_overrides(noise: bool, max_latency_steps: int) -> tuple[str, ...]:
-    """``env.KEY=VALUE`` overrides: the grid's span randomised, and the noise setting."""
+    """``env.KEY=VALUE`` overrides: the grid's span randomised, every other randomisation off, the noise setting.
+
+    Everything is set, not only the grid's factors, so that a policy trained with randomisation (whose
+    config carries its pushes, noise and other ranges) is scored on the cell's model alone."""
     span = {name: f"[{min(GRID[name])},{max(GRID[name])}]" for name in ("friction", "block_mass", "hsa_stiffness")}
-    out = [f"env.randomization.{name}={value}" for name, value in span.items()]
-    out.append(f"env.randomization.latency_steps=[0,{max_latency_steps}]")
-    if noise:
-        out += [f"env.observation.noise.{group}={value}" for group, value in NOISE_ON.items()]
+    fixed = {"hsa_damping": "[1,1]", "servo_gain": "[1,1]", "servo_force_limit": "[0,0]",
+             "latency_steps": f"[0,{max_latency_steps}]", "push_interval_s": "[0,0]", "push_speed": "0"}
+    out = [f"env.randomization.{name}={value}" for name, value in {**span, **fixed}.items()]
+    out += [f"env.observation.noise.{group}={value if noise else 0}" for group, value in NOISE_ON.items()]
     return tuple(out)
 
 
@@ -88,17 +93,48 @@ def run_group(directory: Path, group: list[dict], episodes: int, steps: int | No
         part = {k: np.asarray(v)[i * episodes:(i + 1) * episodes] for k, v in traces.items()}
         summary = evaluate.summarize(part, env.dt)
         rows.append({**cell, "success_rate": summary["success_rate"], "mean_progress_m": summary["mean_progress_m"],
-                     "mean_final_distance": summary["mean_final_distance"], "episodes": episodes})
+                     "mean_final_distance": summary["mean_final_distance"], "episodes": episodes,
+                     "failures": failures(summary)})
     return rows
+
+
+def failures(summary: dict[str, Any]) -> dict[str, float]:
+    """How the failed episodes ended: each termination reason's share, ``time_out`` (the env's episode
+    limit) and ``not_finished`` (``--steps`` below that limit)."""
+    ends = {k.removeprefix("termination/"): v for k, v in summary.items()
+            if k.startswith("termination/") and k != "termination/goal_reached"}
+    timing = {"time_out": summary["time_out"], "not_finished": summary["not_finished"]}
+    return {k: v for k, v in {**ends, **timing}.items() if v > 0}
+
+
+def select(where: list[str]) -> list[dict[str, Any]]:
+    """The grid's cells whose factors match every ``KEY=VALUE`` (ValueError naming the valid keys and values)."""
+    chosen = cells()
+    for item in where:
+        key, _, text = item.partition("=")
+        if key not in GRID:
+            raise ValueError(f"--where {item!r}: unknown factor {key!r}; factors: {', '.join(GRID)}")
+        values = ({"off": False, "false": False, "on": True, "true": True} if key == "noise"
+                  else {f"{v:g}": v for v in GRID[key]})
+        text = text.strip().lower()
+        try:
+            text = text if key == "noise" else f"{float(text):g}"
+        except ValueError:
+            pass
+        if text not in values:
+            raise ValueError(f"--where {item!r}: {key} takes one of {', '.join(values)}")
+        chosen = [c for c in chosen if c[key] == values[text]]
+    return chosen
 
 
 def table(rows: list[dict]) -> str:
     """A markdown table: one row per cell."""
-    head = "| friction | block mass | HSA stiffness | latency (ms) | noise | success | progress (m) |"
-    lines = [head, "|" + "---|" * 7]
+    head = "| friction | block mass | HSA stiffness | latency (ms) | noise | success | progress (m) | failures ended by |"
+    lines = [head, "|" + "---|" * 8]
     for r in rows:
+        ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
         lines.append(f"| x{r['friction']:g} | x{r['block_mass']:g} | x{r['hsa_stiffness']:g} | {r['latency_ms']:g} | "
-                     f"{'on' if r['noise'] else 'off'} | {r['success_rate']:.0%} | {r['mean_progress_m']:.2f} |")
+                     f"{'on' if r['noise'] else 'off'} | {r['success_rate']:.0%} | {r['mean_progress_m']:.2f} | {ended} |")
     return "\n".join(lines)
 
 
@@ -137,6 +173,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--backend", choices=BACKENDS, default="auto",
                         help="physics: auto (C MuJoCo on a CPU, MJX on a GPU), c, jax or warp")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--where", action="append", default=[], metavar="FACTOR=VALUE",
+                        help="only the cells with this factor value, e.g. --where hsa_stiffness=1.3 (repeatable)")
     parser.add_argument("--tag", default=None, help="file name tag (default: the policy folder's name)")
     parser.add_argument("--out-dir", default=str(RESULTS))
     return parser.parse_args(argv)
@@ -150,10 +188,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
         directory = pol.locate(args.policy)
         backend = for_one_env(args.backend)
+        chosen = select(args.where)
         rows = []
         for noise in GRID["noise"]:
-            group = [c for c in cells() if c["noise"] == noise]
-            rows += run_group(directory, group, args.episodes, args.steps, backend, args.seed)
+            group = [c for c in chosen if c["noise"] == noise]
+            rows += run_group(directory, group, args.episodes, args.steps, backend, args.seed) if group else []
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -162,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     worst = min(rows, key=lambda r: r["success_rate"])
     result = {**run_info(), "policy": str(directory), "episodes_per_cell": args.episodes, "max_steps": args.steps,
-              "physics_backend": backend, "noise_on": NOISE_ON, "cells": rows,
+              "physics_backend": backend, "where": args.where, "noise_on": NOISE_ON, "cells": rows,
               "min_success_rate": worst["success_rate"], "mean_success_rate": float(np.mean([r["success_rate"] for r in rows]))}
     (out / f"robustness_{tag}.json").write_text(json.dumps(result, indent=1))
     (out / f"robustness_{tag}.md").write_text(f"# {tag}: success per perturbed model\n\n{table(rows)}\n")

@@ -297,6 +297,9 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
     assert "checkpoints_per_episode" not in evaluate.summarize(traces, dt)  # goals without checkpoints
     json.dumps(result)  # eval.json stays plain JSON
+    done[2, 3] = 1.0  # episode 3 truncated at the env's limit: done, but by no termination reason
+    ended = evaluate.summarize(traces, dt)
+    assert ended["time_out"] == pytest.approx(1 / 3) and ended["not_finished"] == pytest.approx(1 / 3)
 
 
 def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic():

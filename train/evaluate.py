@@ -9,8 +9,9 @@ directory (``policies/<NAME>`` or a path; ``hsa_mjx/deploy/policy.py``), its env
 of at most 1,000 steps).
 
 Prints success rate, mean final distance, mean speed and how the episodes ended (termination
-reasons, ``not_finished`` at the step cap), and writes eval.json, the diagnostic plots (and with
-``--video`` a GIF) into ``--out`` (default ``RUN_DIR/eval/`` or ``runs/eval_<NAME>/``).
+reasons, ``time_out`` at the env's episode limit, ``not_finished`` at a shorter step cap), and
+writes eval.json, the diagnostic plots (and with ``--video`` a GIF) into ``--out`` (default
+``RUN_DIR/eval/`` or ``runs/eval_<NAME>/``).
 
 ``--set env.KEY=VALUE`` (repeatable) evaluates on a changed env, e.g. goals farther than training's
 (``--set env.goal.radial_range=[4.0,4.5]``); the observation cannot change.
@@ -197,7 +198,7 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
             "mean_final_distance": float(final_distance.mean()), "mean_speed_m_per_s": float(speed.mean()),
             "mean_start_distance": float(traces["start_distance"].mean()), **progress,
             "mean_episode_steps": float(length.mean()), **{k: v for k, v in ends.items() if v > 0},
-            "not_finished": float(np.mean(~ended))}
+            "time_out": float(np.mean(ended & ~reasons.any(axis=1))), "not_finished": float(np.mean(~ended))}
 
 
 def checkpoint_timeline(index: np.ndarray, alive: np.ndarray) -> list[dict[str, float]]:
