@@ -17,6 +17,7 @@ the grid's span and each episode's draws are then set to its cell's values
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import sys
@@ -31,6 +32,7 @@ from benchmarks.run_info import run_info
 from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy as pol
 from hsa_mjx.deploy.loop import latency_steps
+from hsa_mjx.randomization_config import RandomizationConfig
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.randomization import PhysicsScales
 from train import config as tcfg
@@ -55,10 +57,11 @@ def env_overrides(noise: bool, max_latency_steps: int) -> tuple[str, ...]:
 
     Everything is set, not only the grid's factors, so that a policy trained with randomisation (whose
     config carries its pushes, noise and other ranges) is scored on the cell's model alone."""
-    span = {name: f"[{min(GRID[name])},{max(GRID[name])}]" for name in ("friction", "block_mass", "hsa_stiffness")}
-    fixed = {"hsa_damping": "[1,1]", "servo_gain": "[1,1]", "servo_force_limit": "[0,0]",
-             "latency_steps": f"[0,{max_latency_steps}]", "push_interval_s": "[0,0]", "push_speed": "0"}
-    out = [f"env.randomization.{name}={value}" for name, value in {**span, **fixed}.items()]
+    ranges = {**dataclasses.asdict(RandomizationConfig()),  # the defaults: every randomisation off
+              **{name: [min(GRID[name]), max(GRID[name])] for name in ("friction", "block_mass", "hsa_stiffness")},
+              "latency_steps": [0, max_latency_steps]}
+    out = [f"env.randomization.{name}={json.dumps(list(value) if isinstance(value, tuple) else value)}"
+           for name, value in ranges.items()]
     out += [f"env.observation.noise.{group}={value if noise else 0}" for group, value in NOISE_ON.items()]
     return tuple(out)
 
