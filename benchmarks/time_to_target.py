@@ -1,0 +1,134 @@
+"""Time to a training target, read from the logs of finished runs.
+
+    python -m benchmarks.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9] [--out-dir DIR --tag NAME]
+
+For each run (a folder ``python -m train`` wrote, or a copy under ``benchmarks/results/training/``)
+it reads ``config.yaml`` and ``metrics.jsonl`` and reports the first log at which the goal
+curriculum has reached its full range (``curriculum.target_range``; a run without the curriculum
+counts from its first log) with a logged episode success rate of at least ``--success``: the
+training loop's wall-clock to it (``training/walltime``, which includes the first epoch's compile;
+a resumed run's calls are added up), the env steps and the PPO iterations to it. Beside it, what the
+run had at its last log: wall-clock, env steps, iterations, success, goal range and, on terrain, the
+mean terrain level. A target never met is reported as ``null`` with the last log's figures.
+
+Why PPO iterations: with weak scaling (the one-GPU batch on every GPU) an iteration of k GPUs
+takes about the wall-clock of one GPU's and holds k times the samples, so comparing iterations says
+whether the larger batch learns more per iteration, which is what decides the time to the target.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+SUCCESS = "episode/success_rate"
+GOAL = "curriculum/max_distance"
+LEVEL = "terrain/mean_level"
+
+
+def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(resolved config, log rows) of a run folder; FileNotFoundError naming what is missing."""
+    paths = [run_dir / "config.yaml", run_dir / "metrics.jsonl"]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"not a training run folder (missing {missing})")
+    config = yaml.safe_load(paths[0].read_text())
+    rows = [json.loads(line) for line in paths[1].read_text().splitlines() if line.strip()]
+    if not rows:
+        raise ValueError(f"{paths[1]} holds no log rows")
+    return config, rows
+
+
+def cumulative_walltime(rows: list[dict[str, Any]]) -> list[float]:
+    """``training/walltime`` of each row, with each resumed call's clock added to the calls before it."""
+    total, offset, last = [], 0.0, 0.0
+    for row in rows:
+        now = float(row["training/walltime"])
+        if now < last:  # a resumed call restarts its clock
+            offset += last
+        last = now
+        total.append(offset + now)
+    return total
+
+
+def iteration_steps(config: dict[str, Any]) -> int:
+    """Env steps of one PPO iteration: every device's sequences of all minibatches, each ``unroll_length`` long."""
+    ppo = config["ppo"]
+    return int(ppo["batch_size"]) * int(ppo["num_minibatches"]) * int(ppo["unroll_length"])
+
+
+def _snapshot(row: dict[str, Any], wall: float, per_iteration: int) -> dict[str, Any]:
+    """The figures of one log row."""
+    return {"wall_s": round(wall, 1), "env_steps": int(row["step"]), "ppo_iterations": int(row["step"]) // per_iteration,
+            "success_rate": row.get(SUCCESS), "goal_max_m": row.get(GOAL), "mean_terrain_level": row.get(LEVEL)}
+
+
+def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: float) -> dict[str, Any]:
+    """The run's figures at the first log meeting the target (``None`` when none does) and at its last log."""
+    walls, per_iteration = cumulative_walltime(rows), iteration_steps(config)
+    curriculum = config.get("curriculum", {})
+    goal_max = float(curriculum["target_range"][1]) if curriculum.get("enabled") else None
+    hit = None
+    for row, wall in zip(rows, walls):
+        at_range = goal_max is None or (row.get(GOAL) or 0.0) >= goal_max - 1e-3
+        if at_range and (row.get(SUCCESS) or 0.0) >= success:
+            hit = _snapshot(row, wall, per_iteration)
+            break
+    run = config["run"]
+    return {"num_envs": run["num_envs"], "num_devices": run.get("num_devices"),
+            "physics_backend": config["env"]["physics"].get("backend"), "iteration_env_steps": per_iteration,
+            "target": {"goal_max_m": goal_max, "success_rate": success}, "reached": hit,
+            "last": _snapshot(rows[-1], walls[-1], per_iteration)}
+
+
+def markdown(results: dict[str, dict[str, Any]]) -> str:
+    """One table row per run: time to the target, and the last log."""
+    lines = ["| run | envs | devices | target reached at (s) | env steps | PPO iterations | last log (s) | "
+             "env steps | iterations | success | goal max (m) | mean terrain level |", "|" + "---|" * 12]
+    for name, r in results.items():
+        hit, last = r["reached"] or {}, r["last"]
+        cells = [name, f"{r['num_envs']:,}", r["num_devices"] or "all local", hit.get("wall_s", "not reached"),
+                 f"{hit['env_steps']:,}" if hit else "-", hit.get("ppo_iterations", "-"), last["wall_s"],
+                 f"{last['env_steps']:,}", last["ppo_iterations"], _round(last["success_rate"]),
+                 _round(last["goal_max_m"]), _round(last["mean_terrain_level"])]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _round(value: float | None) -> str:
+    """Two decimals, or "-" when the run did not log it."""
+    return "-" if value is None else f"{value:.2f}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m benchmarks.time_to_target``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.time_to_target", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dirs", nargs="+", help="run folders (config.yaml and metrics.jsonl)")
+    parser.add_argument("--success", type=float, default=0.9, help="logged success rate to reach (default 0.9)")
+    parser.add_argument("--out-dir", default=None, help="write time_to_target_<tag>.{json,md} here")
+    parser.add_argument("--tag", default="runs")
+    args = parser.parse_args(argv)
+    if not 0.0 < args.success <= 1.0:
+        parser.error(f"--success must be in (0, 1], got {args.success}")
+    try:
+        results = {Path(d).name: time_to_target(*read_run(Path(d)), args.success) for d in args.run_dirs}
+    except (FileNotFoundError, ValueError, KeyError) as err:
+        print(f"error: {err}")
+        return 2
+    table = markdown(results)
+    print(table, end="")
+    if args.out_dir:
+        out = Path(args.out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"time_to_target_{args.tag}.json").write_text(json.dumps(results, indent=1))
+        (out / f"time_to_target_{args.tag}.md").write_text(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,53 @@
+"""benchmarks.time_to_target: the first log meeting the target, resumed calls' clocks added up, bad folders refused."""
+
+import json
+
+import pytest
+import yaml
+
+from benchmarks import time_to_target as ttt
+
+CONFIG = {"env": {"physics": {"backend": "warp"}}, "run": {"num_envs": 64, "num_devices": 2},
+          "ppo": {"batch_size": 8, "num_minibatches": 4, "unroll_length": 20},
+          "curriculum": {"enabled": True, "target_range": [1.5, 4.5]}}
+
+
+def _run(tmp_path, rows, config=CONFIG):
+    """A run folder holding ``config`` and the log ``rows``."""
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return tmp_path
+
+
+def _row(step, wall, goal, success):
+    return {"step": step, "training/walltime": wall, "curriculum/max_distance": goal, "episode/success_rate": success}
+
+
+def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path):
+    rows = [_row(640, 10.0, 1.8, 0.95), _row(1280, 20.0, 4.5, 0.85),  # range not full, then success too low
+            _row(1920, 5.0, 4.5, 0.92),  # a resumed call: its clock restarts
+            _row(2560, 9.0, 4.5, 0.97)]
+    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
+    assert result["iteration_env_steps"] == 640
+    assert result["reached"]["wall_s"] == 25.0 and result["reached"]["env_steps"] == 1920
+    assert result["reached"]["ppo_iterations"] == 3
+    assert result["last"]["wall_s"] == 29.0 and result["last"]["success_rate"] == 0.97
+    assert "| 25.0 | 1,920 | 3 |" in ttt.markdown({"run": result})
+
+
+def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
+    rows = [_row(640, 10.0, 1.8, 0.95), _row(1280, 20.0, 2.1, 0.99)]
+    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
+    assert result["reached"] is None and result["last"]["goal_max_m"] == 2.1
+    assert "not reached" in ttt.markdown({"run": result})
+    no_curriculum = {**CONFIG, "curriculum": {"enabled": False}}  # then the success alone counts
+    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9)
+    assert result["reached"]["env_steps"] == 640
+
+
+def test_bad_folders_are_refused(tmp_path, capsys):
+    with pytest.raises(FileNotFoundError, match="metrics.jsonl"):
+        ttt.read_run(tmp_path)
+    assert ttt.main([str(tmp_path)]) == 2 and "not a training run folder" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="no log rows"):
+        ttt.read_run(_run(tmp_path, []))
