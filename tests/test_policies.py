@@ -14,7 +14,7 @@ from train import evaluate
 
 
 SHIPPED = list(pol.shipped())
-EPISODES, STEPS = 4, 250  # per policy: the corridor policy closes about 0.06 m, the flat one 0.2-1.0 m
+EPISODES, STEPS = 4, 250  # per policy: the corridor policy, slowest between its walls, closes the least
 MARGIN_M = 0.02
 
 
@@ -78,6 +78,10 @@ def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
     assert evaluate.main(["--policy", "corridor", "--episodes", "0"]) == 2
     err = capsys.readouterr().err
     assert "--stochastic needs a RUN_DIR" in err and "either a RUN_DIR or --policy" in err and "--episodes" in err
+    assert evaluate.main(["--policy", "spiral", "--goal-range", "4", "4.5"]) == 2  # checkpoints: not radial goals
+    assert "env.goal.mode=radial" in capsys.readouterr().err
+    assert evaluate.main(["--policy", "flat", "--goal-range", "4.5", "4"]) == 2
+    assert "0 < MIN <= MAX" in capsys.readouterr().err
     for key in ("ppo.learning_rate=1", "env.observation.heading=false"):  # only the env, not the policy's input
         assert evaluate.main([str(tiny_run_dir), "--set", key]) == 2
         assert f"evaluate --set '{key.split('=')[0]}'" in capsys.readouterr().err

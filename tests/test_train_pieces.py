@@ -39,6 +39,12 @@ def test_default_and_shipped_configs_validate():
     assert corridor["env"]["observation"] == {"heading": True, "servo_targets": True, "clock_period_s": 4.0,
                                               "hinge_angles": "raw"}
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
+    # the corridor with perception continues the rough policy: its inputs and servo range, radial goals
+    scan = tcfg.validate(tcfg.load("configs/train_corridor_scan.yaml"))
+    assert scan.run.init_from == "rough" and scan.ppo.privileged_critic and not scan.curriculum.enabled
+    assert observation_size(scan.env.observation) == observation_size(rough.env.observation) == 91
+    assert scan.env.control.servo_target_limit == 3141.5 and scan.env.goal.mode == "radial"
+    assert scan.env.terrain.types == ("corridor",) and scan.env.physics == tcfg.load("configs/train_corridor.yaml").env.physics
     # the spiral starts from a flat run's networks: the flat task's servo range and 28 observation slots
     spiral = tcfg.to_dict(tcfg.load("configs/train_spiral.yaml"))
     assert spiral["env"]["control"]["servo_target_limit"] == flat["env"]["control"]["servo_target_limit"] == 3141.5
@@ -56,7 +62,7 @@ def test_default_and_shipped_configs_validate():
 def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
-    for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_spiral"):
+    for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_corridor_scan", "train_spiral"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name
@@ -129,6 +135,10 @@ def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
     np.testing.assert_allclose(restored["w"], np.arange(6.0).reshape(2, 3) * 40)
     assert int(restored["inner"]["n"]) == 3
     assert checkpoint.read_meta(latest)["step"] == 40
+    # a hard stop (second Ctrl-C) names the checkpoint --resume continues from, or says there is none
+    from train.cli import interrupted_message
+    assert interrupted_message(tmp_path).endswith("continues from " + str(latest))
+    assert "before any checkpoint" in interrupted_message(tmp_path / "nothing")
 
 
 def test_corrupt_and_missing_checkpoints_are_named(tmp_path):

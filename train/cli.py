@@ -72,6 +72,15 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
     return config, run_dir
 
 
+def interrupted_message(run_dir: str | Path) -> str:
+    """What a hard stop leaves: the newest periodic checkpoint to ``--resume`` from, or none."""
+    from train import checkpoint
+    found = checkpoint.list_checkpoints(run_dir)
+    if not found:
+        return f"interrupted before any checkpoint was written in {run_dir}"
+    return f"interrupted hard: no checkpoint of this moment; --resume continues from {found[-1]}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m train`` and the ``hsa-train`` console script."""
     args = parse_args(argv)
@@ -87,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # before the training loop (set-up, compile): nothing to checkpoint yet
-        print(f"\ninterrupted before the first epoch finished: no checkpoint written in {run_dir}", file=sys.stderr)
+    except KeyboardInterrupt:  # during set-up or compile, or a second Ctrl-C: no checkpoint of this moment
+        print(f"\n{interrupted_message(run_dir)}", file=sys.stderr)
         return 130
     print(f"\nrun dir: {run_dir}")
     for key, value in summary.items():

@@ -304,6 +304,18 @@ def load_subject(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, HSAEnv, An
     return config, env, policy, header, Path(args.out) if args.out else run_dir / "eval"
 
 
+def check_goal_range(goal_range: list[float] | None, config: tcfg.TrainConfig) -> None:
+    """A ValueError when ``--goal-range`` is out of order or the env's goals are not radial (it would be ignored)."""
+    if goal_range is None:
+        return
+    low, high = goal_range
+    if not 0.0 < low <= high:
+        raise ValueError(f"--goal-range MIN MAX must satisfy 0 < MIN <= MAX, got {low:g} {high:g}")
+    if config.env.goal.mode != "radial":
+        raise ValueError(f"--goal-range sets radial goal distances, but this env's goals are "
+                         f"{config.env.goal.mode!r} (env.goal.mode); add --set env.goal.mode=radial")
+
+
 def _episodes(args: argparse.Namespace, shipped: bool) -> int:
     """Episodes to play: as asked, else 16 for a run and CPU_EPISODES for a shipped policy."""
     return args.episodes or (CPU_EPISODES if shipped else 16)
@@ -315,6 +327,7 @@ def main(argv: list[str] | None = None) -> int:
     args.backend = for_one_env(args.backend)  # auto: C MuJoCo on a CPU, where MJX batches of one env are slow
     try:
         config, env, policy, header, out = load_subject(args)
+        check_goal_range(args.goal_range, config)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
