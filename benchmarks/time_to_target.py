@@ -25,6 +25,8 @@ from typing import Any
 
 import yaml
 
+from train.logger import read_jsonl
+
 SUCCESS = "episode/success_rate"
 GOAL = "curriculum/max_distance"
 LEVEL = "terrain/mean_level"
@@ -37,7 +39,7 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     if missing:
         raise FileNotFoundError(f"not a training run folder (missing {missing})")
     config = yaml.safe_load(paths[0].read_text())
-    rows = [json.loads(line) for line in paths[1].read_text().splitlines() if line.strip()]
+    rows = read_jsonl(paths[1])
     if not rows:
         raise ValueError(f"{paths[1]} holds no log rows")
     return config, rows
