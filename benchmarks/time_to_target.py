@@ -9,7 +9,9 @@ counts from its first log) with a logged episode success rate of at least ``--su
 training loop's wall-clock to it (``training/walltime``, which includes the first epoch's compile;
 a resumed run's calls are added up), the env steps and the PPO iterations to it. Beside it, what the
 run had at its last log: wall-clock, env steps, iterations, success, goal range and, on terrain, the
-mean terrain level. A target never met is reported as ``null`` with the last log's figures.
+mean terrain level. A target never met is reported as ``null`` with the last log's figures. The
+first log's wall-clock (the compile and the first epoch) is given too: it depends on the caches
+(XLA's and Warp's kernel cache), so runs compare best on the time after it.
 
 Why PPO iterations: with weak scaling (the one-GPU batch on every GPU) an iteration of k GPUs
 takes about the wall-clock of one GPU's and holds k times the samples, so comparing iterations says
@@ -33,7 +35,11 @@ LEVEL = "terrain/mean_level"
 
 
 def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """(resolved config, log rows) of a run folder; FileNotFoundError naming what is missing."""
+    """(resolved config, log rows) of a run folder; FileNotFoundError naming what is missing.
+
+    Where the run wrote ``summary.json``, its ``physics_backend`` (the backend ``auto`` resolved to)
+    replaces the config's.
+    """
     paths = [run_dir / "config.yaml", run_dir / "metrics.jsonl"]
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
@@ -42,6 +48,9 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     rows = read_jsonl(paths[1])
     if not rows:
         raise ValueError(f"{paths[1]} holds no log rows")
+    summary = run_dir / "summary.json"
+    if summary.is_file() and "physics_backend" in (resolved := json.loads(summary.read_text())):
+        config["env"]["physics"]["backend"] = resolved["physics_backend"]
     return config, rows
 
 
@@ -83,18 +92,20 @@ def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: 
     run = config["run"]
     return {"num_envs": run["num_envs"], "num_devices": run.get("num_devices"),
             "physics_backend": config["env"]["physics"].get("backend"), "iteration_env_steps": per_iteration,
-            "target": {"goal_max_m": goal_max, "success_rate": success}, "reached": hit,
+            "target": {"goal_max_m": goal_max, "success_rate": success}, "first_log_s": round(walls[0], 1),
+            "reached": hit,
             "last": _snapshot(rows[-1], walls[-1], per_iteration)}
 
 
 def markdown(results: dict[str, dict[str, Any]]) -> str:
     """One table row per run: time to the target, and the last log."""
-    lines = ["| run | envs | devices | target reached at (s) | env steps | PPO iterations | last log (s) | "
-             "env steps | iterations | success | goal max (m) | mean terrain level |", "|" + "---|" * 12]
+    lines = ["| run | envs | devices | first log (s) | target reached at (s) | env steps | PPO iterations | "
+             "last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |", "|" + "---|" * 13]
     for name, r in results.items():
         hit, last = r["reached"] or {}, r["last"]
-        cells = [name, f"{r['num_envs']:,}", r["num_devices"] or "all local", hit.get("wall_s", "not reached"),
-                 f"{hit['env_steps']:,}" if hit else "-", hit.get("ppo_iterations", "-"), last["wall_s"],
+        cells = [name, f"{r['num_envs']:,}", r["num_devices"] or "all local", r["first_log_s"],
+                 hit.get("wall_s", "not reached"), f"{hit['env_steps']:,}" if hit else "-",
+                 hit.get("ppo_iterations", "-"), last["wall_s"],
                  f"{last['env_steps']:,}", last["ppo_iterations"], _round(last["success_rate"]),
                  _round(last["goal_max_m"]), _round(last["mean_terrain_level"])]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")

@@ -29,10 +29,11 @@ def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path
             _row(2560, 9.0, 4.5, 0.97)]
     result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
     assert result["iteration_env_steps"] == 640
+    assert result["first_log_s"] == 10.0
     assert result["reached"]["wall_s"] == 25.0 and result["reached"]["env_steps"] == 1920
     assert result["reached"]["ppo_iterations"] == 3
     assert result["last"]["wall_s"] == 29.0 and result["last"]["success_rate"] == 0.97
-    assert "| 25.0 | 1,920 | 3 |" in ttt.markdown({"run": result})
+    assert "| 10.0 | 25.0 | 1,920 | 3 |" in ttt.markdown({"run": result})
 
 
 def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
@@ -40,6 +41,9 @@ def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
     result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
     assert result["reached"] is None and result["last"]["goal_max_m"] == 2.1
     assert "not reached" in ttt.markdown({"run": result})
+    assert result["physics_backend"] == "warp"
+    (tmp_path / "summary.json").write_text(json.dumps({"physics_backend": "jax"}))  # what "auto" resolved to
+    assert ttt.time_to_target(*ttt.read_run(tmp_path), success=0.9)["physics_backend"] == "jax"
     no_curriculum = {**CONFIG, "curriculum": {"enabled": False}}  # then the success alone counts
     result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9)
     assert result["reached"]["env_steps"] == 640

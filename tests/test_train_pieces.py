@@ -141,6 +141,22 @@ def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
     assert "before any checkpoint" in interrupted_message(tmp_path / "nothing")
 
 
+def test_stop_flag_takes_a_forwarded_duplicate_as_one_request_and_a_later_one_as_hard_stop():
+    import os
+    import signal
+
+    from train.trainer import _StopFlag
+    with _StopFlag(repeat_s=60.0) as stop:
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)  # e.g. pkill reaching both `timeout` and its child
+        assert stop.raised
+    with _StopFlag(repeat_s=0.0) as stop:
+        os.kill(os.getpid(), signal.SIGINT)
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    assert signal.getsignal(signal.SIGTERM) is not stop._handle  # handlers restored
+
+
 def test_corrupt_and_missing_checkpoints_are_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="no checkpoint found"):
         checkpoint.latest(tmp_path)

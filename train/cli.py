@@ -2,7 +2,7 @@
 
 Every problem with the config, the run directory or the checkpoint to resume is reported before
 anything is compiled. Ctrl-C (or SIGTERM) finishes the current epoch, writes a checkpoint and
-exits; a second Ctrl-C stops at once.
+exits; a second Ctrl-C (more than a second after the first) stops at once.
 
 Several hosts: start one process per host with ``--coordinator HOST:PORT --num-processes N
 --process-id I`` (or the ``HSA_COORDINATOR``, ``HSA_NUM_PROCESSES``, ``HSA_PROCESS_ID`` environment

@@ -30,10 +30,14 @@ from train.warm_start import read_init_from, warm_start
 
 
 class _StopFlag:
-    """Turns Ctrl-C / SIGTERM into a flag checked between epochs, so state is never half-donated."""
+    """Turns Ctrl-C / SIGTERM into a flag checked between epochs, so state is never half-donated.
 
-    def __init__(self):
-        self.raised, self._old = False, {}
+    A second signal stops hard, unless it comes within ``repeat_s`` of the first: wrappers that
+    forward signals (``timeout``, ``srun``, ``docker``) deliver one stop request twice at once.
+    """
+
+    def __init__(self, repeat_s: float = 1.0):
+        self.raised, self._old, self._first, self.repeat_s = False, {}, 0.0, repeat_s
 
     def __enter__(self):
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -44,9 +48,11 @@ class _StopFlag:
         return self
 
     def _handle(self, signum, frame):
-        if self.raised:  # second Ctrl-C: stop hard
-            raise KeyboardInterrupt
-        self.raised = True
+        if self.raised:
+            if time.monotonic() - self._first < self.repeat_s:  # the same request, forwarded twice
+                return
+            raise KeyboardInterrupt  # second Ctrl-C: stop hard
+        self.raised, self._first = True, time.monotonic()
         print(f"\nsignal {signum}: finishing this epoch, writing a checkpoint, then stopping", flush=True)
 
     def __exit__(self, *exc):
