@@ -32,8 +32,8 @@ from train.warm_start import read_init_from, warm_start
 class _StopFlag:
     """Turns Ctrl-C / SIGTERM into a flag checked between epochs, so state is never half-donated.
 
-    A second signal stops hard, unless it comes within ``repeat_s`` of the first: wrappers that
-    forward signals (``timeout``, ``srun``, ``docker``) deliver one stop request twice at once.
+    A second signal stops hard, unless it comes within ``repeat_s`` of the first: a signal sent to
+    both a forwarding wrapper (``timeout``, ``srun``) and the process reaches it twice at once.
     """
 
     def __init__(self, repeat_s: float = 1.0):
