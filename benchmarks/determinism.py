@@ -19,8 +19,9 @@ import argparse
 import json
 import os
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
@@ -34,6 +35,7 @@ SCENES = {"flat": "flat", "heightfield": "terrain"}
 
 def play(env, envs: int, steps: int) -> Callable[[jax.Array], dict[str, jax.Array]]:
     """A jittable rollout from ``key``: qpos after every step (steps, envs, nq) and the final blocks."""
+
     def run(key: jax.Array) -> dict[str, jax.Array]:
         reset_key, action_key = jax.random.split(key)
         state = jax.vmap(env.reset)(jax.random.split(reset_key, envs))
@@ -45,6 +47,7 @@ def play(env, envs: int, steps: int) -> Callable[[jax.Array], dict[str, jax.Arra
 
         state, qpos = jax.lax.scan(body, state, actions)
         return {"qpos": qpos, "blocks": state.pipeline_state.physics.xpos[:, env.index.block_body]}
+
     return run
 
 
@@ -53,10 +56,14 @@ def compare(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, Any
     dq = np.abs(a["qpos"] - b["qpos"]).max(axis=-1)  # (steps, envs)
     differs = dq > 0
     first = np.argmax(differs.any(axis=1)) if differs.any() else None
-    return {"bitwise_equal": not differs.any(), "envs_differing": int(differs.any(axis=0).sum()),
-            "first_differing_step": None if first is None else int(first) + 1,
-            "max_qpos_diff": float(dq.max()), "max_block_diff_m": float(np.abs(a["blocks"] - b["blocks"]).max()),
-            "envs_block_diff_over_1mm": int((np.abs(a["blocks"] - b["blocks"]).max(axis=(-2, -1)) > 1e-3).sum())}
+    return {
+        "bitwise_equal": not differs.any(),
+        "envs_differing": int(differs.any(axis=0).sum()),
+        "first_differing_step": None if first is None else int(first) + 1,
+        "max_qpos_diff": float(dq.max()),
+        "max_block_diff_m": float(np.abs(a["blocks"] - b["blocks"]).max()),
+        "envs_block_diff_over_1mm": int((np.abs(a["blocks"] - b["blocks"]).max(axis=(-2, -1)) > 1e-3).sum()),
+    }
 
 
 def measure(backend: str, terrain: str, envs: int, steps: int, seed: int) -> dict[str, Any]:
@@ -68,26 +75,39 @@ def measure(backend: str, terrain: str, envs: int, steps: int, seed: int) -> dic
     first, second = (jax.device_get(compiled(key)) for _ in range(2))
     recompiled = jax.device_get(jax.jit(play(env, envs, steps)).lower(key).compile()(key))
     finite = bool(np.isfinite(first["qpos"]).all())
-    return {"backend": env.physics_backend, "terrain": terrain, "setting": setting, "envs": envs, "steps": steps,
-            "seed": seed, "finite": finite, "same_program": compare(first, second),
-            "recompiled": compare(first, recompiled)}
+    return {
+        "backend": env.physics_backend,
+        "terrain": terrain,
+        "setting": setting,
+        "envs": envs,
+        "steps": steps,
+        "seed": seed,
+        "finite": finite,
+        "same_program": compare(first, second),
+        "recompiled": compare(first, recompiled),
+    }
 
 
 def markdown(rows: list[dict[str, Any]], info: dict[str, Any]) -> str:
     """The rows as a markdown table with their provenance."""
     flags = {k: v for k, v in info.get("environment", {}).items() if v}
-    lines = [f"Run-to-run determinism on {info['device']}, {info['date']}; command `{info['command']}`"
-             f"{'; environment ' + str(flags) if flags else ''}.", "",
-             "| backend | terrain | envs | steps | run | bitwise equal | envs differing | first differing step "
-             "| max hinge/qpos diff | max block diff (m) | envs with blocks > 1 mm apart |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Run-to-run determinism on {info['device']}, {info['date']}; command `{info['command']}`"
+        f"{'; environment ' + str(flags) if flags else ''}.",
+        "",
+        "| backend | terrain | envs | steps | run | bitwise equal | envs differing | first differing step "
+        "| max hinge/qpos diff | max block diff (m) | envs with blocks > 1 mm apart |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
         for run in ("same_program", "recompiled"):
             c = row[run]
-            lines.append(f"| {row['backend']} | {row['terrain']} | {row['envs']:,} | {row['steps']} | {run} | "
-                         f"{'yes' if c['bitwise_equal'] else 'no'} | {c['envs_differing']} | "
-                         f"{c['first_differing_step'] or '-'} | {c['max_qpos_diff']:.3g} | "
-                         f"{c['max_block_diff_m']:.3g} | {c['envs_block_diff_over_1mm']} |")
+            lines.append(
+                f"| {row['backend']} | {row['terrain']} | {row['envs']:,} | {row['steps']} | {run} | "
+                f"{'yes' if c['bitwise_equal'] else 'no'} | {c['envs_differing']} | "
+                f"{c['first_differing_step'] or '-'} | {c['max_qpos_diff']:.3g} | "
+                f"{c['max_block_diff_m']:.3g} | {c['envs_block_diff_over_1mm']} |"
+            )
     return "\n".join(lines) + "\n"
 
 

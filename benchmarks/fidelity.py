@@ -27,8 +27,9 @@ import dataclasses
 import functools
 import json
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -38,9 +39,9 @@ import numpy as np
 import hsa_mjx
 from benchmarks import gaits as gait_lib
 from benchmarks.run_info import run_info
-from hsa_mjx.task import control
 from hsa_mjx.config import EnvConfig, TerminationConfig, get_preset, with_overrides
 from hsa_mjx.sim.model import RobotIndex, load_mj_model, load_robot
+from hsa_mjx.task import control
 from hsa_mjx.task.termination import FAILURE_REASONS
 
 CONTROL_DT = 0.02
@@ -71,8 +72,13 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "implicitfast_dt1ms_newton4_ls8": {**_IMPLICIT, **_FAST},
     "implicitfast_dt1ms_newton8_ls8": {**_IMPLICIT, "physics.iterations": 8, "physics.ls_iterations": 8},
     "implicitfast_dt1ms_newton4_ls4": {**_IMPLICIT, "physics.iterations": 4, "physics.ls_iterations": 4},
-    "implicitfast_dt1.25ms_newton4_ls4": {**_IMPLICIT, "physics.timestep": 0.00125, "control.frame_skip": 16,
-                                          "physics.iterations": 4, "physics.ls_iterations": 4},
+    "implicitfast_dt1.25ms_newton4_ls4": {
+        **_IMPLICIT,
+        "physics.timestep": 0.00125,
+        "control.frame_skip": 16,
+        "physics.iterations": 4,
+        "physics.ls_iterations": 4,
+    },
     "implicitfast_dt2ms": {**_IMPLICIT, **_DT2},
     "implicitfast_dt2ms_newton4_ls8": {**_IMPLICIT, **_DT2, **_FAST},
     "implicitfast_dt4ms": {**_IMPLICIT, **_DT4},
@@ -80,8 +86,12 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "euler_dt2ms_newton4_ls8": {**_DT2, **_FAST},
     # The shipped settings on MJX's Warp implementation (MuJoCo Warp; every other setting runs on JAX)
     "warp_implicitfast_dt1ms_newton4_ls8": {**_IMPLICIT, **_FAST, "physics.backend": "warp"},
-    "warp_implicitfast_dt1ms_newton8_ls8": {**_IMPLICIT, "physics.iterations": 8, "physics.ls_iterations": 8,
-                                            "physics.backend": "warp"},
+    "warp_implicitfast_dt1ms_newton8_ls8": {
+        **_IMPLICIT,
+        "physics.iterations": 8,
+        "physics.ls_iterations": 8,
+        "physics.backend": "warp",
+    },
 }
 # The settings the training configs use and the throughput harness defaults to, per scene:
 # implicitfast at the original 1 ms (explicit Euler blows up under trained gaits: docs/training.md)
@@ -116,8 +126,9 @@ class Run:
 def fidelity_config(overrides: dict[str, Any] | None = None, scene: str = "flat") -> EnvConfig:
     """Flat preset on ``scene``, fixed goal, the JAX backend unless the overrides name another, the given
     physics overrides; checks the control period."""
-    config = with_overrides(get_preset("flat"), **{"goal.mode": "fixed", "scene": scene, "physics.backend": "jax",
-                                                   **(overrides or {})})
+    config = with_overrides(
+        get_preset("flat"), **{"goal.mode": "fixed", "scene": scene, "physics.backend": "jax", **(overrides or {})}
+    )
     if not np.isclose(config.dt, CONTROL_DT):
         raise ValueError(f"timestep x frame_skip must stay {CONTROL_DT} s, got {config.dt}")
     return config
@@ -129,14 +140,18 @@ def _yaw_deg(block_xy: np.ndarray) -> float:
     return float(np.degrees(np.arctan2(axis[1], axis[0])))
 
 
-def _step_failures(worst_qvel: float, worst_qacc: float, z: np.ndarray, finite: bool,
-                   limits: TerminationConfig) -> list[str]:
+def _step_failures(
+    worst_qvel: float, worst_qacc: float, z: np.ndarray, finite: bool, limits: TerminationConfig
+) -> list[str]:
     """The env's failure reasons for one control step of a C MuJoCo run (flat ground at z = 0)."""
     checks = {
         "non_finite": not finite,
-        "block_a_too_high": z[0] > limits.z_max, "block_a_too_low": z[0] < limits.z_min,
-        "block_b_too_high": z[1] > limits.z_max, "block_b_too_low": z[1] < limits.z_min,
-        "qvel_limit": worst_qvel > limits.qvel_limit, "qacc_limit": worst_qacc > limits.qacc_limit,
+        "block_a_too_high": z[0] > limits.z_max,
+        "block_a_too_low": z[0] < limits.z_min,
+        "block_b_too_high": z[1] > limits.z_max,
+        "block_b_too_low": z[1] < limits.z_min,
+        "qvel_limit": worst_qvel > limits.qvel_limit,
+        "qacc_limit": worst_qacc > limits.qacc_limit,
     }
     return [name for name, hit in checks.items() if hit]
 
@@ -171,9 +186,14 @@ def robot_self_collision_model(config: EnvConfig) -> mujoco.MjModel:
     return model
 
 
-def reference_run(actions: np.ndarray, scene: str = "flat", all_contacts: bool = False, lift_m: float = 0.0,
-                  overrides: dict[str, Any] | None = None,
-                  start: tuple[RobotIndex, np.ndarray] | None = None) -> Run:
+def reference_run(
+    actions: np.ndarray,
+    scene: str = "flat",
+    all_contacts: bool = False,
+    lift_m: float = 0.0,
+    overrides: dict[str, Any] | None = None,
+    start: tuple[RobotIndex, np.ndarray] | None = None,
+) -> Run:
     """Play ``actions`` (steps, 8) in C MuJoCo at the original settings, with the env's control law.
 
     ``all_contacts``: every robot geom collides (the original's set-up). ``lift_m`` raises block A's
@@ -284,17 +304,26 @@ def references(actions: np.ndarray, scene: str, **kwargs: Any) -> tuple[list[Run
     return runs, time.perf_counter() - tic
 
 
-def rows_for(setting: str, runs: list[Run], refs: list[Run], gait_names: Sequence[str],
-             timing: dict[str, float]) -> list[dict[str, Any]]:
+def rows_for(
+    setting: str, runs: list[Run], refs: list[Run], gait_names: Sequence[str], timing: dict[str, float]
+) -> list[dict[str, Any]]:
     """One result row per gait: the comparison plus the setting's overrides and timings."""
     overrides = SETTINGS.get(setting, C_VARIANTS.get(setting, {}))
-    return [{"setting": setting, "gait": gait, "overrides": overrides, **timing, **compare(ref, run)}
-            for gait, ref, run in zip(gait_names, refs, runs)]
+    return [
+        {"setting": setting, "gait": gait, "overrides": overrides, **timing, **compare(ref, run)}
+        for gait, ref, run in zip(gait_names, refs, runs)
+    ]
 
 
-def run_fidelity(settings: Sequence[str], gait_names: Sequence[str], duration_s: float,
-                 check_contacts: bool = True, c_variants: Sequence[str] = tuple(C_VARIANTS),
-                 scene: str = "flat", log: bool = True) -> list[dict[str, Any]]:
+def run_fidelity(
+    settings: Sequence[str],
+    gait_names: Sequence[str],
+    duration_s: float,
+    check_contacts: bool = True,
+    c_variants: Sequence[str] = tuple(C_VARIANTS),
+    scene: str = "flat",
+    log: bool = True,
+) -> list[dict[str, Any]]:
     """Compare every setting (and the C MuJoCo diagnostics) against the C MuJoCo reference."""
     unknown = sorted(set(settings) - set(SETTINGS)) + sorted(set(c_variants) - set(C_VARIANTS))
     if unknown:
@@ -319,13 +348,17 @@ def run_fidelity(settings: Sequence[str], gait_names: Sequence[str], duration_s:
 
 def format_table(rows: list[dict[str, Any]]) -> str:
     """Markdown table: setting, gait, displacement, errors, pass."""
-    lines = ["| setting | gait | displacement (m) | ref (m) | disp. error % | heading error deg | pass |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| setting | gait | displacement (m) | ref (m) | disp. error % | heading error deg | pass |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         dx, dy = r["displacement_m"]
-        lines.append(f"| {r['setting']} | {r['gait']} | ({dx:+.3f}, {dy:+.3f}) {r['distance_m']:.3f} | "
-                     f"{r['reference_distance_m']:.3f} | {r['displacement_error_pct']:.1f} | "
-                     f"{r['heading_error_deg']:.1f} | {'yes' if r['pass'] else 'NO'} |")
+        lines.append(
+            f"| {r['setting']} | {r['gait']} | ({dx:+.3f}, {dy:+.3f}) {r['distance_m']:.3f} | "
+            f"{r['reference_distance_m']:.3f} | {r['displacement_error_pct']:.1f} | "
+            f"{r['heading_error_deg']:.1f} | {'yes' if r['pass'] else 'NO'} |"
+        )
     return "\n".join(lines)
 
 
@@ -339,41 +372,66 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, bool]:
 
 def summary_table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of the worst gait per setting: displacement error, heading error, verdict."""
-    lines = ["| setting | worst disp. error % (gait) | worst heading error deg (gait) | new failures | pass |",
-             "|---|---|---|---|---|"]
+    lines = [
+        "| setting | worst disp. error % (gait) | worst heading error deg (gait) | new failures | pass |",
+        "|---|---|---|---|---|",
+    ]
     for setting, ok in summary(rows).items():
         mine = [r for r in rows if r["setting"] == setting]
         disp = max(mine, key=lambda r: r["displacement_error_pct"])
         head = max(mine, key=lambda r: r["heading_error_deg"])
         fails = sorted({f for r in mine for f in r["failures_not_in_reference"]})
-        lines.append(f"| {setting} | {disp['displacement_error_pct']:.1f} ({disp['gait']}) | "
-                     f"{head['heading_error_deg']:.1f} ({head['gait']}) | {', '.join(fails) or '-'} | "
-                     f"{'yes' if ok else 'NO'} |")
+        lines.append(
+            f"| {setting} | {disp['displacement_error_pct']:.1f} ({disp['gait']}) | "
+            f"{head['heading_error_deg']:.1f} ({head['gait']}) | {', '.join(fails) or '-'} | "
+            f"{'yes' if ok else 'NO'} |"
+        )
     return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--settings", nargs="*", default=list(SETTINGS), choices=sorted(SETTINGS), metavar="NAME",
-                        help=f"MJX settings to test (default all): {', '.join(SETTINGS)}")
+    parser.add_argument(
+        "--settings",
+        nargs="*",
+        default=list(SETTINGS),
+        choices=sorted(SETTINGS),
+        metavar="NAME",
+        help=f"MJX settings to test (default all): {', '.join(SETTINGS)}",
+    )
     parser.add_argument("--gaits", nargs="+", default=list(GUARD_GAITS), choices=sorted(gait_lib.GAITS))
     parser.add_argument("--duration", type=float, default=10.0, help="seconds of simulated time per gait")
     parser.add_argument("--no-contact-check", action="store_true", help="skip the all-contacts C reference")
-    parser.add_argument("--c-variants", nargs="*", default=list(C_VARIANTS), choices=sorted(C_VARIANTS),
-                        help="C MuJoCo diagnostic settings (none: skip)")
-    parser.add_argument("--scene", choices=("flat", "terrain"), default="flat",
-                        help="flat: the plane (the guard); terrain: the flat-data heightfield")
+    parser.add_argument(
+        "--c-variants",
+        nargs="*",
+        default=list(C_VARIANTS),
+        choices=sorted(C_VARIANTS),
+        help="C MuJoCo diagnostic settings (none: skip)",
+    )
+    parser.add_argument(
+        "--scene",
+        choices=("flat", "terrain"),
+        default="flat",
+        help="flat: the plane (the guard); terrain: the flat-data heightfield",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fidelity/fidelity.json"))
     args = parser.parse_args(argv)
-    rows = run_fidelity(args.settings, args.gaits, args.duration, not args.no_contact_check, args.c_variants,
-                        args.scene)
+    rows = run_fidelity(
+        args.settings, args.gaits, args.duration, not args.no_contact_check, args.c_variants, args.scene
+    )
     print(format_table(rows))
     verdict = summary(rows)
     print("\n" + summary_table(rows))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    meta = {**run_info(), "scene": args.scene, "duration_s": args.duration, "gaits": args.gaits,
-            "tolerance": {"displacement_pct": 100 * DISPLACEMENT_TOL, "heading_deg": HEADING_TOL_DEG},
-            "reference": f"C MuJoCo, timestep 0.001, Euler, Newton 100/50, tol 1e-8, pyramidal, scene {args.scene}"}
+    meta = {
+        **run_info(),
+        "scene": args.scene,
+        "duration_s": args.duration,
+        "gaits": args.gaits,
+        "tolerance": {"displacement_pct": 100 * DISPLACEMENT_TOL, "heading_deg": HEADING_TOL_DEG},
+        "reference": f"C MuJoCo, timestep 0.001, Euler, Newton 100/50, tol 1e-8, pyramidal, scene {args.scene}",
+    }
     args.out.write_text(json.dumps({"meta": meta, "passes_every_gait": verdict, "rows": rows}, indent=1) + "\n")
     print(f"wrote {args.out}")
 

@@ -13,7 +13,6 @@ from typing import Any
 
 import jax
 
-
 # environment variables that change speed or numerics: recorded with every result
 SPEED_ENV_VARS = ("XLA_FLAGS", "JAX_DEFAULT_MATMUL_PRECISION", "CUDA_VISIBLE_DEVICES", "JAX_ENABLE_X64")
 
@@ -49,12 +48,14 @@ def device_kind() -> str:
 
 def git_state() -> dict[str, Any]:
     """Commit of the checkout and whether it had local changes (None outside a git checkout)."""
+
     def git(*args: str) -> str | None:
         try:
             out = subprocess.run(["git", *args], capture_output=True, text=True, timeout=10, check=True)
         except (OSError, subprocess.SubprocessError):
             return None
         return out.stdout.strip()
+
     commit = git("rev-parse", "HEAD")
     status = git("status", "--porcelain") if commit else None
     return {"git_commit": commit, "git_dirty": None if status is None else bool(status)}

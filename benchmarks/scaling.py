@@ -36,9 +36,10 @@ import dataclasses
 import statistics
 import sys
 import time
+from collections.abc import Callable, Sequence
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
@@ -47,8 +48,8 @@ from benchmarks import scaling_report as report
 from benchmarks import throughput
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
-from hsa_mjx.curricula import goal as cur
 from hsa_mjx.batch.auto_reset import AutoResetEnv
+from hsa_mjx.curricula import goal as cur
 from train import config as tcfg
 from train import distributed
 from train.cli import default_config
@@ -71,13 +72,16 @@ def device_counts(available: int) -> list[int]:
 def scaled_config(base: tcfg.TrainConfig, envs_per_device: int, devices: int, iterations: int) -> tcfg.TrainConfig:
     """``base`` at ``envs_per_device x devices`` envs with its minibatch and epoch scaled to match."""
     if envs_per_device < 1 or devices < 1 or iterations < 1:
-        raise ValueError(f"envs per device, devices and iterations must be >= 1, got "
-                         f"{envs_per_device}, {devices}, {iterations}")
+        raise ValueError(
+            f"envs per device, devices and iterations must be >= 1, got {envs_per_device}, {devices}, {iterations}"
+        )
     num_envs = envs_per_device * devices
     batch = Fraction(base.ppo.batch_size * num_envs, base.run.num_envs)
     if batch.denominator != 1:
-        raise ValueError(f"ppo.batch_size {base.ppo.batch_size} x {num_envs} envs / run.num_envs "
-                         f"{base.run.num_envs} is not a whole number; choose --envs-per-device so it is")
+        raise ValueError(
+            f"ppo.batch_size {base.ppo.batch_size} x {num_envs} envs / run.num_envs "
+            f"{base.run.num_envs} is not a whole number; choose --envs-per-device so it is"
+        )
     ppo = dataclasses.replace(base.ppo, batch_size=int(batch))
     steps = iterations * ppo.batch_size * ppo.num_minibatches * ppo.unroll_length
     run = dataclasses.replace(base.run, num_envs=num_envs, num_devices=devices, steps_per_epoch=steps)
@@ -157,8 +161,9 @@ class Bench:
         learner, runs = self.learner, []
         for env in learner.batch_envs:
             batch_env = AutoResetEnv(env.env)
-            runs.append(jax.jit(throughput.env_loop(env.env, batch_env, steps)[1],
-                                donate_argnums=(0,) if self.donate else ()))
+            runs.append(
+                jax.jit(throughput.env_loop(env.env, batch_env, steps)[1], donate_argnums=(0,) if self.donate else ())
+            )
 
         def call(carry: tuple) -> tuple:
             keys = [jax.device_put(np.asarray(k), d) for k, d in zip(np.asarray(self.keys()), self.devices)]
@@ -168,47 +173,66 @@ class Bench:
 
     def ppo_epochs(self, epochs: int) -> Timed:
         """(ii) PPO epochs with updates, as the trainer runs them."""
-        return time_calls(lambda c: self.learner.epoch(c[0], c[1], self.keys())[:2],
-                          (self.training_state(), self.reset()), epochs)
+        return time_calls(
+            lambda c: self.learner.epoch(c[0], c[1], self.keys())[:2], (self.training_state(), self.reset()), epochs
+        )
 
     def collection(self, epochs: int) -> Timed:
         """The epoch's collections alone (no learning)."""
-        return time_calls(lambda c: self.learner.collect_epoch(c[0], c[1], self.keys()),
-                          (self.training_state(), self.reset()), epochs)
+        return time_calls(
+            lambda c: self.learner.collect_epoch(c[0], c[1], self.keys()), (self.training_state(), self.reset()), epochs
+        )
 
 
 def _env_fields(timed: Timed, batch: int, steps: int) -> dict[str, Any]:
     """Row fields of the env loop: rate of the median call, compile time, every call."""
-    return {"env_steps_per_s": round(batch * steps / timed.median_s, 1), "env_compile_s": round(timed.compile_s, 2),
-            "env_call_s": [round(s, 4) for s in timed.seconds], "steps_per_call": steps}
+    return {
+        "env_steps_per_s": round(batch * steps / timed.median_s, 1),
+        "env_compile_s": round(timed.compile_s, 2),
+        "env_call_s": [round(s, 4) for s in timed.seconds],
+        "steps_per_call": steps,
+    }
 
 
 def _ppo_fields(timed: Timed, steps_per_epoch: int) -> dict[str, Any]:
     """Row fields of the PPO epochs: rate of the median epoch, compile time, every epoch."""
-    return {"ppo_env_steps_per_s": round(steps_per_epoch / timed.median_s, 1),
-            "ppo_compile_s": round(timed.compile_s, 2), "ppo_epoch_s": [round(s, 4) for s in timed.seconds],
-            "env_steps_per_epoch": steps_per_epoch}
+    return {
+        "ppo_env_steps_per_s": round(steps_per_epoch / timed.median_s, 1),
+        "ppo_compile_s": round(timed.compile_s, 2),
+        "ppo_epoch_s": [round(s, 4) for s in timed.seconds],
+        "env_steps_per_epoch": steps_per_epoch,
+    }
 
 
 def _split_fields(timed: Timed, row: dict[str, Any]) -> dict[str, Any]:
     """Collection rate and the update's share of an epoch (epoch median minus collection median)."""
     epoch_s = statistics.median(row["ppo_epoch_s"])
     update_s = max(epoch_s - timed.median_s, 0.0)
-    return {"collect_env_steps_per_s": round(row["env_steps_per_epoch"] / timed.median_s, 1),
-            "collect_compile_s": round(timed.compile_s, 2), "collect_s": [round(s, 4) for s in timed.seconds],
-            "update_s": round(update_s, 4), "update_fraction": round(update_s / epoch_s, 4)}
+    return {
+        "collect_env_steps_per_s": round(row["env_steps_per_epoch"] / timed.median_s, 1),
+        "collect_compile_s": round(timed.compile_s, 2),
+        "collect_s": [round(s, 4) for s in timed.seconds],
+        "update_s": round(update_s, 4),
+        "update_fraction": round(update_s / epoch_s, 4),
+    }
 
 
-def measure_count(args: argparse.Namespace, base: tcfg.TrainConfig, k: int, over_budget: Callable[[], bool],
-                  info: dict[str, Any]) -> tuple[dict[str, Any], Bench]:
+def measure_count(
+    args: argparse.Namespace, base: tcfg.TrainConfig, k: int, over_budget: Callable[[], bool], info: dict[str, Any]
+) -> tuple[dict[str, Any], Bench]:
     """Env loop and PPO epochs at ``k`` devices (each skipped once past the budget); the row and its bench."""
     config = scaled_config(base, args.envs_per_device, k, args.iterations_per_epoch)
     bench = Bench(config, jax.local_devices()[:k], args.seed)
-    row = {"devices": k, "multi_device": bench.strategy, "physics_backend": bench.env.physics_backend,
-           "envs_per_device": args.envs_per_device,
-           "num_envs": config.run.num_envs,
-           "batch_size": config.ppo.batch_size, "iterations_per_epoch": args.iterations_per_epoch,
-           **report.provenance(info)}
+    row = {
+        "devices": k,
+        "multi_device": bench.strategy,
+        "physics_backend": bench.env.physics_backend,
+        "envs_per_device": args.envs_per_device,
+        "num_envs": config.run.num_envs,
+        "batch_size": config.ppo.batch_size,
+        "iterations_per_epoch": args.iterations_per_epoch,
+        **report.provenance(info),
+    }
     # PPO first: traced before anything else in the process, its epoch lowers to the trainer's program
     # text, so a persistent compilation cache filled by a training run serves it
     if not over_budget():
@@ -226,8 +250,11 @@ def measure_split(args: argparse.Namespace, row: dict[str, Any], bench: Bench) -
     """The row with the collection/update split added."""
     print(f"{row['devices']} device(s): collection alone ...", flush=True)
     row = {**row, **_split_fields(bench.collection(args.epochs), row)}
-    print(f"  collect {row['collect_env_steps_per_s']:,.0f} env-steps/s, update {100 * row['update_fraction']:.0f} % "
-          f"of an epoch", flush=True)
+    print(
+        f"  collect {row['collect_env_steps_per_s']:,.0f} env-steps/s, update {100 * row['update_fraction']:.0f} % "
+        f"of an epoch",
+        flush=True,
+    )
     return row
 
 
@@ -255,10 +282,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Command-line options; defaults depend on the backend (GPU: the full size, CPU: a pipeline check)."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", default=None, help="training YAML (default: as python -m train picks)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                   help="override a config value before scaling (repeatable)")
-    p.add_argument("--envs-per-device", type=int, default=None, help=f"GPU {GPU_DEFAULTS['envs_per_device']}, "
-                   f"CPU {CPU_DEFAULTS['envs_per_device']}")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value before scaling (repeatable)",
+    )
+    p.add_argument(
+        "--envs-per-device",
+        type=int,
+        default=None,
+        help=f"GPU {GPU_DEFAULTS['envs_per_device']}, CPU {CPU_DEFAULTS['envs_per_device']}",
+    )
     p.add_argument("--devices", default=None, help="comma list of device counts (default 1, 2, 4, ... and the max)")
     p.add_argument("--steps", type=int, default=None, help="env steps per timed env call")
     p.add_argument("--repeats", type=int, default=None, help="timed env calls")
@@ -310,11 +347,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     info = run_info()
     stem = "scaling_" + slug(args.tag or info["device"])
-    meta = {**info, "config": str(args.config), "overrides": args.overrides, "devices_measured": args.devices,
-            "envs_per_device": args.envs_per_device, "steps_per_call": args.steps, "repeats": args.repeats,
-            "epochs": args.epochs, "iterations_per_epoch": args.iterations_per_epoch}
-    print(f"{info['device']} x {jax.local_device_count()}: device counts {args.devices}, "
-          f"{args.envs_per_device:,} envs per device, config {args.config}", flush=True)
+    meta = {
+        **info,
+        "config": str(args.config),
+        "overrides": args.overrides,
+        "devices_measured": args.devices,
+        "envs_per_device": args.envs_per_device,
+        "steps_per_call": args.steps,
+        "repeats": args.repeats,
+        "epochs": args.epochs,
+        "iterations_per_epoch": args.iterations_per_epoch,
+    }
+    print(
+        f"{info['device']} x {jax.local_device_count()}: device counts {args.devices}, "
+        f"{args.envs_per_device:,} envs per device, config {args.config}",
+        flush=True,
+    )
     rows = run_all(args, info, lambda rows: report.write_all(args.out_dir, stem, rows, meta))
     paths = report.write_all(args.out_dir, stem, rows, meta)
     print(report.markdown(rows, meta))

@@ -7,16 +7,26 @@ from pathlib import Path
 from typing import Any
 
 # (row key of the rate, name in the table and the plot)
-RATES = (("env_steps_per_s", "env step"), ("ppo_env_steps_per_s", "PPO with updates"),
-         ("collect_env_steps_per_s", "PPO collection only"))
+RATES = (
+    ("env_steps_per_s", "env step"),
+    ("ppo_env_steps_per_s", "PPO with updates"),
+    ("collect_env_steps_per_s", "PPO collection only"),
+)
 SPEEDUP_RATES = RATES[:2]
 
 
 def provenance(info: dict[str, Any]) -> dict[str, Any]:
     """The fields of ``benchmarks.run_info.run_info()`` every row carries (``gpu``: the device name)."""
-    return {"gpu": info["device"], "device_count": info["device_count"], "backend": info["backend"],
-            "versions": info["versions"], "date": info["date"], "command": info["command"],
-            "git_commit": info.get("git_commit"), "git_dirty": info.get("git_dirty")}
+    return {
+        "gpu": info["device"],
+        "device_count": info["device_count"],
+        "backend": info["backend"],
+        "versions": info["versions"],
+        "date": info["date"],
+        "command": info["command"],
+        "git_commit": info.get("git_commit"),
+        "git_dirty": info.get("git_dirty"),
+    }
 
 
 def with_speedups(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -43,22 +53,35 @@ def _fmt(value: Any, digits: int = 0, scale: float = 1.0) -> str:
 
 
 # (header, row key, digits, scale) of the table's columns
-COLUMNS = (("devices", "devices", 0, 1), ("envs", "num_envs", 0, 1), ("env step env-steps/s", "env_steps_per_s", 0, 1),
-           ("speed-up", "speedup_env_steps_per_s", 2, 1), ("efficiency %", "efficiency_env_steps_per_s", 0, 100),
-           ("PPO env-steps/s", "ppo_env_steps_per_s", 0, 1), ("speed-up", "speedup_ppo_env_steps_per_s", 2, 1),
-           ("efficiency %", "efficiency_ppo_env_steps_per_s", 0, 100),
-           ("collection env-steps/s", "collect_env_steps_per_s", 0, 1), ("update %", "update_fraction", 0, 100),
-           ("compile s env", "env_compile_s", 1, 1), ("compile s PPO", "ppo_compile_s", 1, 1))
+COLUMNS = (
+    ("devices", "devices", 0, 1),
+    ("envs", "num_envs", 0, 1),
+    ("env step env-steps/s", "env_steps_per_s", 0, 1),
+    ("speed-up", "speedup_env_steps_per_s", 2, 1),
+    ("efficiency %", "efficiency_env_steps_per_s", 0, 100),
+    ("PPO env-steps/s", "ppo_env_steps_per_s", 0, 1),
+    ("speed-up", "speedup_ppo_env_steps_per_s", 2, 1),
+    ("efficiency %", "efficiency_ppo_env_steps_per_s", 0, 100),
+    ("collection env-steps/s", "collect_env_steps_per_s", 0, 1),
+    ("update %", "update_fraction", 0, 100),
+    ("compile s env", "env_compile_s", 1, 1),
+    ("compile s PPO", "ppo_compile_s", 1, 1),
+)
 
 
 def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     """The results as a markdown table with the provenance above it."""
-    lines = [f"Scaling on {meta.get('device')} x {meta.get('device_count')} ({meta.get('backend')}), "
-             f"{meta.get('date')}; {meta.get('envs_per_device'):,} envs per device, config `{meta.get('config')}`; "
-             f"versions {meta.get('versions')}; command `{meta.get('command')}`.", "",
-             "Speed-up and efficiency (speed-up / device ratio) are relative to the fewest devices measured; "
-             "`update %` is the share of a PPO epoch not spent collecting (epoch minus collection alone).", "",
-             "| " + " | ".join(c[0] for c in COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines = [
+        f"Scaling on {meta.get('device')} x {meta.get('device_count')} ({meta.get('backend')}), "
+        f"{meta.get('date')}; {meta.get('envs_per_device'):,} envs per device, config `{meta.get('config')}`; "
+        f"versions {meta.get('versions')}; command `{meta.get('command')}`.",
+        "",
+        "Speed-up and efficiency (speed-up / device ratio) are relative to the fewest devices measured; "
+        "`update %` is the share of a PPO epoch not spent collecting (epoch minus collection alone).",
+        "",
+        "| " + " | ".join(c[0] for c in COLUMNS) + " |",
+        "|" + "---|" * len(COLUMNS),
+    ]
     for r in sorted(rows, key=lambda r: r["devices"]):
         lines.append("| " + " | ".join(_fmt(r.get(key), digits, scale) for _, key, digits, scale in COLUMNS) + " |")
     return "\n".join(lines) + "\n"
@@ -67,6 +90,7 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
 def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     """Env-steps/s against devices (log-log) with the ideal linear line from the fewest devices; efficiency."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -78,8 +102,14 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
             continue
         devices, rates = zip(*pts)
         speed.plot(devices, rates, "o-", color=f"C{i}", label=label)
-        speed.plot(counts, [rates[0] * k / devices[0] for k in counts], ":", color=f"C{i}", alpha=0.7,
-                   label=f"{label}: ideal linear")
+        speed.plot(
+            counts,
+            [rates[0] * k / devices[0] for k in counts],
+            ":",
+            color=f"C{i}",
+            alpha=0.7,
+            label=f"{label}: ideal linear",
+        )
         effs = [(r["devices"], 100 * r[f"efficiency_{key}"]) for r in rows if r.get(f"efficiency_{key}")]
         if effs:
             eff.plot(*zip(*sorted(effs)), "o-", color=f"C{i}", label=label)
@@ -94,8 +124,10 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
         ax.set_xlabel("devices")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(f"{meta.get('device')}: {meta.get('envs_per_device'):,} envs per device - "
-                 f"{str(meta.get('date', ''))[:10]}", fontsize=10)
+    fig.suptitle(
+        f"{meta.get('device')}: {meta.get('envs_per_device'):,} envs per device - {str(meta.get('date', ''))[:10]}",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

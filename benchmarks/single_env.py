@@ -56,8 +56,14 @@ def time_env(overrides: dict[str, Any], steps: int, repeats: int, seed: int = 0)
         runs.append(time.perf_counter() - tic)
     env.close()
     seconds = statistics.median(runs)
-    return {"env_steps_per_s": round(steps / seconds, 1), "ms_per_step": round(1000 * seconds / steps, 3),
-            "first_step_s": round(first, 2), "steps": steps, "repeats": repeats, "episodes_ended": episodes}
+    return {
+        "env_steps_per_s": round(steps / seconds, 1),
+        "ms_per_step": round(1000 * seconds / steps, 3),
+        "first_step_s": round(first, 2),
+        "steps": steps,
+        "repeats": repeats,
+        "episodes_ended": episodes,
+    }
 
 
 def measure(setting: str | None, steps: int, repeats: int) -> list[dict[str, Any]]:
@@ -76,12 +82,19 @@ def measure(setting: str | None, steps: int, repeats: int) -> list[dict[str, Any
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.single_env", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.single_env",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--steps", type=int, default=2000, help="env steps per timed run")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--setting", choices=sorted(SETTINGS), default=None,
-                   help="also measure this physics setting (default: the preset's only)")
+    p.add_argument(
+        "--setting",
+        choices=sorted(SETTINGS),
+        default=None,
+        help="also measure this physics setting (default: the preset's only)",
+    )
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/throughput/single_env_cpu"))
     args = p.parse_args(argv)
     if args.steps < 1 or args.repeats < 1:
@@ -90,8 +103,10 @@ def main(argv: list[str] | None = None) -> None:
     rows = measure(None, args.steps, args.repeats)
     if args.setting:
         rows += measure(args.setting, args.steps, args.repeats)
-    caption = (f"One Gymnasium env on the CPU, one `step` call per env step, median of {args.repeats} runs "
-               f"of {args.steps} random-action steps.")
+    caption = (
+        f"One Gymnasium env on the CPU, one `step` call per env step, median of {args.repeats} runs "
+        f"of {args.steps} random-action steps."
+    )
     write_results(args.out, caption, rows, tic)
     print(f"wrote {args.out}.json and .md", flush=True)
 

@@ -58,12 +58,19 @@ def report(env: hsa_mjx.HSAEnv, state, ids: np.ndarray) -> None:
     print("height of the block origins above their own ground (m):")
     rows = [(TERRAIN_TYPES[t], rel[ids == t]) for t in np.unique(ids)] + [("all", rel)]
     for name, r in rows:
-        print(f"  {name:18s} envs {len(r):5d}  mean {r.mean():.4f}  min {r.min():.4f}  max {r.max():.4f}"
-              f"  within 0.14 +- 0.01: {np.mean(np.all(np.abs(r - 0.14) < 0.01, axis=1)):.1%}")
-    ended = {k[12:]: int(np.asarray(v).sum()) for k, v in state.metrics.items()
-             if k.startswith("termination/") and np.asarray(v).sum() > 0}
-    print(f"terminations at the last step: {ended or 'none'}; done {int(np.asarray(state.done).sum())}; "
-          f"all finite: {bool(np.all(np.isfinite(np.asarray(state.obs))))}")
+        print(
+            f"  {name:18s} envs {len(r):5d}  mean {r.mean():.4f}  min {r.min():.4f}  max {r.max():.4f}"
+            f"  within 0.14 +- 0.01: {np.mean(np.all(np.abs(r - 0.14) < 0.01, axis=1)):.1%}"
+        )
+    ended = {
+        k[12:]: int(np.asarray(v).sum())
+        for k, v in state.metrics.items()
+        if k.startswith("termination/") and np.asarray(v).sum() > 0
+    }
+    print(
+        f"terminations at the last step: {ended or 'none'}; done {int(np.asarray(state.done).sum())}; "
+        f"all finite: {bool(np.all(np.isfinite(np.asarray(state.obs))))}"
+    )
 
 
 def main() -> None:
@@ -84,17 +91,21 @@ def main() -> None:
 
     start = time.perf_counter()
     env = build(args)
-    print(f"backend {jax.default_backend()}, physics {env.physics_backend}, {args.envs} envs, per_env {not args.shared}, "
-          f"solver {env.config.physics.solver} {env.config.physics.iterations}/{env.config.physics.ls_iterations}, "
-          f"env built in {time.perf_counter() - start:.1f} s")
+    print(
+        f"backend {jax.default_backend()}, physics {env.physics_backend}, {args.envs} envs, per_env {not args.shared}, "
+        f"solver {env.config.physics.solver} {env.config.physics.iterations}/{env.config.physics.ls_iterations}, "
+        f"env built in {time.perf_counter() - start:.1f} s"
+    )
     reset, step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
     key, act_key = jax.random.split(jax.random.PRNGKey(args.seed))
     keys = jax.random.split(key, args.envs)
     state, first = _timed(reset, keys)
     state, again = _timed(reset, jax.random.split(act_key, args.envs))
     ids = np.asarray(state.pipeline_state.task.terrain_id)
-    print(f"reset: compile + run {first:.1f} s, run {again:.2f} s; "
-          f"spawn height over own ground {heights_over_ground(env, state).mean():.4f} m")
+    print(
+        f"reset: compile + run {first:.1f} s, run {again:.2f} s; "
+        f"spawn height over own ground {heights_over_ground(env, state).mean():.4f} m"
+    )
     actions = jnp.zeros((args.envs, env.action_size))
     state, first = _timed(step, state, actions)
     times = []
@@ -104,8 +115,10 @@ def main() -> None:
         state, dt = _timed(step, state, actions)
         times.append(dt)
     per_step = float(np.mean(times)) if times else float("nan")
-    print(f"step: compile + run {first:.1f} s, then {per_step:.2f} s per step "
-          f"({args.envs / per_step:.0f} env-steps/s) over {len(times)} steps")
+    print(
+        f"step: compile + run {first:.1f} s, then {per_step:.2f} s per step "
+        f"({args.envs / per_step:.0f} env-steps/s) over {len(times)} steps"
+    )
     report(env, state, ids)
 
 

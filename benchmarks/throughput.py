@@ -37,8 +37,9 @@ import dataclasses
 import itertools
 import statistics
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -49,10 +50,10 @@ import hsa_mjx
 from benchmarks import throughput_report as report
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from hsa_mjx.sim import backend as backends
-from hsa_mjx.task import control
-from hsa_mjx.sim.backend import mjx
 from hsa_mjx.resources import config_path, read_yaml
+from hsa_mjx.sim import backend as backends
+from hsa_mjx.sim.backend import mjx
+from hsa_mjx.task import control
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -60,13 +61,17 @@ TERRAINS: dict[str, dict[str, Any]] = {
     "flat": {"scene": "flat"},
     "heightfield": {"scene": "terrain", "terrain.types": HEIGHTFIELD_TYPES},
 }
+
+
 # observations the env computes: the original's 24 values, or the rough task's heading (28) with the
 # 63-point height scan (the scan's cost is measured against "heading", the same observation without it)
 def _randomized() -> dict[str, Any]:
     """configs/train_flat_dr.yaml's randomisation and observation noise as dotted env overrides."""
     env = read_yaml(config_path("train_flat_dr"))["env"]
-    return {**{f"randomization.{k}": v for k, v in env["randomization"].items()},
-            **{f"observation.noise.{k}": v for k, v in env["observation"]["noise"].items()}}
+    return {
+        **{f"randomization.{k}": v for k, v in env["randomization"].items()},
+        **{f"observation.noise.{k}": v for k, v in env["observation"]["noise"].items()},
+    }
 
 
 # "heading+randomized": "heading" with the randomised flat task's per-env model, latency, pushes and
@@ -74,8 +79,11 @@ def _randomized() -> dict[str, Any]:
 OBSERVATIONS: dict[str, dict[str, Any]] = {
     "original": {},
     "heading": {"observation.heading": True},
-    "heading+scan": {"observation.heading": True, "observation.height_scan.enabled": True,
-                     "observation.height_scan.noise": 0.02},
+    "heading+scan": {
+        "observation.heading": True,
+        "observation.height_scan.enabled": True,
+        "observation.height_scan.noise": 0.02,
+    },
     "heading+randomized": {"observation.heading": True, **_randomized()},
 }
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
@@ -94,20 +102,30 @@ class Timed:
     last: dict[str, float]  # the last timed call's counters
 
 
-def bench_env(terrain: str, setting: str, backend: str = "auto", num_envs: int = 1,
-              observation: str = "original") -> hsa_mjx.HSAEnv:
+def bench_env(
+    terrain: str, setting: str, backend: str = "auto", num_envs: int = 1, observation: str = "original"
+) -> hsa_mjx.HSAEnv:
     """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics and
     ``observation`` (``OBSERVATIONS``), on ``backend``, sized for batches of ``num_envs`` (Warp's shared
     contact buffer)."""
-    return hsa_mjx.make_env("flat", num_envs=num_envs, **{"goal.mode": "radial", "physics.backend": backend,
-                                                         **TERRAINS[terrain], **SETTINGS[setting],
-                                                         **OBSERVATIONS[observation]})
+    return hsa_mjx.make_env(
+        "flat",
+        num_envs=num_envs,
+        **{
+            "goal.mode": "radial",
+            "physics.backend": backend,
+            **TERRAINS[terrain],
+            **SETTINGS[setting],
+            **OBSERVATIONS[observation],
+        },
+    )
 
 
 def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
     """The batch env with auto-reset (``AutoResetEnv``), or None and why not."""
     try:
         from hsa_mjx.batch.auto_reset import AutoResetEnv
+
         return AutoResetEnv(env), "AutoResetEnv"
     except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
@@ -129,10 +147,12 @@ def env_loop(env: hsa_mjx.HSAEnv, wrapper: Any | None, steps: int) -> tuple[Call
         def body(state, k):
             state = step(state, jax.random.uniform(k, (batch, env.action_size), minval=-1.0, maxval=1.0))
             inner = _env_state(state)
-            reasons = {name: jnp.sum(value) for name, value in inner.metrics.items()
-                       if name.startswith("termination/")}
-            return state, {**reasons, "obs_non_finite": jnp.sum(~jnp.isfinite(inner.obs)).astype(jnp.float32),
-                           "done": jnp.sum(inner.done)}
+            reasons = {name: jnp.sum(value) for name, value in inner.metrics.items() if name.startswith("termination/")}
+            return state, {
+                **reasons,
+                "obs_non_finite": jnp.sum(~jnp.isfinite(inner.obs)).astype(jnp.float32),
+                "done": jnp.sum(inner.done),
+            }
 
         state, counts = jax.lax.scan(body, state, jax.random.split(key, steps))
         return state, jax.tree.map(jnp.sum, counts)
@@ -178,8 +198,9 @@ def _compiled_bytes(compiled: Any) -> int | None:
     """Bytes XLA reserves for one call: arguments + outputs + temporaries - aliased."""
     try:
         mem = compiled.memory_analysis()
-        return int(mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes
-                   - mem.alias_size_in_bytes)
+        return int(
+            mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes - mem.alias_size_in_bytes
+        )
     except (AttributeError, NotImplementedError, TypeError):
         return None
 
@@ -227,19 +248,23 @@ def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str
     ramp = ramp if ctl.smooth_positions else np.ones_like(ramp)  # the env's control law
     while steps < 10 or time.perf_counter() - tic < seconds:
         start = data.ctrl[servos].copy()
-        end = np.clip(start + ctl.max_increment * rng.uniform(-1, 1, len(servos)),
-                      -ctl.servo_target_limit, ctl.servo_target_limit)
+        end = np.clip(
+            start + ctl.max_increment * rng.uniform(-1, 1, len(servos)), -ctl.servo_target_limit, ctl.servo_target_limit
+        )
         for target in start + ramp * (end - start):
             data.ctrl[servos] = target
             mujoco.mj_step(model, data)
         steps += 1
     rate = steps / (time.perf_counter() - tic)
-    return {"cpu_mujoco_env_steps_per_s": round(rate, 1),
-            "cpu_mujoco_physics_steps_per_s": round(rate * ctl.frame_skip, 1)}
+    return {
+        "cpu_mujoco_env_steps_per_s": round(rate, 1),
+        "cpu_mujoco_physics_steps_per_s": round(rate * ctl.frame_skip, 1),
+    }
 
 
-def measure(env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, repeats: int,
-            seed: int = 0) -> dict[str, Any]:
+def measure(
+    env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, repeats: int, seed: int = 0
+) -> dict[str, Any]:
     """Env loop and physics ceiling at one batch size: rates, compile times, memory, NaN counts."""
     key = jax.random.PRNGKey(seed)
     donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)
@@ -258,13 +283,17 @@ def measure(env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, re
     measured = batch * steps * repeats
     per_env = lambda b: None if b is None else round(b / batch)  # noqa: E731
     return {
-        "batch": batch, "steps_per_call": steps, "repeats": repeats,
+        "batch": batch,
+        "steps_per_call": steps,
+        "repeats": repeats,
         "env_steps_per_s": round(batch * steps / env_s, 1),
         "physics_ceiling_env_steps_per_s": round(batch * steps / ceil_s, 1),
         "physics_ceiling_physics_steps_per_s": round(batch * steps * env.config.control.frame_skip / ceil_s, 1),
         "env_over_ceiling": round(ceil_s / env_s, 4),
-        "env_call_s": [round(s, 5) for s in env_t.seconds], "ceiling_call_s": [round(s, 5) for s in ceil_t.seconds],
-        "compile_s_env": round(env_t.compile_s, 2), "compile_s_ceiling": round(ceil_t.compile_s, 2),
+        "env_call_s": [round(s, 5) for s in env_t.seconds],
+        "ceiling_call_s": [round(s, 5) for s in ceil_t.seconds],
+        "compile_s_env": round(env_t.compile_s, 2),
+        "compile_s_ceiling": round(ceil_t.compile_s, 2),
         "state_bytes_per_env": per_env(state_bytes),
         "env_compiled_bytes_per_env": per_env(env_t.compiled_bytes),
         "ceiling_compiled_bytes_per_env": per_env(ceil_t.compiled_bytes),
@@ -273,16 +302,20 @@ def measure(env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, re
         "env_steps_measured": measured,
         "nan_terminations": int(env_t.counters.get("termination/non_finite", 0)),
         "nan_terminations_per_million_env_steps": round(
-            1e6 * env_t.counters.get("termination/non_finite", 0) / measured, 3),
+            1e6 * env_t.counters.get("termination/non_finite", 0) / measured, 3
+        ),
         "terminations_per_million_env_steps": {
             name.split("/", 1)[1]: round(1e6 * value / measured, 1)
-            for name, value in env_t.counters.items() if name.startswith("termination/") and value},
+            for name, value in env_t.counters.items()
+            if name.startswith("termination/") and value
+        },
         "obs_non_finite_seen": bool(env_t.counters.get("obs_non_finite", 0) > 0),
         "episodes_ended": int(env_t.counters.get("done", 0)),
         "ceiling_non_finite_envs_at_end": int(ceil_t.last.get("non_finite_envs", 0)),
         # an env stays NaN once it is (no reset): envs lost per million env steps run, warm-up included
         "ceiling_non_finite_per_million_env_steps": round(
-            1e6 * ceil_t.last.get("non_finite_envs", 0) / (batch * steps * (repeats + 1)), 3),
+            1e6 * ceil_t.last.get("non_finite_envs", 0) / (batch * steps * (repeats + 1)), 3
+        ),
     }
 
 
@@ -292,16 +325,32 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     names = lambda s: tuple(v for v in s.split(",") if v)  # noqa: E731
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--batches", type=ints, default=None, help=f"comma list (default {DEFAULT_BATCHES})")
-    p.add_argument("--backends", type=names, default=("auto",),
-                   help=f"comma list of physics backends {list(backends.BACKENDS)} (default auto)")
+    p.add_argument(
+        "--backends",
+        type=names,
+        default=("auto",),
+        help=f"comma list of physics backends {list(backends.BACKENDS)} (default auto)",
+    )
     p.add_argument("--terrains", type=names, default=tuple(TERRAINS), help=f"comma list of {sorted(TERRAINS)}")
-    p.add_argument("--settings", nargs="+", default=None,
-                   help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
-                        f"default per scene {SHIPPED_BY_SCENE}")
-    p.add_argument("--observations", type=names, default=("original",),
-                   help=f"comma list of {sorted(OBSERVATIONS)} (default original)")
-    p.add_argument("--steps", type=int, default=None,
-                   help=f"env steps per timed call (lax.scan length); default {ENV_STEPS_PER_CALL} / batch in [2, 20]")
+    p.add_argument(
+        "--settings",
+        nargs="+",
+        default=None,
+        help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
+        f"default per scene {SHIPPED_BY_SCENE}",
+    )
+    p.add_argument(
+        "--observations",
+        type=names,
+        default=("original",),
+        help=f"comma list of {sorted(OBSERVATIONS)} (default original)",
+    )
+    p.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help=f"env steps per timed call (lax.scan length); default {ENV_STEPS_PER_CALL} / batch in [2, 20]",
+    )
     p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
     p.add_argument("--baseline-seconds", type=float, default=None, help="C MuJoCo baseline duration (default 2)")
     p.add_argument("--budget-s", type=float, default=480.0, help="start no new measurement after this many s")
@@ -317,11 +366,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.baseline_seconds = args.baseline_seconds or quick["baseline_s"]
     if args.settings is not None:
         args.settings = [name for arg in args.settings for name in arg.split(",") if name]
-    bad = (sorted(set(args.terrains) - set(TERRAINS)) + sorted(set(args.settings or ()) - set(SETTINGS))
-           + sorted(set(args.observations) - set(OBSERVATIONS)))
+    bad = (
+        sorted(set(args.terrains) - set(TERRAINS))
+        + sorted(set(args.settings or ()) - set(SETTINGS))
+        + sorted(set(args.observations) - set(OBSERVATIONS))
+    )
     if bad:
-        p.error(f"unknown terrain/setting/observation {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}, "
-                f"observations {sorted(OBSERVATIONS)}")
+        p.error(
+            f"unknown terrain/setting/observation {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}, "
+            f"observations {sorted(OBSERVATIONS)}"
+        )
     try:
         args.backends = tuple(dict.fromkeys(backends.resolve(b) for b in args.backends))
     except ValueError as err:
@@ -341,9 +395,16 @@ def steps_for(batch: int, steps: int | None) -> int:
 
 def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
     """The provenance fields every row carries."""
-    return {"gpu": info["device"], "device_count": info["device_count"], "backend": info["backend"],
-            "versions": info["versions"], "date": info["date"], "command": info["command"],
-            "git_commit": info.get("git_commit"), "git_dirty": info.get("git_dirty")}
+    return {
+        "gpu": info["device"],
+        "device_count": info["device_count"],
+        "backend": info["backend"],
+        "versions": info["versions"],
+        "date": info["date"],
+        "command": info["command"],
+        "git_commit": info.get("git_commit"),
+        "git_dirty": info.get("git_dirty"),
+    }
 
 
 def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
@@ -355,28 +416,50 @@ def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[li
             baseline = cpu_baseline(bench_env(terrain, setting, "jax"), args.baseline_seconds)
             for backend, observation, batch in itertools.product(args.backends, args.observations, args.batches):
                 if time.perf_counter() - start > args.budget_s:
-                    print(f"skipped {backend}/{terrain}/{setting}/{observation}/{batch}: past --budget-s "
-                          f"{args.budget_s}", flush=True)
+                    print(
+                        f"skipped {backend}/{terrain}/{setting}/{observation}/{batch}: past --budget-s {args.budget_s}",
+                        flush=True,
+                    )
                     continue
                 rows = report.upsert(rows, _row(args, info, terrain, setting, backend, batch, baseline, observation))
                 out(rows)
     return rows
 
 
-def _row(args: argparse.Namespace, info: dict[str, Any], terrain: str, setting: str, backend: str, batch: int,
-         baseline: dict[str, float], observation: str = "original") -> dict[str, Any]:
+def _row(
+    args: argparse.Namespace,
+    info: dict[str, Any],
+    terrain: str,
+    setting: str,
+    backend: str,
+    batch: int,
+    baseline: dict[str, float],
+    observation: str = "original",
+) -> dict[str, Any]:
     """One measured row (printed as it is done)."""
     env = bench_env(terrain, setting, backend, batch, observation)
     wrapper, note = batch_wrapper(env)
     measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
-    row = {"terrain": terrain, "settings": setting, "observation": observation,
-           "observation_size": env.observation_size, "physics_backend": env.physics_backend,
-           "overrides": SETTINGS[setting], "full_step": wrapper is not None, "full_step_note": note,
-           **measured, **baseline, **_row_meta(info)}
-    print(f"{backend:4s} {terrain:11s} {setting} {observation} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
-          f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
-          f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
-          f"NaN/M {row['nan_terminations_per_million_env_steps']}", flush=True)
+    row = {
+        "terrain": terrain,
+        "settings": setting,
+        "observation": observation,
+        "observation_size": env.observation_size,
+        "physics_backend": env.physics_backend,
+        "overrides": SETTINGS[setting],
+        "full_step": wrapper is not None,
+        "full_step_note": note,
+        **measured,
+        **baseline,
+        **_row_meta(info),
+    }
+    print(
+        f"{backend:4s} {terrain:11s} {setting} {observation} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
+        f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
+        f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
+        f"NaN/M {row['nan_terminations_per_million_env_steps']}",
+        flush=True,
+    )
     return row
 
 
@@ -387,11 +470,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     info = run_info()
     tag = "_".join(t for t in (args.tag, "quick" if args.quick else "") if t)
     args.stem = f"throughput_{report.slug(info['device'])}" + (f"_{report.slug(tag)}" if tag else "")
-    meta = {**info, "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
-            "repeats": args.repeats,
-            "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
-            "backends": list(args.backends), "observations": {o: OBSERVATIONS[o] for o in args.observations},
-            "terrains": {t: TERRAINS[t] for t in args.terrains}}
+    meta = {
+        **info,
+        "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
+        "repeats": args.repeats,
+        "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
+        "backends": list(args.backends),
+        "observations": {o: OBSERVATIONS[o] for o in args.observations},
+        "terrains": {t: TERRAINS[t] for t in args.terrains},
+    }
     rows = run_matrix(args, info, lambda rows: report.write_all(args.out_dir, args.stem, rows, meta))
     paths = report.write_all(args.out_dir, args.stem, rows, meta)
     print(report.markdown(rows, meta))

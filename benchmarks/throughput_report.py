@@ -53,12 +53,15 @@ def _reasons(rates: dict[str, float] | None) -> str:
 
 def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     """The results as a markdown table with the provenance above it."""
-    head = [f"Throughput on {meta.get('device')} ({meta.get('backend')}), {meta.get('date')}; "
-            f"versions {meta.get('versions')}; command `{meta.get('command')}`.", "",
-            "| backend | terrain | settings | observation | batch | env-steps/s | ceiling env-steps/s | env / ceiling | "
-            "compile env s | compile ceiling s | MiB/env (XLA) | NaN per M steps | ceiling NaN per M | "
-            "non-finite obs | full step | C MuJoCo env-steps/s | terminations per M steps |",
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    head = [
+        f"Throughput on {meta.get('device')} ({meta.get('backend')}), {meta.get('date')}; "
+        f"versions {meta.get('versions')}; command `{meta.get('command')}`.",
+        "",
+        "| backend | terrain | settings | observation | batch | env-steps/s | ceiling env-steps/s | env / ceiling | "
+        "compile env s | compile ceiling s | MiB/env (XLA) | NaN per M steps | ceiling NaN per M | "
+        "non-finite obs | full step | C MuJoCo env-steps/s | terminations per M steps |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(rows, key=lambda r: (_backend(r), r["terrain"], r["settings"], _observation(r), r["batch"])):
         mib = r.get("env_compiled_bytes_per_env")
         mib = None if mib is None else mib / 2**20
@@ -69,7 +72,8 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
             f"{_fmt(mib, 3)} | {_fmt(r['nan_terminations_per_million_env_steps'], 1)} | "
             f"{_fmt(r.get('ceiling_non_finite_per_million_env_steps'), 1)} | "
             f"{'yes' if r['obs_non_finite_seen'] else 'no'} | {'yes' if r['full_step'] else 'no'} | "
-            f"{_fmt(r.get('cpu_mujoco_env_steps_per_s'))} | {_reasons(r.get('terminations_per_million_env_steps'))} |")
+            f"{_fmt(r.get('cpu_mujoco_env_steps_per_s'))} | {_reasons(r.get('terminations_per_million_env_steps'))} |"
+        )
     return "\n".join(head) + "\n"
 
 
@@ -77,14 +81,18 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     """Log-log env-steps/s against batch: env (solid) and physics ceiling (dashed) per terrain/setting."""
     import matplotlib
     import matplotlib.ticker
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 5))
     groups = sorted({(_backend(r), r["terrain"], r["settings"], _observation(r)) for r in rows})
     for i, group in enumerate(groups):
-        pts = sorted((r["batch"], r["env_steps_per_s"], r["physics_ceiling_env_steps_per_s"])
-                     for r in rows if (_backend(r), r["terrain"], r["settings"], _observation(r)) == group)
+        pts = sorted(
+            (r["batch"], r["env_steps_per_s"], r["physics_ceiling_env_steps_per_s"])
+            for r in rows
+            if (_backend(r), r["terrain"], r["settings"], _observation(r)) == group
+        )
         batch, env, ceiling = zip(*pts)
         color, name = f"C{i}", ", ".join(group)
         ax.plot(batch, env, "o-", color=color, label=f"{name}: env step")
@@ -92,8 +100,14 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     for terrain, target in sorted(TARGETS.items()):
         if any(r["terrain"] == terrain for r in rows):
             ax.axhline(target, color="grey", ls=":", lw=1)
-            ax.annotate(f"target {terrain} {target:,}", (0.01, target), xycoords=("axes fraction", "data"),
-                        fontsize=7, color="grey", va="bottom")
+            ax.annotate(
+                f"target {terrain} {target:,}",
+                (0.01, target),
+                xycoords=("axes fraction", "data"),
+                fontsize=7,
+                color="grey",
+                va="bottom",
+            )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     batches = sorted({r["batch"] for r in rows})

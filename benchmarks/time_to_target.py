@@ -74,8 +74,14 @@ def iteration_steps(config: dict[str, Any]) -> int:
 
 def _snapshot(row: dict[str, Any], wall: float, per_iteration: int) -> dict[str, Any]:
     """The figures of one log row."""
-    return {"wall_s": round(wall, 1), "env_steps": int(row["step"]), "ppo_iterations": int(row["step"]) // per_iteration,
-            "success_rate": row.get(SUCCESS), "goal_max_m": row.get(GOAL), "mean_terrain_level": row.get(LEVEL)}
+    return {
+        "wall_s": round(wall, 1),
+        "env_steps": int(row["step"]),
+        "ppo_iterations": int(row["step"]) // per_iteration,
+        "success_rate": row.get(SUCCESS),
+        "goal_max_m": row.get(GOAL),
+        "mean_terrain_level": row.get(LEVEL),
+    }
 
 
 def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: float) -> dict[str, Any]:
@@ -90,24 +96,42 @@ def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: 
             hit = _snapshot(row, wall, per_iteration)
             break
     run = config["run"]
-    return {"num_envs": run["num_envs"], "num_devices": run.get("num_devices"),
-            "physics_backend": config["env"]["physics"].get("backend"), "iteration_env_steps": per_iteration,
-            "target": {"goal_max_m": goal_max, "success_rate": success}, "first_log_s": round(walls[0], 1),
-            "reached": hit,
-            "last": _snapshot(rows[-1], walls[-1], per_iteration)}
+    return {
+        "num_envs": run["num_envs"],
+        "num_devices": run.get("num_devices"),
+        "physics_backend": config["env"]["physics"].get("backend"),
+        "iteration_env_steps": per_iteration,
+        "target": {"goal_max_m": goal_max, "success_rate": success},
+        "first_log_s": round(walls[0], 1),
+        "reached": hit,
+        "last": _snapshot(rows[-1], walls[-1], per_iteration),
+    }
 
 
 def markdown(results: dict[str, dict[str, Any]]) -> str:
     """One table row per run: time to the target, and the last log."""
-    lines = ["| run | envs | devices | first log (s) | target reached at (s) | env steps | PPO iterations | "
-             "last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |", "|" + "---|" * 13]
+    lines = [
+        "| run | envs | devices | first log (s) | target reached at (s) | env steps | PPO iterations | "
+        "last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |",
+        "|" + "---|" * 13,
+    ]
     for name, r in results.items():
         hit, last = r["reached"] or {}, r["last"]
-        cells = [name, f"{r['num_envs']:,}", r["num_devices"] or "all local", r["first_log_s"],
-                 hit.get("wall_s", "not reached"), f"{hit['env_steps']:,}" if hit else "-",
-                 hit.get("ppo_iterations", "-"), last["wall_s"],
-                 f"{last['env_steps']:,}", last["ppo_iterations"], _round(last["success_rate"]),
-                 _round(last["goal_max_m"]), _round(last["mean_terrain_level"])]
+        cells = [
+            name,
+            f"{r['num_envs']:,}",
+            r["num_devices"] or "all local",
+            r["first_log_s"],
+            hit.get("wall_s", "not reached"),
+            f"{hit['env_steps']:,}" if hit else "-",
+            hit.get("ppo_iterations", "-"),
+            last["wall_s"],
+            f"{last['env_steps']:,}",
+            last["ppo_iterations"],
+            _round(last["success_rate"]),
+            _round(last["goal_max_m"]),
+            _round(last["mean_terrain_level"]),
+        ]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -119,8 +143,11 @@ def _round(value: float | None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m benchmarks.time_to_target``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.time_to_target", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.time_to_target",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("run_dirs", nargs="+", help="run folders (config.yaml and metrics.jsonl)")
     parser.add_argument("--success", type=float, default=0.9, help="logged success rate to reach (default 0.9)")
     parser.add_argument("--out-dir", default=None, help="write time_to_target_<tag>.{json,md} here")

@@ -31,8 +31,9 @@ import json
 import os
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import numpy as np
@@ -83,10 +84,15 @@ def mode_steps(envs: HSAVectorEnv, seed: int = 0) -> dict[str, Callable[[int], A
         def step(i: int) -> Any:
             envs.check_finite = check
             return envs.step(device[i % ACTION_SETS])
+
         return step
 
-    steps = {"jit_step": jit_step, "vector_jax": vector(True), "vector_jax_nocheck": vector(False),
-             "vector_numpy": lambda i: numpy_envs.step(host[i % ACTION_SETS])}
+    steps = {
+        "jit_step": jit_step,
+        "vector_jax": vector(True),
+        "vector_jax_nocheck": vector(False),
+        "vector_numpy": lambda i: numpy_envs.step(host[i % ACTION_SETS]),
+    }
     torch_step = torch_steps(envs, host)
     if torch_step is not None:
         steps["vector_torch"] = torch_step
@@ -111,11 +117,13 @@ def torch_steps(envs: HSAVectorEnv, host: list[np.ndarray]) -> Callable[[int], A
         if device == "cuda":
             torch.cuda.synchronize()
         return None
+
     return step
 
 
-def measure_batch(batch: int, overrides: dict[str, Any], steps: int, repeats: int, modes: tuple[str, ...]
-                  ) -> list[dict[str, Any]]:
+def measure_batch(
+    batch: int, overrides: dict[str, Any], steps: int, repeats: int, modes: tuple[str, ...]
+) -> list[dict[str, Any]]:
     """Rows for one batch size, every mode."""
     envs = HSAVectorEnv(batch, **overrides)
     rows, base = [], None
@@ -131,10 +139,18 @@ def measure_batch(batch: int, overrides: dict[str, Any], steps: int, repeats: in
         seconds = statistics.median(runs)
         rate = batch * steps / seconds
         base = rate if mode == "jit_step" else base
-        rows.append({"batch": batch, "mode": mode, "env_steps_per_s": round(rate),
-                     "ms_per_step": round(1000 * seconds / steps, 3),
-                     "vs_jit_step": round(rate / base, 3) if base else None,
-                     "first_call_s": round(first, 2), "steps": steps, "repeats": repeats})
+        rows.append(
+            {
+                "batch": batch,
+                "mode": mode,
+                "env_steps_per_s": round(rate),
+                "ms_per_step": round(1000 * seconds / steps, 3),
+                "vs_jit_step": round(rate / base, 3) if base else None,
+                "first_call_s": round(first, 2),
+                "steps": steps,
+                "repeats": repeats,
+            }
+        )
         print(rows[-1], flush=True)
     envs.close()
     del envs
@@ -155,13 +171,16 @@ def markdown(caption: str, rows: list[dict[str, Any]], meta: dict[str, Any], col
     return "\n".join([caption, "", *lines, "", f"{meta['date']}, {meta['device']}, command `{meta['command']}`", ""])
 
 
-def write_results(out: Path, caption: str, rows: list[dict[str, Any]], started: float,
-                  columns: list[str] = HEAD) -> None:
+def write_results(
+    out: Path, caption: str, rows: list[dict[str, Any]], started: float, columns: list[str] = HEAD
+) -> None:
     """``out``.json (provenance and rows) and ``out``.md, each written to a temporary file and renamed."""
     meta = {**run_info(), "wall_s": round(time.perf_counter() - started, 1)}
     out.parent.mkdir(parents=True, exist_ok=True)
-    texts = {".json": json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n",
-             ".md": markdown(caption, rows, meta, columns)}
+    texts = {
+        ".json": json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n",
+        ".md": markdown(caption, rows, meta, columns),
+    }
     for suffix, text in texts.items():
         tmp = out.with_suffix(suffix + ".tmp")
         tmp.write_text(text)
@@ -169,8 +188,11 @@ def write_results(out: Path, caption: str, rows: list[dict[str, Any]], started: 
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.vector_env", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.vector_env",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--batches", default="4096,16384", help="comma-separated batch sizes")
     p.add_argument("--steps", type=int, default=100, help="env steps per timed run")
     p.add_argument("--repeats", type=int, default=3)
@@ -188,13 +210,16 @@ def main(argv: list[str] | None = None) -> None:
     setting = args.setting or SHIPPED_BY_SCENE[args.scene]
     overrides = {"scene": args.scene, **{k.replace(".", "__"): v for k, v in SETTINGS[setting].items()}}
     tic = time.perf_counter()
-    caption = (f"Gymnasium vector env against the jitted batched step: {args.scene} scene, physics "
-               f"`{setting}`, one Python call per env step, median of {args.repeats} runs of {args.steps} steps.")
+    caption = (
+        f"Gymnasium vector env against the jitted batched step: {args.scene} scene, physics "
+        f"`{setting}`, one Python call per env step, median of {args.repeats} runs of {args.steps} steps."
+    )
     rows: list[dict[str, Any]] = []
     for batch in batches:  # the results are rewritten after every batch: a run cut short keeps them
         rows += measure_batch(batch, overrides, args.steps, args.repeats, modes)
         write_results(args.out or default_out(), caption, rows, tic)
     print(markdown(caption, rows, run_info()), flush=True)
+
 
 if __name__ == "__main__":
     main()

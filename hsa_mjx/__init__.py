@@ -26,9 +26,18 @@ if TYPE_CHECKING:
 
 __version__ = "0.1.0"
 # Public names, imported on first use: ``import hsa_mjx.deploy.policy`` (numpy only) must not import JAX.
-_LAZY = {"build_config": "hsa_mjx.adapters.original_args", "PRESETS": "hsa_mjx.config", "EnvConfig": "hsa_mjx.config", "get_preset": "hsa_mjx.config",
-         "load_config": "hsa_mjx.config", "with_overrides": "hsa_mjx.config", "HSAEnv": "hsa_mjx.task.env",
-         "EnvState": "hsa_mjx.task.types", "SimState": "hsa_mjx.task.types", "TaskState": "hsa_mjx.task.types"}
+_LAZY = {
+    "build_config": "hsa_mjx.adapters.original_args",
+    "PRESETS": "hsa_mjx.config",
+    "EnvConfig": "hsa_mjx.config",
+    "get_preset": "hsa_mjx.config",
+    "load_config": "hsa_mjx.config",
+    "with_overrides": "hsa_mjx.config",
+    "HSAEnv": "hsa_mjx.task.env",
+    "EnvState": "hsa_mjx.task.types",
+    "SimState": "hsa_mjx.task.types",
+    "TaskState": "hsa_mjx.task.types",
+}
 
 
 def __getattr__(name: str) -> Any:
@@ -60,6 +69,7 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", num_envs: int = 1,
     """
     from hsa_mjx.adapters.original_args import build_config
     from hsa_mjx.task.env import HSAEnv
+
     return HSAEnv(build_config(name_or_config, **overrides), num_envs=num_envs)
 
 
@@ -73,6 +83,7 @@ def _spawn_by_default() -> None:
     a script that creates them needs the usual ``if __name__ == "__main__":`` guard.
     """
     import multiprocessing
+
     if multiprocessing.get_start_method(allow_none=True) is None:
         multiprocessing.set_start_method("spawn")
 
@@ -84,12 +95,25 @@ def _register_gymnasium() -> None:
     except ImportError:  # the adapter is optional
         return
     if "hsa_mjx/HSA-v0" not in gymnasium.registry:
-        gymnasium.register(id="hsa_mjx/HSA-v0", entry_point="hsa_mjx.adapters.gymnasium:from_registry",
-                           vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env")
+        gymnasium.register(
+            id="hsa_mjx/HSA-v0",
+            entry_point="hsa_mjx.adapters.gymnasium:from_registry",
+            vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env",
+        )
 
 
 _spawn_by_default()
 _register_gymnasium()
 
-__all__ = ["make_env", "build_config", "load_config", "EnvConfig", "HSAEnv", "EnvState", "SimState", "TaskState",
-           "PRESETS", "__version__"]
+__all__ = [
+    "make_env",
+    "build_config",
+    "load_config",
+    "EnvConfig",
+    "HSAEnv",
+    "EnvState",
+    "SimState",
+    "TaskState",
+    "PRESETS",
+    "__version__",
+]

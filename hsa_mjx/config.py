@@ -12,8 +12,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from hsa_mjx.randomization_config import ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.randomization_config import validate as validate_randomization
@@ -187,12 +188,20 @@ _CHOICES = {
     ("observation", "hinge_angles"): HINGE_ANGLE_MODES,
 }
 _POSITIVE = {
-    ("physics", "timestep"), ("physics", "iterations"), ("physics", "ls_iterations"),
-    ("physics", "contacts_per_env"), ("physics", "constraints_per_env"),
-    ("control", "frame_skip"), ("control", "servo_target_limit"),
-    ("termination", "max_episode_steps"), ("termination", "qvel_limit"),
-    ("termination", "qacc_limit"), ("goal", "success_radius"), ("goal", "num_checkpoints"),
-    ("goal", "checkpoint_radius"), ("reward", "stagnation_window"),
+    ("physics", "timestep"),
+    ("physics", "iterations"),
+    ("physics", "ls_iterations"),
+    ("physics", "contacts_per_env"),
+    ("physics", "constraints_per_env"),
+    ("control", "frame_skip"),
+    ("control", "servo_target_limit"),
+    ("termination", "max_episode_steps"),
+    ("termination", "qvel_limit"),
+    ("termination", "qacc_limit"),
+    ("goal", "success_radius"),
+    ("goal", "num_checkpoints"),
+    ("goal", "checkpoint_radius"),
+    ("reward", "stagnation_window"),
 }
 
 
@@ -260,7 +269,9 @@ def _non_finite(config: Any, prefix: str = "") -> list[str]:
         value, key = getattr(config, field.name), f"{prefix}{field.name}"
         if dataclasses.is_dataclass(value):
             bad += _non_finite(value, key + ".")
-        elif any(isinstance(v, float) and not math.isfinite(v) for v in (value if isinstance(value, tuple) else (value,))):
+        elif any(
+            isinstance(v, float) and not math.isfinite(v) for v in (value if isinstance(value, tuple) else (value,))
+        ):
             bad.append(f"'{key}' = {value!r}")
     return bad
 
@@ -282,15 +293,19 @@ def validate(config: EnvConfig) -> EnvConfig:
         raise ValueError(f"config key 'goal.radial_range' must satisfy 0 <= min <= max, got {(lo, hi)}")
     lo, hi = config.goal.radial_bearing_deg
     if not 0 <= lo <= hi <= 180:
-        raise ValueError("config key 'goal.radial_bearing_deg' must satisfy 0 <= min <= max <= 180 "
-                         f"(degrees from +x, either side), got {(lo, hi)}")
+        raise ValueError(
+            "config key 'goal.radial_bearing_deg' must satisfy 0 <= min <= max <= 180 "
+            f"(degrees from +x, either side), got {(lo, hi)}"
+        )
     if config.termination.z_min >= config.termination.z_max:
         raise ValueError("config keys 'termination.z_min' must be below 'termination.z_max'")
     if config.physics.tolerance < 0:
         raise ValueError("config key 'physics.tolerance' must be >= 0")
     if config.observation.clock_period_s < 0:
-        raise ValueError("config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
-                         f"got {config.observation.clock_period_s!r}")
+        raise ValueError(
+            "config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
+            f"got {config.observation.clock_period_s!r}"
+        )
     validate_height_scan(config.observation.height_scan)
     validate_randomization(config.randomization, config.observation.noise)
     _validate_track_starts(config.goal)
@@ -303,10 +318,14 @@ def _validate_track_starts(goal: GoalConfig) -> None:
     if goal.track_starts == 0:
         return
     if goal.mode != "spiral":
-        raise ValueError(f"config key 'goal.track_starts' needs goal.mode 'spiral' (got {goal.mode!r}); 0 for other modes")
+        raise ValueError(
+            f"config key 'goal.track_starts' needs goal.mode 'spiral' (got {goal.mode!r}); 0 for other modes"
+        )
     if not 0 < goal.track_starts < goal.num_checkpoints:
-        raise ValueError(f"config key 'goal.track_starts' must be in 0..{goal.num_checkpoints - 1} "
-                         f"(num_checkpoints - 1), got {goal.track_starts!r}")
+        raise ValueError(
+            f"config key 'goal.track_starts' must be in 0..{goal.num_checkpoints - 1} "
+            f"(num_checkpoints - 1), got {goal.track_starts!r}"
+        )
 
 
 def _validate_terrain(config: EnvConfig) -> None:
@@ -314,11 +333,13 @@ def _validate_terrain(config: EnvConfig) -> None:
     terrain = validate_terrain(config.terrain)
     types = terrain.types
     if config.scene == "flat" and types != ("flat",):
-        raise ValueError(f"terrain types {list(types)} need a heightfield: set 'scene: terrain' "
-                         "(scene 'flat' is a plane)")
+        raise ValueError(
+            f"terrain types {list(types)} need a heightfield: set 'scene: terrain' (scene 'flat' is a plane)"
+        )
     if "spiral" in types and config.goal.mode != "spiral":
-        raise ValueError("the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', "
-                         f"got {config.goal.mode!r}")
+        raise ValueError(
+            f"the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', got {config.goal.mode!r}"
+        )
 
 
 def _get(config: Any, path: tuple[str, ...]) -> Any:
@@ -335,12 +356,14 @@ def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> 
 
 def to_dict(config: EnvConfig) -> dict:
     """The config as plain nested dicts and lists (YAML-ready)."""
+
     def plain(value: Any) -> Any:
         if isinstance(value, tuple):
             return [plain(v) for v in value]
         if isinstance(value, dict):
             return {k: plain(v) for k, v in value.items()}
         return value
+
     return plain(dataclasses.asdict(config))
 
 
@@ -374,12 +397,21 @@ def load_config(path: str | Path) -> EnvConfig:
 
 # The presets are the shipped env configs (configs/, package data once installed): each file states
 # its task and why its values differ from the original's flat task.
-PRESET_FILES = {"flat": "flat.yaml", "craters": "craters.yaml", "corridor": "corridor.yaml", "spiral": "spiral.yaml",
-                "mixed": "mixed_terrain.yaml"}
+PRESET_FILES = {
+    "flat": "flat.yaml",
+    "craters": "craters.yaml",
+    "corridor": "corridor.yaml",
+    "spiral": "spiral.yaml",
+    "mixed": "mixed_terrain.yaml",
+}
 PRESETS: dict[str, EnvConfig] = {name: load_config(data_dir("configs") / file) for name, file in PRESET_FILES.items()}
 # the flat task with the other goal rules (radial: the training configs' default, for the goal curriculum)
-PRESETS.update({f"flat_{label}": with_overrides(PRESETS["flat"], name=f"flat_{label}", goal__mode=mode)
-                for label, mode in (("fixed_goal", "fixed"), ("radial", "radial"))})
+PRESETS.update(
+    {
+        f"flat_{label}": with_overrides(PRESETS["flat"], name=f"flat_{label}", goal__mode=mode)
+        for label, mode in (("fixed_goal", "fixed"), ("radial", "radial"))
+    }
+)
 
 
 def get_preset(name: str) -> EnvConfig:
@@ -390,7 +422,19 @@ def get_preset(name: str) -> EnvConfig:
 
 
 __all__ = [
-    "EnvConfig", "PhysicsConfig", "ControlConfig", "RewardConfig", "TerminationConfig",
-    "GoalConfig", "TerrainConfig", "ObservationConfig", "PRESETS", "get_preset", "load_config",
-    "from_dict", "to_dict", "with_overrides", "validate",
+    "EnvConfig",
+    "PhysicsConfig",
+    "ControlConfig",
+    "RewardConfig",
+    "TerminationConfig",
+    "GoalConfig",
+    "TerrainConfig",
+    "ObservationConfig",
+    "PRESETS",
+    "get_preset",
+    "load_config",
+    "from_dict",
+    "to_dict",
+    "with_overrides",
+    "validate",
 ]

@@ -21,10 +21,14 @@ def quaternion_product(a: jax.Array, b: jax.Array) -> jax.Array:
     """Hamilton product a * b of two (w, x, y, z) quaternions."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return jnp.stack([aw * bw - ax * bx - ay * by - az * bz,
-                      aw * bx + ax * bw + ay * bz - az * by,
-                      aw * by - ax * bz + ay * bw + az * bx,
-                      aw * bz + ax * by - ay * bx + az * bw])
+    return jnp.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 def move_points(points: jax.Array, centre: jax.Array, target: jax.Array, yaw: jax.Array) -> jax.Array:
@@ -35,13 +39,14 @@ def move_points(points: jax.Array, centre: jax.Array, target: jax.Array, yaw: ja
     return turned + target
 
 
-def move_free_joints(qpos: jax.Array, addresses: jax.Array, centre: jax.Array, target: jax.Array,
-                     yaw: jax.Array) -> jax.Array:
+def move_free_joints(
+    qpos: jax.Array, addresses: jax.Array, centre: jax.Array, target: jax.Array, yaw: jax.Array
+) -> jax.Array:
     """``qpos`` with each free joint at ``addresses`` (position xyz, quaternion wxyz) moved rigidly:
     turned by ``yaw`` about the vertical through ``centre`` (XY), then shifted onto ``target``."""
     turn = yaw_quaternion(yaw)
     for adr in addresses.tolist():  # the robot's two blocks: a static, tiny loop
-        xy = move_points(qpos[adr:adr + 2], centre, target, yaw)
-        quat = quaternion_product(turn, qpos[adr + 3:adr + 7])
-        qpos = qpos.at[adr:adr + 2].set(xy).at[adr + 3:adr + 7].set(quat)
+        xy = move_points(qpos[adr : adr + 2], centre, target, yaw)
+        quat = quaternion_product(turn, qpos[adr + 3 : adr + 7])
+        qpos = qpos.at[adr : adr + 2].set(xy).at[adr + 3 : adr + 7].set(quat)
     return qpos

@@ -94,8 +94,10 @@ def validate(config: RandomizationConfig, noise: ObservationNoiseConfig) -> None
     if config.push_speed < 0:
         raise ValueError(f"config key 'randomization.push_speed' must be >= 0 (m/s), got {config.push_speed!r}")
     if config.push_speed > 0 and config.push_interval_s[0] <= 0:
-        raise ValueError("config key 'randomization.push_interval_s' must be > 0 s when push_speed > 0, "
-                         f"got {list(config.push_interval_s)}")
+        raise ValueError(
+            "config key 'randomization.push_interval_s' must be > 0 s when push_speed > 0, "
+            f"got {list(config.push_interval_s)}"
+        )
     for name in NOISE_GROUPS:
         if getattr(noise, name) < 0:
             raise ValueError(f"config key 'observation.noise.{name}' must be >= 0, got {getattr(noise, name)!r}")

@@ -8,8 +8,8 @@ them from any working directory.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import yaml
 
@@ -32,8 +32,9 @@ def scene_path(scene: str, asset_dir: Path | None = None) -> Path:
         raise ValueError(f"unknown scene {scene!r}; valid scenes: {sorted(SCENE_FILES)}")
     path = Path(asset_dir or data_dir("assets")) / SCENE_FILES[scene]
     if not path.is_file():
-        raise FileNotFoundError(f"robot asset not found: {path} (the scene XMLs ship with the package, "
-                                f"in {data_dir('assets')})")
+        raise FileNotFoundError(
+            f"robot asset not found: {path} (the scene XMLs ship with the package, in {data_dir('assets')})"
+        )
     return path
 
 

@@ -38,6 +38,7 @@ class TraceCounter:
 @pytest.fixture(scope="session")
 def env():
     import hsa_mjx
+
     return hsa_mjx.make_env("flat")
 
 
@@ -60,8 +61,7 @@ def jit_single(env, jit_batch):
     _, batch_step, counter = jit_batch
 
     def step(state, action):
-        rows = jax.tree.map(lambda x: jax.numpy.broadcast_to(x, (BATCH, *x.shape)),
-                            (state, jax.numpy.asarray(action)))
+        rows = jax.tree.map(lambda x: jax.numpy.broadcast_to(x, (BATCH, *x.shape)), (state, jax.numpy.asarray(action)))
         return jax.tree.map(lambda x: x[0], batch_step(*rows))
 
     return jax.jit(env.reset), step, counter
@@ -69,13 +69,24 @@ def jit_single(env, jit_batch):
 
 TERRAIN_BATCH = 12
 # Every generator but the spiral (a checkpoint track that needs goal.mode spiral), equal shares.
-MIXED_TYPES = ("flat", "wavy", "perlin", "stairs", "incline", "craters", "poles", "flat_with_incline",
-               "flat_with_ramp", "corridor")
+MIXED_TYPES = (
+    "flat",
+    "wavy",
+    "perlin",
+    "stairs",
+    "incline",
+    "craters",
+    "poles",
+    "flat_with_incline",
+    "flat_with_ramp",
+    "corridor",
+)
 
 
 @pytest.fixture(scope="session")
 def terrain_env():
     import hsa_mjx
+
     return hsa_mjx.make_env("mixed", terrain__types=list(MIXED_TYPES))
 
 
@@ -89,13 +100,28 @@ def terrain_batch(terrain_env):
 # A tiny PPO run with the curriculum: 80 env steps, checkpoints at 40 and 80 (tests/test_train_run.py
 # resumes it to 160 steps; tests that only read it must not depend on which checkpoint is the latest).
 TINY_RUN = {
-    "env": {"preset": "flat", "goal": {"mode": "radial"}, "physics": {"iterations": 4, "ls_iterations": 8},
-            "termination": {"max_episode_steps": 15}},
+    "env": {
+        "preset": "flat",
+        "goal": {"mode": "radial"},
+        "physics": {"iterations": 4, "ls_iterations": 8},
+        "termination": {"max_episode_steps": 15},
+    },
     # success_threshold 0: every full window widens the range, so the wiring is visible in 80 steps
-    "curriculum": {"enabled": True, "window_size": 4, "min_episodes": 4, "success_threshold": 0.0,
-                   "failure_threshold": 0.0},
-    "ppo": {"unroll_length": 5, "batch_size": 4, "num_minibatches": 2, "num_updates_per_batch": 1,
-            "policy_hidden_sizes": [8], "value_hidden_sizes": [8]},
+    "curriculum": {
+        "enabled": True,
+        "window_size": 4,
+        "min_episodes": 4,
+        "success_threshold": 0.0,
+        "failure_threshold": 0.0,
+    },
+    "ppo": {
+        "unroll_length": 5,
+        "batch_size": 4,
+        "num_minibatches": 2,
+        "num_updates_per_batch": 1,
+        "policy_hidden_sizes": [8],
+        "value_hidden_sizes": [8],
+    },
     "run": {"num_timesteps": 80, "num_envs": 4, "checkpoint_every": 40, "seed": 1},
 }
 
@@ -105,6 +131,7 @@ def tiny_run_dir(tmp_path_factory):
     """The run directory of ``TINY_RUN``, trained once per session on the CPU."""
     from train import config as tcfg
     from train.trainer import train
+
     path = tmp_path_factory.mktemp("run")
     summary = train(tcfg.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
     assert summary["env_steps"] == 80
@@ -121,9 +148,16 @@ def vector_env():
     import gymnasium
 
     import hsa_mjx  # noqa: F401  (registers hsa_mjx/HSA-v0)
-    envs = gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=VECTOR_ENVS, vectorization_mode="vector_entry_point",
-                              render_mode="rgb_array", width=96, height=72,
-                              termination__max_episode_steps=VECTOR_EPISODE_STEPS)
+
+    envs = gymnasium.make_vec(
+        "hsa_mjx/HSA-v0",
+        num_envs=VECTOR_ENVS,
+        vectorization_mode="vector_entry_point",
+        render_mode="rgb_array",
+        width=96,
+        height=72,
+        termination__max_episode_steps=VECTOR_EPISODE_STEPS,
+    )
     yield envs
     envs.close()
 
@@ -134,9 +168,18 @@ def vector_env():
 SHARED_RUN_MODULES = ("tests/test_train_run.py", "tests/test_export.py", "tests/test_policies.py")
 # test_backend second: it compiles Warp's CPU kernels into Warp's kernel cache early, on the other worker,
 # before the shared run's Warp evaluation needs them (each process compiling them at once would pay twice).
-LONGEST_FIRST = ("tests/test_multi_device.py", "tests/test_backend.py", *SHARED_RUN_MODULES, "tests/test_sb3.py",
-                 "tests/test_gym_vector.py", "tests/test_quickstart.py", "tests/test_checkpoint_compat.py", "tests/test_env.py",
-                 "tests/test_terrain_env.py", "tests/test_install.py")
+LONGEST_FIRST = (
+    "tests/test_multi_device.py",
+    "tests/test_backend.py",
+    *SHARED_RUN_MODULES,
+    "tests/test_sb3.py",
+    "tests/test_gym_vector.py",
+    "tests/test_quickstart.py",
+    "tests/test_checkpoint_compat.py",
+    "tests/test_env.py",
+    "tests/test_terrain_env.py",
+    "tests/test_install.py",
+)
 
 
 def _module(nodeid: str) -> str:

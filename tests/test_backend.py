@@ -15,17 +15,23 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
 
 import hsa_mjx
-from hsa_mjx.sim import backend
 from hsa_mjx.batch.auto_reset import AutoResetEnv
-from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
+from hsa_mjx.sim import backend
 from train.logger import read_jsonl
 
 ENVS, REST, STEPS = 3, 8, 20  # envs, zero-action steps at rest, then gait steps
 # Terrain tiles: flat, stairs and craters; solver settings of the shipped heightfield configs.
-SETTINGS = {"physics.integrator": "implicitfast", "physics.iterations": 8, "physics.ls_iterations": 8,
-            "terrain.types": ["flat", "stairs", "craters"], "terrain.tiles_per_type": 2, "scene": "terrain"}
+SETTINGS = {
+    "physics.integrator": "implicitfast",
+    "physics.iterations": 8,
+    "physics.ls_iterations": 8,
+    "terrain.types": ["flat", "stairs", "craters"],
+    "terrain.tiles_per_type": 2,
+    "scene": "terrain",
+}
 # Same gait from the same reset on both implementations, 20 env steps (400 substeps, float32 both):
 # measured max |dqpos| 0.012 rad (hinges), block positions within 1.1 mm; the bounds leave room for
 # the order of Warp's atomics (not run-to-run deterministic on a GPU).
@@ -52,15 +58,23 @@ def _rollout(name: str) -> dict[str, np.ndarray]:
     forces = []
     for action in jnp.concatenate([jnp.zeros((REST, ENVS, 8)), _gait(STEPS, ENVS)]):
         state = step(state, action)
-        forces.append(np.asarray(jax.vmap(lambda d: d.sensordata[env.index.foot_sensors].sum(-2))(
-            state.pipeline_state.physics)))
+        forces.append(
+            np.asarray(jax.vmap(lambda d: d.sensordata[env.index.foot_sensors].sum(-2))(state.pipeline_state.physics))
+        )
     physics, task = state.pipeline_state.physics, state.pipeline_state.task
     blocks = np.asarray(physics.xpos[:, env.index.block_body])
     ground = np.asarray(jax.vmap(env.world.ground)(task.tile, physics.xpos[:, env.index.block_body, :2]))
-    return {"backend": env.physics_backend, "qpos": np.asarray(physics.qpos), "blocks": blocks,
-            "height": blocks[..., 2] - ground, "tile": np.asarray(task.tile), "type": np.asarray(task.terrain_id),
-            "force": np.linalg.norm(np.asarray(forces), axis=-1).sum(-1), "done": np.asarray(state.done),
-            "floor": np.asarray(physics.mocap_pos[:, env.index.terrain_mocap])}
+    return {
+        "backend": env.physics_backend,
+        "qpos": np.asarray(physics.qpos),
+        "blocks": blocks,
+        "height": blocks[..., 2] - ground,
+        "tile": np.asarray(task.tile),
+        "type": np.asarray(task.terrain_id),
+        "force": np.linalg.norm(np.asarray(forces), axis=-1).sum(-1),
+        "done": np.asarray(state.done),
+        "floor": np.asarray(physics.mocap_pos[:, env.index.terrain_mocap]),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +85,9 @@ def rollouts():
 def test_auto_picks_jax_on_a_cpu_and_refuses_unknown_backends():
     assert backend.resolve("auto") == "jax" and backend.resolve("c") == "c"
     assert backend.for_one_env("auto") == "c" and backend.for_one_env("jax") == "jax"  # one env on a CPU: C MuJoCo
-    with pytest.raises(ValueError, match=r"'physics.backend' = 'cuda' is not valid; choose one of \['auto', 'jax', 'warp', 'c'\]"):
+    with pytest.raises(
+        ValueError, match=r"'physics.backend' = 'cuda' is not valid; choose one of \['auto', 'jax', 'warp', 'c'\]"
+    ):
         backend.resolve("cuda")
     with pytest.raises(ValueError, match=r"physics.backend.*'cuda'.*\['auto', 'jax', 'warp', 'c'\]"):
         hsa_mjx.build_config("flat", physics__backend="cuda")
@@ -87,8 +103,10 @@ def test_warp_without_warp_lang_says_how_to_install(monkeypatch):
 def test_importing_the_package_and_its_entry_points_prints_nothing(warp):
     """No "Failed to import warp" lines, also where warp-lang is missing (hidden here) and Brax imports MJX."""
     hide = "import sys; sys.modules['warp'] = None\n" if warp == "missing" else ""
-    modules = ("hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
-               "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluate, train.export")
+    modules = (
+        "hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
+        "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluate, train.export"
+    )
     out = subprocess.run([sys.executable, "-c", f"{hide}import {modules}"], capture_output=True, text=True, check=True)
     assert out.stdout == "" and "Failed to import" not in out.stderr, out.stdout + out.stderr
 
@@ -127,8 +145,14 @@ def test_every_robot_stands_on_its_own_tile_on_both_backends(rollouts):
 
 
 def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
-    env = hsa_mjx.make_env("flat", num_envs=2, physics__backend="warp", termination__max_episode_steps=3,
-                           physics__iterations=4, physics__ls_iterations=8)
+    env = hsa_mjx.make_env(
+        "flat",
+        num_envs=2,
+        physics__backend="warp",
+        termination__max_episode_steps=3,
+        physics__iterations=4,
+        physics__ls_iterations=8,
+    )
     batch = AutoResetEnv(env)
     state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 2))
     step = jax.jit(batch.step)

@@ -12,8 +12,18 @@ import numpy as np
 import pytest
 
 DATA = Path(__file__).resolve().parent / "data"
-COMPARED = ("step", "goal_range", "episodes", "success_rate", "mean_final_distance", "mean_speed_m_per_s",
-            "mean_start_distance", "mean_progress_m", "mean_episode_steps", "not_finished")
+COMPARED = (
+    "step",
+    "goal_range",
+    "episodes",
+    "success_rate",
+    "mean_final_distance",
+    "mean_speed_m_per_s",
+    "mean_start_distance",
+    "mean_progress_m",
+    "mean_episode_steps",
+    "not_finished",
+)
 
 
 @pytest.fixture(scope="module")
@@ -27,6 +37,7 @@ def old_run(tmp_path_factory) -> Path:
 def _terrain_levels(run: Path, step: int) -> dict:
     """The terrain levels a checkpoint holds, (envs,) arrays."""
     from train import checkpoint
+
     path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}"
     envs = checkpoint.read_meta(path)["terrain_envs"]
     template = {"terrain_levels": {k: np.zeros((envs,), np.int32) for k in ("row", "level")}}
@@ -35,6 +46,7 @@ def _terrain_levels(run: Path, step: int) -> dict:
 
 def test_old_checkpoint_evaluates_the_same(old_run):
     from train.evaluate import main as evaluate
+
     assert evaluate([str(old_run), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0
     now = json.loads((old_run / "eval" / "eval.json").read_text())
     then = json.loads((DATA / "expected_eval_run_format_1.json").read_text())
@@ -46,6 +58,7 @@ def test_old_checkpoint_resumes_both_curricula(old_run):
     from train import config as tcfg
     from train.logger import read_jsonl
     from train.trainer import train
+
     saved = read_jsonl(old_run / "metrics.jsonl")[-1]
     assert saved["step"] == 80 and saved["curriculum/episode_count"] > 0
     config = tcfg.load(old_run / "config.yaml", ["run.num_timesteps=120"])
@@ -63,8 +76,10 @@ def test_old_checkpoint_resumes_both_curricula(old_run):
 
 
 # The shipped policies' default CPU evaluations as the results the docs cite recorded them.
-RECORDED = {"flat": "benchmarks/results/training/flat_warp/eval_policy_cpu.json",
-            "corridor": "benchmarks/results/training/corridor_scan/eval_policy_cpu.json"}
+RECORDED = {
+    "flat": "benchmarks/results/training/flat_warp/eval_policy_cpu.json",
+    "corridor": "benchmarks/results/training/corridor_scan/eval_policy_cpu.json",
+}
 # relative tolerance of progress and episode length: the corridor gait rubs the walls, which turns the
 # suite's float rounding into more drift over 1,000 steps (measured: 0.545 vs 0.619 m of progress)
 TOLERANCE = {"flat": 0.05, "corridor": 0.2}
@@ -74,11 +89,13 @@ TOLERANCE = {"flat": 0.05, "corridor": 0.2}
 def test_shipped_policy_evaluates_as_recorded(name, tmp_path):
     """``python -m train.evaluate --policy NAME`` (C MuJoCo on this CPU) reproduces the cited result."""
     from train.evaluate import main as evaluate
+
     assert evaluate(["--policy", name, "--out", str(tmp_path)]) == 0
     now = json.loads((tmp_path / "eval.json").read_text())
     then = json.loads((DATA.parent.parent / RECORDED[name]).read_text())
-    assert [now[k] for k in ("episodes", "max_steps", "physics", "goal_range")] == \
-        [then[k] for k in ("episodes", "max_steps", "physics", "goal_range")]
+    assert [now[k] for k in ("episodes", "max_steps", "physics", "goal_range")] == [
+        then[k] for k in ("episodes", "max_steps", "physics", "goal_range")
+    ]
     assert now["mean_start_distance"] == pytest.approx(then["mean_start_distance"], rel=1e-5)  # the same goals
     # the suite's XLA flags (no LLVM optimisation) round the policy's float32 differently, and over
     # 500-1,000 steps the gait drifts a little (measured: progress 0.996 vs 0.987 m, 481 vs 484 steps);

@@ -82,8 +82,14 @@ def test_observation_section_is_opt_in_and_checked():
     on = cfg.from_dict({"observation": {"heading": True}})
     assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
     section = cfg.to_dict(on)["observation"]
-    assert section == {"heading": True, "servo_targets": False, "clock_period_s": 0.0, "hinge_angles": "raw",
-                       "height_scan": section["height_scan"], "noise": section["noise"]}
+    assert section == {
+        "heading": True,
+        "servo_targets": False,
+        "clock_period_s": 0.0,
+        "hinge_angles": "raw",
+        "height_scan": section["height_scan"],
+        "noise": section["noise"],
+    }
     assert section["height_scan"]["enabled"] is False and not any(section["noise"].values())  # off by default
     assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
     with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*'heading'"):
@@ -118,7 +124,9 @@ def _leaves(data: dict, prefix: str = "") -> dict:
 
 def test_no_training_yaml_restates_its_base():
     import yaml
+
     from hsa_mjx import resources
+
     derived = 0
     for path in sorted(resources.data_dir("configs").glob("train_*.yaml")):
         raw = yaml.safe_load(path.read_text())
@@ -133,10 +141,13 @@ def test_no_training_yaml_restates_its_base():
 
 def test_base_configs_merge_and_refuse_a_cycle(tmp_path):
     from hsa_mjx import resources
+
     (tmp_path / "a.yaml").write_text("base: b.yaml\nppo: {learning_rate: 1.0e-4}\n")
     (tmp_path / "b.yaml").write_text("ppo: {learning_rate: 3.0e-4, unroll_length: 20}\nrun: {num_envs: 8}\n")
-    assert resources.read_yaml(tmp_path / "a.yaml") == {"ppo": {"learning_rate": 1.0e-4, "unroll_length": 20},
-                                                         "run": {"num_envs": 8}}
+    assert resources.read_yaml(tmp_path / "a.yaml") == {
+        "ppo": {"learning_rate": 1.0e-4, "unroll_length": 20},
+        "run": {"num_envs": 8},
+    }
     (tmp_path / "b.yaml").write_text("base: a.yaml\n")
     with pytest.raises(ValueError, match="comes back to itself"):
         resources.read_yaml(tmp_path / "a.yaml")

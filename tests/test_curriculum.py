@@ -125,21 +125,29 @@ def test_disabled_is_identity():
 def test_metrics_keys_and_progress():
     state = record_all(cur.init(CFG), [True] * 100)
     m = cur.metrics(state, CFG)
-    assert set(m) == {"curriculum/max_distance", "curriculum/success_rate", "curriculum/episode_count",
-                      "curriculum/episodes_since_change", "curriculum/progress"}
+    assert set(m) == {
+        "curriculum/max_distance",
+        "curriculum/success_rate",
+        "curriculum/episode_count",
+        "curriculum/episodes_since_change",
+        "curriculum/progress",
+    }
     assert float(m["curriculum/progress"]) == pytest.approx(0.15 / 2.7, rel=1e-5)
     same = dataclasses.replace(CFG, target_range=(1.5, 1.8))
     assert float(cur.metrics(cur.init(same), same)["curriculum/progress"]) == 1.0  # no division by zero
 
 
-@pytest.mark.parametrize("change, match", [
-    ({"initial_range": (2.0, 1.0)}, "initial_range"),
-    ({"target_range": (1.5, 1.0)}, "target_range"),
-    ({"success_threshold": 0.2, "failure_threshold": 0.5}, "threshold"),
-    ({"window_size": 0}, "window_size"),
-    ({"expansion_step": 0.0}, "expansion_step"),
-    ({"dead_zone_radius": 2.0}, "dead_zone"),
-])
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"initial_range": (2.0, 1.0)}, "initial_range"),
+        ({"target_range": (1.5, 1.0)}, "target_range"),
+        ({"success_threshold": 0.2, "failure_threshold": 0.5}, "threshold"),
+        ({"window_size": 0}, "window_size"),
+        ({"expansion_step": 0.0}, "expansion_step"),
+        ({"dead_zone_radius": 2.0}, "dead_zone"),
+    ],
+)
 def test_validate_rejects_bad_settings(change, match):
     with pytest.raises(ValueError, match=match):
         cur.validate(dataclasses.replace(CFG, **change))

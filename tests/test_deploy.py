@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -18,17 +17,26 @@ def test_the_loop_builds_the_envs_observation_from_sensor_readings():
     meta = pol.read_meta(pol.locate("flat"))
     config, labels, goal_range = loop.policy_env(meta)
     assert goal_range == (1.5, 4.5)  # the curriculum's target, not its start
-    env = hsa_mjx.make_env(config, physics__backend="c", observation__servo_targets=True, observation__clock_period_s=2.0)
+    env = hsa_mjx.make_env(
+        config, physics__backend="c", observation__servo_targets=True, observation__clock_period_s=2.0
+    )
     all_labels = list(observation_labels(env.config.observation))
     state, step = env.reset(jax.random.PRNGKey(2)), jax.jit(env.step)
     for action in jax.random.uniform(jax.random.PRNGKey(3), (5, 8), minval=-1, maxval=1):
         state = step(state, action)
     d, idx = state.pipeline_state.physics, env.index
-    readings = loop.Readings(np.asarray(d.qpos[idx.joint_qpos]), np.asarray(d.qvel[idx.joint_qvel]),
-                             np.asarray(d.xpos[idx.block_body]))
+    readings = loop.Readings(
+        np.asarray(d.qpos[idx.joint_qpos]), np.asarray(d.qvel[idx.joint_qvel]), np.asarray(d.xpos[idx.block_body])
+    )
     velocity = np.asarray(d.qvel[idx.block_qvel[:, None] + np.arange(3)]).mean(axis=0)  # exact, as the env reads it
-    entries = loop.observation_entries(readings, velocity, np.asarray(state.pipeline_state.task.goal_xy),
-                                       np.asarray(d.ctrl[idx.servo_ids]), 5 * env.dt, env.config)
+    entries = loop.observation_entries(
+        readings,
+        velocity,
+        np.asarray(state.pipeline_state.task.goal_xy),
+        np.asarray(d.ctrl[idx.servo_ids]),
+        5 * env.dt,
+        env.config,
+    )
     obs = np.asarray([entries[label] for label in all_labels], np.float32)
     np.testing.assert_allclose(obs, np.asarray(state.obs), rtol=1e-5, atol=1e-5)
     assert set(labels) <= set(all_labels)

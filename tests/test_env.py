@@ -7,9 +7,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import BATCH
 
 import hsa_mjx
-from conftest import BATCH
 
 
 def _actions(key, n):
@@ -27,8 +27,9 @@ def test_reset_matches_the_original_start(env, jit_single):
     # The reset state carries kinematics only: block bodies sit at their free joints' positions,
     # foot contact forces are zero until a step computes them (once the spawned robot has landed on its feet).
     physics, index = state.pipeline_state.physics, env.index
-    np.testing.assert_allclose(physics.xpos[index.block_body], physics.qpos[index.block_qpos[:, None] + np.arange(3)],
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        physics.xpos[index.block_body], physics.qpos[index.block_qpos[:, None] + np.arange(3)], atol=1e-6
+    )
     assert not np.any(physics.sensordata[index.foot_sensors])
     for _ in range(10):  # the robot spawns a little above the floor and lands within 0.2 s
         state = jit_single[1](state, jnp.zeros(8))
@@ -74,15 +75,21 @@ def test_reward_is_the_sum_of_logged_components(jit_single):
 @pytest.fixture(scope="module")
 def options_env():
     """An env with every optional observation entry and the heading shaping term on: (env, reset, step)."""
-    env = hsa_mjx.make_env("flat", observation__heading=True, observation__servo_targets=True,
-                           observation__clock_period_s=1.0, observation__hinge_angles="sincos",
-                           reward__heading_alignment=100.0)
+    env = hsa_mjx.make_env(
+        "flat",
+        observation__heading=True,
+        observation__servo_targets=True,
+        observation__clock_period_s=1.0,
+        observation__hinge_angles="sincos",
+        reward__heading_alignment=100.0,
+    )
     return env, jax.jit(env.reset), jax.jit(env.step)
 
 
 def test_heading_alignment_is_wired_to_the_robot_axis(options_env):
     """With the shaping weight on, the logged term is w * (|cos| after - |cos| before) of axis vs goal."""
     from hsa_mjx.task import observation
+
     env, reset, step = options_env
     state = reset(jax.random.PRNGKey(4))
     one_sided = jnp.array([1.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0])
@@ -91,8 +98,10 @@ def test_heading_alignment_is_wired_to_the_robot_axis(options_env):
         new = step(state, one_sided)
         data, goal = new.pipeline_state.physics, new.pipeline_state.task.goal_xy
         _, direction = observation.goal_vector(observation.robot_xy(data, env.index), goal)
-        cos = [abs(float(jnp.dot(observation.heading(d, env.index), direction)))
-               for d in (state.pipeline_state.physics, data)]
+        cos = [
+            abs(float(jnp.dot(observation.heading(d, env.index), direction)))
+            for d in (state.pipeline_state.physics, data)
+        ]
         expected.append(100.0 * (cos[1] - cos[0]))
         logged.append(float(new.metrics["reward/heading_alignment"]))
         state = new
@@ -159,6 +168,7 @@ def test_large_batches_lower_without_lapack_on_cpu(env):
     The lowering is checked (XLA's own ops have no such pool), and a 64-matrix batch is run against numpy.
     """
     from hsa_mjx.sim import cpu_linalg
+
     assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
     n = 64
     state = jax.eval_shape(jax.vmap(env.reset), jax.random.split(jax.random.PRNGKey(7), n))
@@ -171,11 +181,11 @@ def test_large_batches_lower_without_lapack_on_cpu(env):
     np.testing.assert_allclose(jax.jit(jnp.linalg.cholesky)(spd), np.linalg.cholesky(spd), atol=1e-4)
 
 
-
 @pytest.mark.parametrize("batch", [4, 64])  # LAPACK's kernels, then XLA's ops
 def test_cpu_triangular_solves_and_failed_factorisations_match_numpy(batch):
     """Every triangular-solve variant MJX can reach, and NaN for a matrix that is not positive definite."""
     from hsa_mjx.sim import cpu_linalg
+
     assert cpu_linalg.use_xla_linalg_on_cpu()
     rng = np.random.default_rng(1)
     lower = np.tril(rng.normal(size=(batch, 24, 24))).astype(np.float32) + 5 * np.eye(24, dtype=np.float32)
@@ -183,12 +193,18 @@ def test_cpu_triangular_solves_and_failed_factorisations_match_numpy(batch):
     for is_lower, transpose, left in itertools.product((True, False), repeat=3):
         a = lower if is_lower else np.swapaxes(lower, 1, 2)
         rhs = b if left else np.swapaxes(b, 1, 2)
-        solve = jax.jit(lambda a, r: jax.lax.linalg.triangular_solve(  # noqa: B023
-            a, r, left_side=left, lower=is_lower, transpose_a=transpose))
+        solve = jax.jit(
+            lambda a, r: jax.lax.linalg.triangular_solve(  # noqa: B023
+                a, r, left_side=left, lower=is_lower, transpose_a=transpose
+            )
+        )
         assert (_lapack_calls(solve.lower(a, rhs)) > 0) == (batch <= cpu_linalg.LAPACK_MAX_BATCH)
         op = np.swapaxes(a, 1, 2) if transpose else a
-        expected = np.linalg.solve(op, rhs) if left else np.swapaxes(
-            np.linalg.solve(np.swapaxes(op, 1, 2), np.swapaxes(rhs, 1, 2)), 1, 2)
+        expected = (
+            np.linalg.solve(op, rhs)
+            if left
+            else np.swapaxes(np.linalg.solve(np.swapaxes(op, 1, 2), np.swapaxes(rhs, 1, 2)), 1, 2)
+        )
         np.testing.assert_allclose(solve(a, rhs), expected, rtol=1e-4, atol=1e-5)
     factor = np.asarray(jax.jit(jnp.linalg.cholesky)(-np.eye(24, dtype=np.float32)[None].repeat(batch, 0)))
     assert np.isnan(factor[:, 0, 0]).all()  # as JAX's own CPU lowering
@@ -207,11 +223,11 @@ def _rotated_about_z(state, env, angle):
     c, s = np.cos(angle), np.sin(angle)
     turn = np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
     for adr in env.index.block_qpos:
-        x, y = qpos[adr:adr + 2]
-        qpos[adr:adr + 2] = c * x - s * y, s * x + c * y
+        x, y = qpos[adr : adr + 2]
+        qpos[adr : adr + 2] = c * x - s * y, s * x + c * y
         w, v = turn[0], turn[1:]
-        q0, qv = qpos[adr + 3], qpos[adr + 4:adr + 7]
-        qpos[adr + 3:adr + 7] = np.concatenate([[w * q0 - v @ qv], w * qv + q0 * v + np.cross(v, qv)])
+        q0, qv = qpos[adr + 3], qpos[adr + 4 : adr + 7]
+        qpos[adr + 3 : adr + 7] = np.concatenate([[w * q0 - v @ qv], w * qv + q0 * v + np.cross(v, qv)])
     return state.replace(pipeline_state=state.pipeline_state.replace(physics=physics.replace(qpos=jnp.asarray(qpos))))
 
 
@@ -244,8 +260,9 @@ def test_optional_observation_entries(jit_single, options_env):
         np.testing.assert_allclose(body_goal, rotation @ world_goal, atol=1e-5)
     assert yaw == pytest.approx(2.0, abs=0.05)  # the turned robot faces where it was turned
     physics = turned.pipeline_state.physics
-    poisoned = turned.replace(pipeline_state=turned.pipeline_state.replace(
-        physics=physics.replace(qvel=physics.qvel.at[7].set(jnp.nan))))
+    poisoned = turned.replace(
+        pipeline_state=turned.pipeline_state.replace(physics=physics.replace(qvel=physics.qvel.at[7].set(jnp.nan)))
+    )
     out = step(poisoned, jnp.zeros(8))
     assert float(out.metrics["termination/non_finite"]) == 1.0 and np.all(np.isfinite(out.obs))
 

@@ -15,7 +15,6 @@ from hsa_mjx.deploy import policy as pol
 from train import config as tcfg
 from train import export
 
-
 ATOL = 1e-5
 N_OBS, N_ACT = 24, 8  # the default observation (no optional entries) and the 8 servos
 
@@ -24,15 +23,20 @@ def random_training_state(config: tcfg.TrainConfig, seed: int = 0):
     """(networks, TrainingState) with random weights, biases and observation statistics."""
     import jax
     import jax.numpy as jnp
+
     from train.ppo import init_training_state, make_networks
+
     networks = make_networks(config, N_OBS, N_ACT)
     ts = init_training_state(config, networks, jax.random.PRNGKey(seed), N_OBS)
     rng = np.random.default_rng(seed)
     noisy = lambda x: jnp.asarray(np.asarray(x) + 0.3 * rng.normal(size=np.shape(x)), jnp.float32)  # noqa: E731
-    normalizer = ts.normalizer.replace(mean=jnp.asarray(rng.normal(size=N_OBS) * 2.0, jnp.float32),
-                                       std=jnp.asarray(rng.uniform(0.05, 3.0, size=N_OBS), jnp.float32))
-    return networks, ts.replace(params=ts.params.replace(policy=jax.tree.map(noisy, ts.params.policy)),
-                                normalizer=normalizer)
+    normalizer = ts.normalizer.replace(
+        mean=jnp.asarray(rng.normal(size=N_OBS) * 2.0, jnp.float32),
+        std=jnp.asarray(rng.uniform(0.05, 3.0, size=N_OBS), jnp.float32),
+    )
+    return networks, ts.replace(
+        params=ts.params.replace(policy=jax.tree.map(noisy, ts.params.policy)), normalizer=normalizer
+    )
 
 
 def observations(policy: pol.NumpyPolicy, n: int = 100, seed: int = 1) -> np.ndarray:
@@ -45,6 +49,7 @@ def jax_actions(networks, ts, obs: np.ndarray) -> np.ndarray:
     """The Brax policy's deterministic actions (as train.evaluate runs it)."""
     import jax
     from brax.training.agents.ppo import networks as ppo_networks
+
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
     return np.asarray(jax.jit(policy)(obs, jax.random.PRNGKey(0))[0])
 
@@ -52,6 +57,7 @@ def jax_actions(networks, ts, obs: np.ndarray) -> np.ndarray:
 def onnx_actions(directory, obs: np.ndarray) -> np.ndarray:
     """Actions of an exported ``policy.onnx`` run with onnxruntime."""
     import onnxruntime
+
     session = onnxruntime.InferenceSession(str(directory / export.ONNX_FILE), providers=["CPUExecutionProvider"])
     return session.run(["action"], {"observation": obs})[0]
 
@@ -66,8 +72,16 @@ def export_both(policy: pol.NumpyPolicy, tmp_path) -> tuple[pol.NumpyPolicy, obj
 @pytest.mark.parametrize("distribution", tcfg.DISTRIBUTIONS)
 @pytest.mark.parametrize("activation", tcfg.ACTIVATIONS)
 def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_path):
-    config = tcfg.from_dict({"ppo": {"activation": activation, "distribution_type": distribution,
-                                     "observation_clip": 5.0, "policy_hidden_sizes": [16, 12]}})
+    config = tcfg.from_dict(
+        {
+            "ppo": {
+                "activation": activation,
+                "distribution_type": distribution,
+                "observation_clip": 5.0,
+                "policy_hidden_sizes": [16, 12],
+            }
+        }
+    )
     networks, ts = random_training_state(config)
     policy, onnx_dir = export_both(export.to_numpy_policy(config, ts, {"run": "random"}), tmp_path)
     obs = observations(policy)
@@ -83,8 +97,9 @@ def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_pa
 
 
 def test_export_without_observation_normalisation(tmp_path):
-    config = tcfg.from_dict({"ppo": {"normalize_observations": False, "observation_clip": 5.0,
-                                     "policy_hidden_sizes": [16]}})
+    config = tcfg.from_dict(
+        {"ppo": {"normalize_observations": False, "observation_clip": 5.0, "policy_hidden_sizes": [16]}}
+    )
     networks, ts = random_training_state(config)
     policy, onnx_dir = export_both(export.to_numpy_policy(config, ts, {}), tmp_path)
     assert policy.meta["network"]["observation_clip"] == 0.0  # Brax applies no clip without the normaliser
@@ -98,6 +113,7 @@ def test_export_without_observation_normalisation(tmp_path):
 def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
     from train import checkpoint
     from train.evaluate import load_training_state
+
     for fmt in export.FORMATS:
         assert export.main([str(tiny_run_dir), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
     assert "env steps" in capsys.readouterr().out
@@ -123,6 +139,7 @@ def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
 def corrupt_copies(run_dir, root):
     """Copies of a run's latest checkpoint, each broken in one way, with the expected error text."""
     from train import checkpoint
+
     latest = checkpoint.latest(run_dir)
     meta = json.loads((latest / checkpoint.META_FILE).read_text())
     cases = {}
@@ -171,9 +188,12 @@ def small_policy(tmp_path, name="p", hidden=(5,)) -> pol.NumpyPolicy:
     """A hand-made policy written with the numpy-only writer (no JAX involved)."""
     rng = np.random.default_rng(4)
     sizes = [N_OBS, *hidden, N_ACT]
-    params = {"obs_mean": rng.normal(size=N_OBS), "obs_std": rng.uniform(0.5, 2.0, size=N_OBS),
-              "kernels": tuple(rng.normal(size=(a, b)) for a, b in zip(sizes[:-1], sizes[1:])),
-              "biases": tuple(rng.normal(size=b) for b in sizes[1:])}
+    params = {
+        "obs_mean": rng.normal(size=N_OBS),
+        "obs_std": rng.uniform(0.5, 2.0, size=N_OBS),
+        "kernels": tuple(rng.normal(size=(a, b)) for a, b in zip(sizes[:-1], sizes[1:])),
+        "biases": tuple(rng.normal(size=b) for b in sizes[1:]),
+    }
     meta = pol.describe(params, "elu", "tanh_normal", 3.0, [f"o{i}" for i in range(N_OBS)])
     pol.save_policy(tmp_path / name, params, {**meta, "config": {}, "source": {}})
     return pol.load_policy(tmp_path / name)
@@ -211,9 +231,13 @@ def test_policy_loader_refuses_bad_files(tmp_path):
     cases = {
         "not valid JSON": variant("json", meta_text="{"),
         "format version 2": variant("version", meta_text=json.dumps({**meta, "format_version": 2})),
-        "dense_0_kernel has float32 (5, 24)": variant("shape", npz={**arrays, "dense_0_kernel": arrays["dense_0_kernel"].T}),
+        "dense_0_kernel has float32 (5, 24)": variant(
+            "shape", npz={**arrays, "dense_0_kernel": arrays["dense_0_kernel"].T}
+        ),
         "obs_std has float64": variant("dtype", npz={**arrays, "obs_std": arrays["obs_std"].astype(np.float64)}),
-        "lacks array(s) ['dense_1_bias']": variant("missing", npz={k: v for k, v in arrays.items() if k != "dense_1_bias"}),
+        "lacks array(s) ['dense_1_bias']": variant(
+            "missing", npz={k: v for k, v in arrays.items() if k != "dense_1_bias"}
+        ),
         "holds NaN": variant("nan", npz={**arrays, "dense_1_bias": np.full(N_ACT, np.nan, np.float32)}),
         "cannot be read": variant("pickle", npz={**arrays, "obs_mean": np.array([{"a": 1}], dtype=object)}),
     }
@@ -232,13 +256,20 @@ def test_policy_loader_refuses_bad_files(tmp_path):
 
 def test_numpy_policy_loads_and_runs_without_jax(tmp_path):
     small_policy(tmp_path)
-    code = (f"import sys, numpy as np\nfrom hsa_mjx.deploy.policy import load_policy\n"
-            f"p = load_policy({str(tmp_path / 'p')!r})\n"
-            f"assert p(np.zeros({N_OBS})).shape == ({N_ACT},) and p(np.zeros((3, {N_OBS}))).shape == (3, {N_ACT})\n"
-            "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'brax', 'flax', 'mujoco'))\n"
-            "assert not heavy, heavy\nprint('ok')\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          cwd=Path(__file__).resolve().parent.parent)
+    code = (
+        f"import sys, numpy as np\nfrom hsa_mjx.deploy.policy import load_policy\n"
+        f"p = load_policy({str(tmp_path / 'p')!r})\n"
+        f"assert p(np.zeros({N_OBS})).shape == ({N_ACT},) and p(np.zeros((3, {N_OBS}))).shape == (3, {N_ACT})\n"
+        "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'brax', 'flax', 'mujoco'))\n"
+        "assert not heavy, heavy\nprint('ok')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parent.parent,
+    )
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
 
@@ -258,6 +289,8 @@ def test_a_shipped_policy_folder_converts_to_onnx_with_the_same_actions(name, tm
     scale = rng.uniform(-10, 10, size=(200, policy.observation_size))
     obs = (policy.params["obs_mean"] + scale * policy.params["obs_std"]).astype(np.float32)
     np.testing.assert_allclose(onnx_actions(tmp_path / "onnx", obs), policy(obs), atol=1e-5, rtol=0)
-    assert export.main([f"policies/{name}", "--format", "onnx", "--checkpoint", "x", "--out",
-                        str(tmp_path / "again")]) == 2
+    assert (
+        export.main([f"policies/{name}", "--format", "onnx", "--checkpoint", "x", "--out", str(tmp_path / "again")])
+        == 2
+    )
     assert "policy directory holds one policy" in capsys.readouterr().err

@@ -106,11 +106,13 @@ def test_bad_actions_raise_and_leave_the_env_usable(vector_env):
     vector_env.reset(seed=9)
     nan_actions = _actions(1)
     nan_actions[2, 3] = np.nan
-    for bad, match in ((np.zeros((VECTOR_ENVS, 7), np.float32), r"shape \(8, 8\).*got shape \(8, 7\)"),
-                       (np.zeros(8, np.float32), r"got shape \(8,\)"),
-                       (np.zeros(ACTION_SHAPE, np.int64), r"shape \(8, 8\).*dtype int64"),
-                       (nan_actions, r"non-finite values at indices \[\[2, 3\]\]"),
-                       ([[0.0] * 8] * 3 + [[0.0] * 7], "float array of shape")):
+    for bad, match in (
+        (np.zeros((VECTOR_ENVS, 7), np.float32), r"shape \(8, 8\).*got shape \(8, 7\)"),
+        (np.zeros(8, np.float32), r"got shape \(8,\)"),
+        (np.zeros(ACTION_SHAPE, np.int64), r"shape \(8, 8\).*dtype int64"),
+        (nan_actions, r"non-finite values at indices \[\[2, 3\]\]"),
+        ([[0.0] * 8] * 3 + [[0.0] * 7], "float array of shape"),
+    ):
         with pytest.raises(ValueError, match=match):
             vector_env.step(bad)
     assert data_equivalence(vector_env.step(_actions(1)), reference)  # nothing advanced before
@@ -151,12 +153,15 @@ def test_render_draws_the_chosen_env(vector_env):
     env.render_env = 0
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"num_envs": 0}, "num_envs must be an integer >= 1"),
-    ({"num_envs": 2, "output": "torch"}, "output must be one of"),
-    ({"num_envs": 2, "render_env": 2}, "render_env"),
-    ({"num_envs": 2, "render_mode": "vr"}, "render_mode"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"num_envs": 0}, "num_envs must be an integer >= 1"),
+        ({"num_envs": 2, "output": "torch"}, "output must be one of"),
+        ({"num_envs": 2, "render_env": 2}, "render_env"),
+        ({"num_envs": 2, "render_mode": "vr"}, "render_mode"),
+    ],
+)
 def test_bad_constructor_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):  # raised before anything is built or compiled
         gymnasium.make_vec("hsa_mjx/HSA-v0", vectorization_mode="vector_entry_point", **kwargs)
@@ -167,8 +172,14 @@ def test_next_step_autoreset_suits_gymnasiums_vector_wrappers():
     episode's first observation with reward 0 and no flags (its action ignored); Gymnasium's
     NormalizeObservation, which refuses same-step autoreset, wraps it."""
     from gymnasium.wrappers.vector import NormalizeObservation
-    envs = gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                              autoreset_mode="next_step", termination__max_episode_steps=3)
+
+    envs = gymnasium.make_vec(
+        "hsa_mjx/HSA-v0",
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode="next_step",
+        termination__max_episode_steps=3,
+    )
     assert envs.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
     norm = NormalizeObservation(envs)
     obs, _ = norm.reset(seed=0)
@@ -191,6 +202,7 @@ def test_async_vectorization_resets_and_steps_without_extra_arguments(tmp_path):
     """make_vec(..., vectorization_mode="async") as a user's script runs it (its own process, the main guard)."""
     import subprocess
     import sys
+
     script = tmp_path / "run_async.py"
     script.write_text(
         "import multiprocessing, gymnasium, numpy as np, hsa_mjx\n"
@@ -199,7 +211,8 @@ def test_async_vectorization_resets_and_steps_without_extra_arguments(tmp_path):
         "    obs, _ = envs.reset(seed=0)\n"
         "    obs, reward, *_ = envs.step(np.zeros((2, 8), np.float32))\n"
         "    print(multiprocessing.get_start_method(), obs.shape, np.isfinite(reward).all())\n"
-        "    envs.close()\n")
+        "    envs.close()\n"
+    )
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().splitlines()[-1] == "spawn (2, 24) True"

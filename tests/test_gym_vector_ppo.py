@@ -18,12 +18,17 @@ GAMMA, LAMBDA, CLIP, LR = 0.99, 0.95, 0.2, 3e-4
 
 def init_params(key: jax.Array, obs_size: int, act_size: int, hidden: int = 32) -> dict:
     """Actor mean and critic MLPs (two tanh layers each) and a state-independent log std."""
+
     def mlp(k, sizes):
         keys = jax.random.split(k, len(sizes) - 1)
         return [(jax.random.normal(kk, (a, b)) / np.sqrt(a), jnp.zeros(b)) for kk, a, b in zip(keys, sizes, sizes[1:])]
+
     k_pi, k_v = jax.random.split(key)
-    return {"pi": mlp(k_pi, [obs_size, hidden, hidden, act_size]), "v": mlp(k_v, [obs_size, hidden, hidden, 1]),
-            "log_std": jnp.full(act_size, -0.5)}
+    return {
+        "pi": mlp(k_pi, [obs_size, hidden, hidden, act_size]),
+        "v": mlp(k_v, [obs_size, hidden, hidden, 1]),
+        "log_std": jnp.full(act_size, -0.5),
+    }
 
 
 def forward(layers: list, x: jax.Array) -> jax.Array:

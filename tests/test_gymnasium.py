@@ -61,6 +61,7 @@ def test_same_seed_same_trajectory(gym_env):
         for _ in range(20):
             out.append(gym_env.step(rng.uniform(-1, 1, 8).astype(np.float32))[0])
         return np.stack(out)
+
     np.testing.assert_array_equal(rollout(3), rollout(3))
     assert not np.array_equal(rollout(3)[0], rollout(4)[0])  # a different goal
 
@@ -108,6 +109,7 @@ def test_make_max_episode_steps_is_the_envs_own_limit():
 
 def test_gl_platform_is_chosen_for_a_headless_machine_and_a_users_choice_kept():
     from hsa_mjx.sim import gl
+
     assert gl.choose_platform({"MUJOCO_GL": "osmesa"}) == "osmesa"
     assert gl.choose_platform({"DISPLAY": ":0"}) is None  # MuJoCo's default (GLFW) with a display
     headless: dict = {}
@@ -121,13 +123,17 @@ def test_render_works_headless_with_mujoco_gl_unset(tmp_path):
     import os
     import subprocess
     import sys
+
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
-    code = ("import gymnasium, os, hsa_mjx\n"
-            "env = gymnasium.make('hsa_mjx/HSA-v0', render_mode='rgb_array', width=64, height=48)\n"
-            "env.reset(seed=0)\n"
-            "frame = env.render()\n"
-            "print(os.environ['MUJOCO_GL'], frame.shape, frame.dtype, int(frame.std() > 1))\n")
-    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True,
-                         timeout=300)
+    code = (
+        "import gymnasium, os, hsa_mjx\n"
+        "env = gymnasium.make('hsa_mjx/HSA-v0', render_mode='rgb_array', width=64, height=48)\n"
+        "env.reset(seed=0)\n"
+        "frame = env.render()\n"
+        "print(os.environ['MUJOCO_GL'], frame.shape, frame.dtype, int(frame.std() > 1))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split("\n")[-2] == "egl (48, 64, 3) uint8 1", out.stdout

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx.terrain import height_scan
 from hsa_mjx.task import observation, privileged
+from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from train import config as tcfg
 from train.export import policy_params
@@ -34,8 +34,11 @@ def slope_ground(xy: jax.Array) -> jax.Array:
 def _scan(ground, heading: int, robot_z: float = REST) -> np.ndarray:
     """The default scan (unclipped metres) of a robot at ``POSITION`` facing ``heading`` degrees, (P,)."""
     points = jnp.asarray(height_scan.local_points(DEFAULT))
-    return np.asarray(height_scan.read(ground, points, jnp.asarray(POSITION), jnp.asarray(HEADINGS[heading]),
-                                       jnp.asarray(robot_z), REST))
+    return np.asarray(
+        height_scan.read(
+            ground, points, jnp.asarray(POSITION), jnp.asarray(HEADINGS[heading]), jnp.asarray(robot_z), REST
+        )
+    )
 
 
 def test_default_grid_is_63_points_symmetric_about_the_robot_at_the_terrain_spacing():
@@ -84,14 +87,22 @@ def test_shape_clips_then_scales_and_noise_is_bounded_per_point():
     assert height_scan.add_noise(zeros, jax.random.PRNGKey(0), exact) is zeros
 
 
-@pytest.mark.parametrize("key,value,needle", [
-    ("spacing", 0.0, "spacing"), ("noise", -0.1, "noise"), ("clip", -1.0, "clip"),
-    ("length", -1.0, "length"), ("spacing", 0.001, "points"),
-])
+@pytest.mark.parametrize(
+    "key,value,needle",
+    [
+        ("spacing", 0.0, "spacing"),
+        ("noise", -0.1, "noise"),
+        ("clip", -1.0, "clip"),
+        ("length", -1.0, "length"),
+        ("spacing", 0.001, "points"),
+    ],
+)
 def test_bad_scan_settings_are_refused_naming_the_key(key, value, needle):
     with pytest.raises(ValueError, match=needle):
-        cfg.with_overrides(cfg.get_preset("mixed"), **{"observation.height_scan.enabled": True,
-                                                       f"observation.height_scan.{key}": value})
+        cfg.with_overrides(
+            cfg.get_preset("mixed"),
+            **{"observation.height_scan.enabled": True, f"observation.height_scan.{key}": value},
+        )
     with pytest.raises(ValueError, match="unknown config key"):
         cfg.with_overrides(cfg.get_preset("mixed"), **{"observation.height_scan.radius": 1.0})
 
@@ -106,10 +117,16 @@ def test_the_scan_is_appended_to_the_observation_and_labelled():
 
 
 def _privileged_config() -> tcfg.TrainConfig:
-    return tcfg.from_dict({"env": {"preset": "mixed", "goal": {"mode": "radial"},
-                                   "observation": {"heading": True, "height_scan": {"enabled": True}}},
-                           "ppo": {"privileged_critic": True, "policy_hidden_sizes": [16, 16],
-                                   "value_hidden_sizes": [16, 16]}})
+    return tcfg.from_dict(
+        {
+            "env": {
+                "preset": "mixed",
+                "goal": {"mode": "radial"},
+                "observation": {"heading": True, "height_scan": {"enabled": True}},
+            },
+            "ppo": {"privileged_critic": True, "policy_hidden_sizes": [16, 16], "value_hidden_sizes": [16, 16]},
+        }
+    )
 
 
 def test_privileged_inputs_reach_the_critic_and_never_the_policy_or_its_export():
@@ -128,4 +145,3 @@ def test_privileged_inputs_reach_the_critic_and_never_the_policy_or_its_export()
     assert not np.allclose(value(jnp.concatenate([obs, a], -1)), value(jnp.concatenate([obs, b], -1)))
     params = policy_params(config, ts, 8)
     assert params["kernels"][0].shape[0] == params["obs_mean"].shape[0] == n_obs  # the export: actor inputs only
-

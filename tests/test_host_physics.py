@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import hsa_mjx
-from hsa_mjx.terrain import height_scan
 from hsa_mjx.sim.host_physics import HostPhysics
+from hsa_mjx.terrain import height_scan
 
 STEPS = 40
 # C MuJoCo (float64) against MJX (float32), same settings, same actions from the same reset, 40 steps:
@@ -28,12 +28,13 @@ REST = 0.14  # block origins above level ground at rest: the scan's zero
 
 def _scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     """The scan values of a state's observation."""
-    return np.asarray(state.obs)[-height_scan.num_points(env.config.observation.height_scan):]
+    return np.asarray(state.obs)[-height_scan.num_points(env.config.observation.height_scan) :]
 
 
 def _ray_scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     """The scan computed independently: C MuJoCo ray casts onto the floor the state's physics stands on."""
     import mujoco
+
     physics, model = state.pipeline_state.physics, env.robot.mj_model
     data = mujoco.MjData(model)
     data.mocap_pos[:] = np.asarray(physics.mocap_pos)  # the env's tile under the origin (terrain scene)
@@ -41,11 +42,20 @@ def _ray_scan(env: hsa_mjx.HSAEnv, state) -> np.ndarray:
     mujoco.mj_kinematics(model, data)
     blocks = np.asarray(physics.xpos)[env.index.block_body]
     position, axis = blocks[:, :2].mean(axis=0), blocks[1, :2] - blocks[0, :2]
-    points = np.asarray(height_scan.world_points(jnp.asarray(height_scan.local_points(
-        env.config.observation.height_scan)), jnp.asarray(position), jnp.asarray(axis / np.linalg.norm(axis))))
+    points = np.asarray(
+        height_scan.world_points(
+            jnp.asarray(height_scan.local_points(env.config.observation.height_scan)),
+            jnp.asarray(position),
+            jnp.asarray(axis / np.linalg.norm(axis)),
+        )
+    )
     geom = np.zeros(1, np.int32)
-    ground = np.array([3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]),
-                                           None, 1, -1, geom) for x, y in points])
+    ground = np.array(
+        [
+            3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
+            for x, y in points
+        ]
+    )
     return np.clip(ground - (blocks[:, 2].mean() - REST), -1.0, 1.0)
 
 
@@ -67,8 +77,10 @@ def _both(env: hsa_mjx.HSAEnv, key: int = 0) -> tuple[list, list]:
 def test_host_physics_follows_mjx_within_the_bound(preset):
     env = hsa_mjx.make_env(preset, physics__backend="jax", **SCAN)
     mjx_states, host_states = _both(env)
-    worst = max(float(np.abs(np.asarray(a.pipeline_state.physics.qpos) - np.asarray(b.pipeline_state.physics.qpos)).max())
-                for a, b in zip(mjx_states, host_states))
+    worst = max(
+        float(np.abs(np.asarray(a.pipeline_state.physics.qpos) - np.asarray(b.pipeline_state.physics.qpos)).max())
+        for a, b in zip(mjx_states, host_states)
+    )
     assert worst < QPOS_TOL[preset], worst
     rewards = np.array([[float(a.reward), float(b.reward)] for a, b in zip(mjx_states, host_states)])
     assert np.abs(rewards[:, 0] - rewards[:, 1]).max() < REWARD_TOL[preset]
@@ -89,8 +101,9 @@ def test_a_diverging_c_state_terminates_as_non_finite():
     host = jax.jit(functools.partial(env.step_with, HostPhysics(env.robot.mj_model, env.index)))
     state = jax.jit(env.reset)(jax.random.PRNGKey(0))
     physics = state.pipeline_state.physics
-    bad = state.replace(pipeline_state=state.pipeline_state.replace(physics=physics.replace(
-        qvel=physics.qvel.at[0].set(jnp.nan))))
+    bad = state.replace(
+        pipeline_state=state.pipeline_state.replace(physics=physics.replace(qvel=physics.qvel.at[0].set(jnp.nan)))
+    )
     out = host(bad, jnp.zeros(8))
     assert float(out.metrics["termination/non_finite"]) == 1.0 and float(out.done) == 1.0
     assert np.all(np.isfinite(np.asarray(out.obs))) and np.isfinite(float(out.reward))

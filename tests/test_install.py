@@ -26,16 +26,21 @@ def wheel(tmp_path_factory) -> Path:
     out, source = tmp_path_factory.mktemp("wheel"), tmp_path_factory.mktemp("source") / "hsa_mjx"
     shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".*", "runs", "build", "*.egg-info", "__pycache__"))
     isolation = [] if importlib.util.find_spec("setuptools") is None else ["--no-build-isolation"]
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", *isolation, "-w", str(out), str(source)],
-                   check=True, timeout=TIMEOUT_S, cwd=out)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", *isolation, "-w", str(out), str(source)],
+        check=True,
+        timeout=TIMEOUT_S,
+        cwd=out,
+    )
     (found,) = out.glob("hsa_mjx-*.whl")
     return found
 
 
 def _repo_files(folder: str, pattern: str) -> set[str]:
     """The checkout's files under ``folder`` matching ``pattern``, relative to it."""
-    return {p.relative_to(ROOT / folder).as_posix() for p in (ROOT / folder).glob(pattern)
-            if "__pycache__" not in p.parts}
+    return {
+        p.relative_to(ROOT / folder).as_posix() for p in (ROOT / folder).glob(pattern) if "__pycache__" not in p.parts
+    }
 
 
 def test_wheel_holds_the_code_assets_configs_and_policies(wheel):
@@ -53,25 +58,51 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
     """Installed apart from the checkout (its own folder first on the path), run where no repo folder is."""
     site, work = tmp_path / "site", tmp_path / "work"
     work.mkdir()
-    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-compile", "--target", str(site),
-                    str(wheel)], check=True, timeout=TIMEOUT_S)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-compile", "--target", str(site), str(wheel)],
+        check=True,
+        timeout=TIMEOUT_S,
+    )
     env = {**os.environ, "PYTHONPATH": str(site), "JAX_PLATFORMS": "cpu"}
-    script = ("import json, hsa_mjx\n"
-              "from train import cli\n"
-              "env = hsa_mjx.make_env('flat')\n"
-              "config, run_dir = cli.resolve(cli.parse_args([]))\n"
-              "print(json.dumps({'file': hsa_mjx.__file__, 'obs': env.observation_size,\n"
-              "                  'envs': config.run.num_envs, 'init_from': config.run.init_from}))\n")
-    facts = json.loads(subprocess.run([sys.executable, "-c", script], cwd=work, env=env, capture_output=True,
-                                      text=True, check=True, timeout=TIMEOUT_S).stdout.splitlines()[-1])
+    script = (
+        "import json, hsa_mjx\n"
+        "from train import cli\n"
+        "env = hsa_mjx.make_env('flat')\n"
+        "config, run_dir = cli.resolve(cli.parse_args([]))\n"
+        "print(json.dumps({'file': hsa_mjx.__file__, 'obs': env.observation_size,\n"
+        "                  'envs': config.run.num_envs, 'init_from': config.run.init_from}))\n"
+    )
+    facts = json.loads(
+        subprocess.run(
+            [sys.executable, "-c", script],
+            cwd=work,
+            env=env,
+            capture_output=True,
+            text=True,
+            check=True,
+            timeout=TIMEOUT_S,
+        ).stdout.splitlines()[-1]
+    )
     assert Path(facts["file"]).is_relative_to(site)  # the installed copy, not the checkout
     assert facts["obs"] == 24 and facts["init_from"] == "flat"  # the CPU quickstart config, found as package data
-    evaluated = subprocess.run([sys.executable, "-m", "train.evaluate", "--policy", "flat", "--episodes", "2",
-                                "--steps", "20"], cwd=work, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    evaluated = subprocess.run(
+        [sys.executable, "-m", "train.evaluate", "--policy", "flat", "--episodes", "2", "--steps", "20"],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     assert (work / "runs" / "eval_flat" / "eval.json").is_file()
     # the console script with its default config (the CPU quickstart, from the shipped flat policy)
-    trained = subprocess.run([str(site / "bin" / "hsa-train"), "--set", "run.num_timesteps=640", "--run-dir", "runs/q"],
-                             cwd=work, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    trained = subprocess.run(
+        [str(site / "bin" / "hsa-train"), "--set", "run.num_timesteps=640", "--run-dir", "runs/q"],
+        cwd=work,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=TIMEOUT_S,
+    )
     assert trained.returncode == 0, trained.stderr[-3000:]
     assert "policy file" in trained.stdout and (work / "runs" / "q" / "summary.json").is_file()

@@ -46,8 +46,7 @@ def imported(path: Path) -> list[tuple[int, str]]:
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             base = node.module
             # "from hsa_mjx.task import env" imports the module hsa_mjx.task.env
-            found += [(node.lineno, f"{base}.{a.name}" if _is_module(f"{base}.{a.name}") else base)
-                      for a in node.names]
+            found += [(node.lineno, f"{base}.{a.name}" if _is_module(f"{base}.{a.name}") else base) for a in node.names]
     return [(line, name) for line, name in found if name.split(".")[0] in ("hsa_mjx", "train")]
 
 
@@ -64,7 +63,9 @@ def violations() -> list[str]:
         here = module_name(path)
         for line, name in imported(path):
             if layer_of(name) > layer_of(here):
-                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name} (layer {layer_of(name)} > {layer_of(here)})")
+                bad.append(
+                    f"{path.relative_to(ROOT)}:{line} imports {name} (layer {layer_of(name)} > {layer_of(here)})"
+                )
     return bad
 
 
@@ -99,7 +100,8 @@ def test_no_private_jax():
     for path in [*ROOT.glob("hsa_mjx/**/*.py"), *ROOT.glob("train/**/*.py")]:
         text, name = path.read_text(), path.relative_to(ROOT).as_posix()
         for i, line in enumerate(text.splitlines(), 1):
-            if "jax._src" in line or ("._impl" in line and (name, _function_at(ast.parse(text), i))
-                                      not in PRIVATE_FIELD_ALLOWED):
+            if "jax._src" in line or (
+                "._impl" in line and (name, _function_at(ast.parse(text), i)) not in PRIVATE_FIELD_ALLOWED
+            ):
                 hits.append(f"{name}:{i}")
     assert hits == []

@@ -6,10 +6,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from hsa_mjx.sim import physics
-from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.resources import scene_path
+from hsa_mjx.sim import physics
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import FOOT_GEOMS, load_mj_model, load_robot
 
 # Parity bound over 100 env steps (2000 physics steps, float32 MJX vs float64 C MuJoCo) under the

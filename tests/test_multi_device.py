@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from test_train_run import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,11 +35,13 @@ FACTS = "FACTS "
 # a random 15-step episode covers far less than demote_progress of its goal distance, so every episode
 # end moves its env down one level (the facts below check it, and that a resume keeps the levels).
 TERRAIN = {"types": ["flat", "stairs"], "proportions": [0.5, 0.5], "levels": 3, "tiles_per_type": 1}
-TWO_DEVICE_CONFIG = {**TINY, "env": {**TINY["env"], "preset": "mixed", "terrain": TERRAIN,
-                                     "physics": {"iterations": 20, "ls_iterations": 20}},
-                     "terrain_curriculum": {"enabled": True, "initial_spread": 1.0},
-                     "ppo": {**TINY["ppo"], "batch_size": 8},
-                     "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1}}
+TWO_DEVICE_CONFIG = {
+    **TINY,
+    "env": {**TINY["env"], "preset": "mixed", "terrain": TERRAIN, "physics": {"iterations": 20, "ls_iterations": 20}},
+    "terrain_curriculum": {"enabled": True, "initial_spread": 1.0},
+    "ppo": {**TINY["ppo"], "batch_size": 8},
+    "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1},
+}
 # Largest leaf difference, relative to max(1, |leaf|), between the pmap and per-device runs (and the
 # tolerance of their episode totals): float rounding gives ~3e-6 on the leaves and 1.3e-5 on a summed
 # reward term after 2 epochs, while the diverged 4-iteration runs differed by 2e-2.
@@ -48,22 +49,38 @@ SAME_RUN_TOLERANCE = 1e-4
 # How late the second training process starts: more than Gloo's 30 s wait, which the barriers cover.
 PROCESS_1_LATE_S = 40
 # The resume on one device: 4 envs with TINY's minibatch, checkpoints every 40 steps, 240 -> 280 steps.
-ONE_DEVICE_RESUME = [f"--set={key}={value}" for key, value in (
-    ("run.num_devices", 1), ("run.num_envs", 4), ("ppo.batch_size", TINY["ppo"]["batch_size"]),
-    ("run.checkpoint_every", 40), ("run.num_timesteps", 280), ("run.multi_device", "per_device"))]
+ONE_DEVICE_RESUME = [
+    f"--set={key}={value}"
+    for key, value in (
+        ("run.num_devices", 1),
+        ("run.num_envs", 4),
+        ("ppo.batch_size", TINY["ppo"]["batch_size"]),
+        ("run.checkpoint_every", 40),
+        ("run.num_timesteps", 280),
+        ("run.multi_device", "per_device"),
+    )
+]
 # What the per-device learner's log must share with pmap's: everything but speed and wall-clock.
 LEARNING_PREFIXES = ("episode", "curriculum/", "loss/", "step/", "termination/", "terrain", "reward", "nonfinite/")
-COMPARED_METRICS = ("episode/return", "episode/final_distance", "loss/total_loss", "loss/policy_loss",
-                    "curriculum/max_distance", "curriculum/episode_count")
+COMPARED_METRICS = (
+    "episode/return",
+    "episode/final_distance",
+    "loss/total_loss",
+    "loss/policy_loss",
+    "curriculum/max_distance",
+    "curriculum/episode_count",
+)
 
 
 # ----- run in the subprocess --------------------------------------------------------------------
 def _compile_counter() -> list:
     """A list that gains one entry per XLA compile request from now on (cache hits included)."""
     import jax
+
     events: list = []
     jax.monitoring.register_event_duration_secs_listener(
-        lambda name, secs, **_: events.append(name) if name == "/jax/core/compile/backend_compile_duration" else None)
+        lambda name, secs, **_: events.append(name) if name == "/jax/core/compile/backend_compile_duration" else None
+    )
     return events
 
 
@@ -74,12 +91,14 @@ def _fresh_traces() -> None:
     so the same epoch traced again later in a process can lower to different (equivalent) text and
     miss the persistent compilation cache: a second 30-s compile per phase on a 2-core CPU."""
     import jax
+
     jax.clear_caches()
 
 
 def _record_saves() -> list[int]:
     """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
     from train import checkpoint
+
     saved, save = [], checkpoint.save
     checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
     return saved
@@ -89,6 +108,7 @@ def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
     """Messages of the configs refused on 2 devices, and whether anything compiled or was written first."""
     from train import config as tcfg
     from train.trainer import train
+
     before, messages = len(compiles), {}
     bad = {"indivisible": ["run.num_envs=3", "ppo.batch_size=3"], "too_many": ["run.num_devices=3"]}
     for name, override in bad.items():
@@ -104,6 +124,7 @@ def _probe(cls: type, compiles: list) -> dict:
     """From now on, record each ``reset`` and ``epoch`` of the trainer's learner class ``cls``: what they
     return (copied to the host) and, per epoch, the compile requests it made."""
     import jax
+
     seen: dict = {"resets": [], "epochs": [], "epoch_compiles": []}
     reset, epoch = cls.reset, cls.epoch
 
@@ -128,6 +149,7 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
     to max(1, |leaf|) (parameters, optimiser, normaliser), and whether the rest (curriculum, PRNG key,
     terrain levels) is equal."""
     from flax import serialization
+
     from train import checkpoint
 
     def load(run: str) -> dict:
@@ -138,13 +160,15 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
     pairs = list(zip(_float_leaves(a.pop("training_state")), _float_leaves(b.pop("training_state"))))
     gap = max(float(np.max(np.abs(x - y)) / max(1.0, float(np.max(np.abs(x))))) for x, y in pairs)
     rest_equal = sorted(a) == sorted(b) and all(
-        np.array_equal(x, y) for x, y in zip(_float_leaves(a), _float_leaves(b)))
+        np.array_equal(x, y) for x, y in zip(_float_leaves(a), _float_leaves(b))
+    )
     return {"same_run_param_gap": gap, "same_run_leaves": len(pairs), "same_run_rest_equal": rest_equal}
 
 
 def _float_leaves(tree: dict) -> list[np.ndarray]:
     """The leaves of a restored checkpoint tree as float64 arrays, in key order."""
     import jax
+
     return [np.asarray(x, np.float64) for x in jax.tree.leaves(tree)]
 
 
@@ -152,18 +176,28 @@ def _learner_facts(seen: dict) -> dict:
     """From the probed pmap learner of a fresh two-epoch run: goals per device after the reset, terrain
     cells before and after, recompiles at the second epoch, replicas after it."""
     import jax
+
     start, (ts, state, out) = seen["resets"][0], seen["epochs"][1]
-    terrain = {"terrain_rows": start.curricula.terrain.row.tolist(),
-               "terrain_start": start.curricula.terrain.level.tolist(),
-               "terrain_after": state.curricula.terrain.level.tolist(),
-               "terrain_totals": {k: np.asarray(v).tolist() for k, v in out["totals"].items()
-                                  if k.startswith("terrain_")}}
+    terrain = {
+        "terrain_rows": start.curricula.terrain.row.tolist(),
+        "terrain_start": start.curricula.terrain.level.tolist(),
+        "terrain_after": state.curricula.terrain.level.tolist(),
+        "terrain_totals": {k: np.asarray(v).tolist() for k, v in out["totals"].items() if k.startswith("terrain_")},
+    }
     leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curricula.goal})
-    differing = [jax.tree_util.keystr(path) for path, x in leaves
-                 if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))]
-    return {"goals": start.envs.env.pipeline_state.task.goal_xy.tolist(), "epoch_compiles": list(seen["epoch_compiles"]),
-            "leaves": len(leaves), "replicas_differing": differing,
-            "episodes_seen": int(state.curricula.goal.episode_count[0]), **terrain}
+    differing = [
+        jax.tree_util.keystr(path)
+        for path, x in leaves
+        if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))
+    ]
+    return {
+        "goals": start.envs.env.pipeline_state.task.goal_xy.tolist(),
+        "epoch_compiles": list(seen["epoch_compiles"]),
+        "leaves": len(leaves),
+        "replicas_differing": differing,
+        "episodes_seen": int(state.curricula.goal.episode_count[0]),
+        **terrain,
+    }
 
 
 # Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
@@ -176,11 +210,13 @@ def _curriculum_facts() -> dict:
     gathers a collection's); one update over all of them; each device alone."""
     import jax
     import jax.numpy as jnp
+
     from hsa_mjx.curricula import goal as cur
     from hsa_mjx.curricula.state import CurriculumRules
     from hsa_mjx.task.env import HSAEnv
     from train import config as tcfg
     from train.ppo import AXIS, replicate
+
     config = cur.CurriculumConfig(window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2)
     rules = CurriculumRules(HSAEnv(tcfg.from_dict({}).env), config)
     done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
@@ -189,15 +225,18 @@ def _curriculum_facts() -> dict:
         gather = lambda x: jax.lax.all_gather(x, AXIS, axis=1, tiled=True)  # noqa: E731
         return rules.after_collection(cstate, gather(success), gather(done))
 
-    start = replicate(cur.init(config), jax.local_devices()[:done.shape[1]])
+    start = replicate(cur.init(config), jax.local_devices()[: done.shape[1]])
     gathered = jax.pmap(steps, axis_name=AXIS)(start, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))
     reference, alone = cur.init(config), [cur.init(config) for _ in range(done.shape[1])]
     for s, d in zip(success, done):
         reference = cur.update(reference, s.reshape(-1), d.reshape(-1), config)  # device 0's envs, then device 1's
         alone = [cur.update(a, s[i], d[i], config) for i, a in enumerate(alone)]
     as_lists = lambda tree: {k: np.asarray(v).tolist() for k, v in vars(tree).items()}  # noqa: E731
-    return {"curriculum_pmapped": as_lists(gathered), "curriculum_reference": as_lists(reference),
-            "curriculum_alone": [as_lists(a) for a in alone]}
+    return {
+        "curriculum_pmapped": as_lists(gathered),
+        "curriculum_reference": as_lists(reference),
+        "curriculum_alone": [as_lists(a) for a in alone],
+    }
 
 
 def scenario_two_devices(config_path: str, run_dir: str) -> dict:
@@ -206,6 +245,7 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     from train.cli import main
     from train.per_device import PerDeviceLearner
     from train.ppo import PPOLearner
+
     pmap_seen = _probe(PPOLearner, compiles)
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
     rc_train = main(args)
@@ -213,18 +253,26 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     learner = _learner_facts(pmap_seen)
     _fresh_traces()
     rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
-    facts = {"rc_train": rc_train, "rc_resume": rc_resume, "saved_first": saved_first,
-             "saved_resume": saved[len(saved_first):]}
+    facts = {
+        "rc_train": rc_train,
+        "rc_resume": rc_resume,
+        "saved_first": saved_first,
+        "saved_resume": saved[len(saved_first) :],
+    }
     facts.update(learner)
     facts.update(_refusals(config_path, Path(run_dir).parent, compiles))
     # the same run (config, seed, keys) with one jitted collection per device: checkpoints and logs as pmap's
     per_device_dir = str(Path(run_dir).parent / "run_per_device")
     _fresh_traces()
     per_device_seen = _probe(PerDeviceLearner, compiles)
-    facts["rc_per_device"] = main(["--config", config_path, "--run-dir", per_device_dir, "--quiet",
-                                   "--set", "run.multi_device=per_device"])
-    facts.update(_checkpoint_gap(run_dir, per_device_dir, 160), per_device_run_dir=per_device_dir,
-                 per_device_epoch_compiles=list(per_device_seen["epoch_compiles"]))
+    facts["rc_per_device"] = main(
+        ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.multi_device=per_device"]
+    )
+    facts.update(
+        _checkpoint_gap(run_dir, per_device_dir, 160),
+        per_device_run_dir=per_device_dir,
+        per_device_epoch_compiles=list(per_device_seen["epoch_compiles"]),
+    )
     # the two-device checkpoint resumed on one device by the per-device learner: its device-0 collection
     # has the geometry of the run above (4 envs, 2 unrolls of 5), so its compile is a cache hit
     _fresh_traces()
@@ -241,8 +289,28 @@ def _scaling_rows(config_path: str, out_dir: Path) -> list[dict]:
     """Rows of ``benchmarks.scaling`` on 2 devices, run in this process: its PPO epoch is the trainer's
     (a cache hit); the speed-up arithmetic over device counts is tested on its own below."""
     from benchmarks import scaling
-    scaling.main(["--config", config_path, "--envs-per-device", "4", "--devices", "2", "--steps", "2",
-                  "--repeats", "1", "--epochs", "1", "--no-split", "--tag", "smoke", "--out-dir", str(out_dir)])
+
+    scaling.main(
+        [
+            "--config",
+            config_path,
+            "--envs-per-device",
+            "4",
+            "--devices",
+            "2",
+            "--steps",
+            "2",
+            "--repeats",
+            "1",
+            "--epochs",
+            "1",
+            "--no-split",
+            "--tag",
+            "smoke",
+            "--out-dir",
+            str(out_dir),
+        ]
+    )
     return json.loads((out_dir / "scaling_smoke.json").read_text())["rows"]
 
 
@@ -251,6 +319,7 @@ def scenario_process(config_path: str, run_dir: str, port: str, process_id: str)
     saved = _record_saves()
     from train import trainer
     from train.cli import main
+
     loop = trainer._loop
 
     def late_loop(*args, **kwargs):  # later than the 30 s a collective's first use waits for the other processes
@@ -258,23 +327,54 @@ def scenario_process(config_path: str, run_dir: str, port: str, process_id: str)
         return loop(*args, **kwargs)
 
     trainer._loop = late_loop
-    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", "--coordinator", f"127.0.0.1:{port}",
-               "--num-processes", "2", "--process-id", process_id])
+    rc = main(
+        [
+            "--config",
+            config_path,
+            "--run-dir",
+            run_dir,
+            "--quiet",
+            "--coordinator",
+            f"127.0.0.1:{port}",
+            "--num-processes",
+            "2",
+            "--process-id",
+            process_id,
+        ]
+    )
     return {"rc": rc, "saved": saved}
 
 
 def scenario_warp_per_device(config_path: str, run_dir: str) -> dict:
     """The per-device learner (one env copy and one jitted collection per device) on the Warp backend."""
     from train.cli import main
+
     # one epoch (10 steps per env) with 8-step episodes: every env ends one episode (Warp runs slowly on a CPU)
-    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", "--set", "env.physics.backend=warp",
-               "--set", "run.multi_device=per_device", "--set", "run.num_timesteps=80",
-               "--set", "env.termination.max_episode_steps=8"])
+    rc = main(
+        [
+            "--config",
+            config_path,
+            "--run-dir",
+            run_dir,
+            "--quiet",
+            "--set",
+            "env.physics.backend=warp",
+            "--set",
+            "run.multi_device=per_device",
+            "--set",
+            "run.num_timesteps=80",
+            "--set",
+            "env.termination.max_episode_steps=8",
+        ]
+    )
     return {"rc": rc}
 
 
-SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process,
-             "warp_per_device": scenario_warp_per_device}
+SCENARIOS = {
+    "two_devices": scenario_two_devices,
+    "process": scenario_process,
+    "warp_per_device": scenario_warp_per_device,
+}
 
 
 # ----- the tests ------------------------------------------------------------------------------
@@ -291,6 +391,7 @@ def _subprocess_env(devices: int | None) -> dict:
     The device count goes through JAX (``JAX_NUM_CPU_DEVICES``), not ``XLA_FLAGS``: the cache keys on
     the XLA flags, so every process of the suite keeps the same ones and shares its entries."""
     import jax
+
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     env.pop("JAX_NUM_CPU_DEVICES", None)
     if jax.config.jax_compilation_cache_dir:
@@ -315,13 +416,19 @@ def write_config(path: Path, data: dict) -> str:
 
 def _facts(stdout: str) -> dict:
     """The JSON a scenario printed."""
-    return json.loads([ln for ln in stdout.splitlines() if ln.startswith(FACTS)][-1][len(FACTS):])
+    return json.loads([ln for ln in stdout.splitlines() if ln.startswith(FACTS)][-1][len(FACTS) :])
 
 
 def run_scenario(name: str, *args: str) -> dict:
     """Run ``SCENARIOS[name](*args)`` in a fresh interpreter with the fake devices; the facts it printed."""
-    proc = subprocess.run([sys.executable, __file__, name, *args], cwd=ROOT, env=_subprocess_env(FAKE_DEVICES),
-                          capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT_S)
+    proc = subprocess.run(
+        [sys.executable, __file__, name, *args],
+        cwd=ROOT,
+        env=_subprocess_env(FAKE_DEVICES),
+        capture_output=True,
+        text=True,
+        timeout=SUBPROCESS_TIMEOUT_S,
+    )
     return _facts(_check(proc))
 
 
@@ -329,21 +436,35 @@ def run_scenario(name: str, *args: str) -> dict:
 def two_devices(tmp_path_factory):
     """Facts of the two-device scenario and its run dir."""
     tmp = tmp_path_factory.mktemp("two_devices")
-    return run_scenario("two_devices", write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG), str(tmp / "run")), tmp / "run"
+    return run_scenario(
+        "two_devices", write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG), str(tmp / "run")
+    ), tmp / "run"
 
 
 def _run_processes(command: list[str], count: int) -> list[dict]:
     """Start ``command + [process id]`` ``count`` times at once (one CPU device each); their facts."""
-    procs = [subprocess.Popen(command + [str(i)], cwd=ROOT, env=_subprocess_env(None), stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for i in range(count)]
+    procs = [
+        subprocess.Popen(
+            command + [str(i)],
+            cwd=ROOT,
+            env=_subprocess_env(None),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(count)
+    ]
     try:
         outs = [p.communicate(timeout=SUBPROCESS_TIMEOUT_S) for p in procs]
     finally:
         for p in procs:
             if p.poll() is None:
                 p.kill()
-    failed = [f"process {i}: exit {p.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
-              for i, (p, out) in enumerate(zip(procs, outs)) if p.returncode != 0]
+    failed = [
+        f"process {i}: exit {p.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
+        for i, (p, out) in enumerate(zip(procs, outs))
+        if p.returncode != 0
+    ]
     assert not failed, "\n\n".join(failed)  # every failed process's output: the first to fail may be another
     return [_facts(out[0]) for out in outs]
 
@@ -351,16 +472,21 @@ def _run_processes(command: list[str], count: int) -> list[dict]:
 def _records(run_dir: Path) -> list[dict]:
     """The run's metrics records."""
     from train.logger import read_jsonl
+
     return read_jsonl(run_dir / "metrics.jsonl")
 
 
 def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
     from train import checkpoint
+
     facts, run_dir = two_devices
     assert facts["rc_train"] == 0 and facts["rc_resume"] == 0
     assert facts["saved_first"] == [80, 160] and facts["saved_resume"] == [240]
     assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == [  # the one-device resume's 280 pruned 80
-        "step_000000000160", "step_000000000240", "step_000000000280"]
+        "step_000000000160",
+        "step_000000000240",
+        "step_000000000280",
+    ]
     assert not [p for p in checkpoint.checkpoint_dir(run_dir).iterdir() if p.name.startswith(".tmp")]
     assert [r["step"] for r in _records(run_dir)] == [80, 160, 240, 280]  # one log record per epoch, not per device
 
@@ -390,6 +516,7 @@ def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
 def _saved_levels(run_dir: Path, step: int) -> np.ndarray:
     """The per-env terrain levels a checkpoint of the run holds."""
     from train import checkpoint
+
     path = checkpoint.checkpoint_dir(run_dir) / f"step_{step:012d}"
     count = checkpoint.read_meta(path)["terrain_envs"]
     template = {"terrain_levels": {"row": np.zeros(count, np.int32), "level": np.zeros(count, np.int32)}}
@@ -411,8 +538,9 @@ def test_terrain_levels_move_on_every_device_and_survive_resume(two_devices):
     # 160 -> 240 steps is 10 steps per env: no episode ends, so a resume that restored the levels keeps them
     np.testing.assert_array_equal(resumed, first)
     record = [r for r in _records(run_dir) if r["step"] == 160][0]
-    assert record["terrain/levels"] == 3 and record["terrain/mean_level/flat"] + record["terrain/mean_level/stairs"] \
-        == pytest.approx(first.mean() * 2)
+    assert record["terrain/levels"] == 3 and record["terrain/mean_level/flat"] + record[
+        "terrain/mean_level/stairs"
+    ] == pytest.approx(first.mean() * 2)
 
 
 def test_envs_differ_across_devices(two_devices):
@@ -436,6 +564,7 @@ def test_per_device_learner_trains_exactly_like_pmap(two_devices):
 
 def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
     from train import checkpoint
+
     facts, run_dir = two_devices
     assert facts["rc_per_device"] == 0
     per_device_dir = Path(facts["per_device_run_dir"])
@@ -464,6 +593,7 @@ def test_bad_device_split_refused_before_compile(two_devices):
 
 def test_two_processes_train_like_two_devices(two_devices, tmp_path):
     from train import checkpoint
+
     config, run_dir = write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
     facts = _run_processes([sys.executable, __file__, "process", config, str(run_dir), str(_free_port())], 2)
     assert [f["rc"] for f in facts] == [0, 0]
@@ -482,6 +612,7 @@ def test_two_processes_train_like_two_devices(two_devices, tmp_path):
 def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     from train import checkpoint
     from train.evaluate import main as evaluate
+
     facts, run_dir = two_devices
     assert facts["rc_one_device"] == 0 and facts["saved_one_device"] == [280]
     meta = checkpoint.read_meta(checkpoint.latest(run_dir))
@@ -489,14 +620,33 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     assert meta["config"]["run"]["multi_device"] == "per_device"
     last = _records(run_dir)[-1]
     assert last["step"] == 280 and last["curriculum/episode_count"] >= 8  # the curriculum came along
-    assert evaluate([str(run_dir), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0  # C MuJoCo: a short compile
+    assert (
+        evaluate([str(run_dir), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0
+    )  # C MuJoCo: a short compile
     assert json.loads((run_dir / "eval" / "eval.json").read_text())["step"] == 280
     # the table by terrain type and difficulty (one atlas of both types at 0, 0.5 and 1)
-    assert evaluate([str(run_dir), "--terrain-types", "all", "--levels", "0,0.5,1", "--episodes", "2",
-                     "--steps", "5", "--backend", "c"]) == 0
+    assert (
+        evaluate(
+            [
+                str(run_dir),
+                "--terrain-types",
+                "all",
+                "--levels",
+                "0,0.5,1",
+                "--episodes",
+                "2",
+                "--steps",
+                "5",
+                "--backend",
+                "c",
+            ]
+        )
+        == 0
+    )
     table = json.loads((run_dir / "eval" / "terrain_eval.json").read_text())
     assert [(r["type"], r["difficulty"], r["episodes"]) for r in table["rows"]] == [
-        (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)]
+        (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)
+    ]
     assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
 
@@ -514,9 +664,14 @@ def test_scaling_benchmark_smoke(two_devices):
 
 def test_scaling_speedups_are_relative_to_the_fewest_devices():
     from benchmarks.scaling_report import with_speedups
-    rows = with_speedups([{"devices": 1, "ppo_env_steps_per_s": 100.0, "env_steps_per_s": 50.0},
-                          {"devices": 2, "ppo_env_steps_per_s": 180.0, "env_steps_per_s": None},
-                          {"devices": 4, "ppo_env_steps_per_s": 300.0, "env_steps_per_s": 150.0}])
+
+    rows = with_speedups(
+        [
+            {"devices": 1, "ppo_env_steps_per_s": 100.0, "env_steps_per_s": 50.0},
+            {"devices": 2, "ppo_env_steps_per_s": 180.0, "env_steps_per_s": None},
+            {"devices": 4, "ppo_env_steps_per_s": 300.0, "env_steps_per_s": 150.0},
+        ]
+    )
     assert [r["speedup_ppo_env_steps_per_s"] for r in rows] == [1.0, 1.8, 3.0]
     assert [r["efficiency_ppo_env_steps_per_s"] for r in rows] == [1.0, 0.9, 0.75]
     assert "speedup_env_steps_per_s" not in rows[1]  # not measured there: no speed-up
@@ -526,6 +681,7 @@ def test_scaling_speedups_are_relative_to_the_fewest_devices():
 def test_scaling_device_counts_and_config():
     from benchmarks.scaling import device_counts, scaled_config
     from train import config as tcfg
+
     assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
     flat = tcfg.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
     four = scaled_config(flat, 8192, 4, iterations=1)
@@ -539,13 +695,16 @@ def test_scaling_device_counts_and_config():
 
 def test_cluster_spec_from_flags_or_environment():
     from train import distributed
+
     assert distributed.resolve_spec(environ={}) is None
     env = {"HSA_COORDINATOR": "10.0.0.1:1234", "HSA_NUM_PROCESSES": "4", "HSA_PROCESS_ID": "3"}
     assert distributed.resolve_spec(environ=env) == distributed.ClusterSpec("10.0.0.1:1234", 4, 3)
     assert distributed.resolve_spec(process_id=0, environ=env).process_id == 0  # a flag wins
-    for kwargs, match in (({"coordinator": "h:1", "num_processes": 2}, "--process-id"),
-                          ({"coordinator": "host", "num_processes": 2, "process_id": 0}, "HOST:PORT"),
-                          ({"coordinator": "h:1", "num_processes": 2, "process_id": 2}, "0 <= --process-id")):
+    for kwargs, match in (
+        ({"coordinator": "h:1", "num_processes": 2}, "--process-id"),
+        ({"coordinator": "host", "num_processes": 2, "process_id": 0}, "HOST:PORT"),
+        ({"coordinator": "h:1", "num_processes": 2, "process_id": 2}, "0 <= --process-id"),
+    ):
         with pytest.raises(ValueError, match=match):
             distributed.resolve_spec(**kwargs, environ={})
     with pytest.raises(ValueError, match="HSA_NUM_PROCESSES must be an integer"):
@@ -554,7 +713,9 @@ def test_cluster_spec_from_flags_or_environment():
 
 def test_one_process_keys_are_the_single_host_split():
     import jax
+
     from train import distributed
+
     devices, key = jax.local_devices()[:1], jax.random.PRNGKey(7)
     np.testing.assert_array_equal(distributed.env_keys(key, 6, devices), jax.random.split(key, 6).reshape(1, 6, 2))
     np.testing.assert_array_equal(distributed.epoch_keys(key, devices), jax.random.split(key, 1))

@@ -8,18 +8,42 @@ import pytest
 
 import hsa_mjx
 from hsa_mjx import build_config
-from hsa_mjx.adapters.rendering import check_camera
 from hsa_mjx.adapters.original_args import ORIGINAL_ARGS, RENDER_ARGS, OriginalArgumentWarning
+from hsa_mjx.adapters.rendering import check_camera
 
 # The original HSAEnv's keyword arguments (hsa_gym API reference) and the viewer arguments its base
 # class took through **kwargs.
 ORIGINAL_SIGNATURE = (
-    "xml_file", "frame_skip", "default_camera_config", "forward_reward_weight", "ctrl_cost_weight",
-    "actuator_group", "action_group", "smooth_positions", "clip_actions", "contact_cost_weight",
-    "yvel_cost_weight", "constraint_cost_weight", "acc_cost_weight", "distance_reward_weight",
-    "early_termination_penalty", "joint_vel_cost_weight", "stagnation_penalty_weight", "alive_bonus",
-    "max_increment", "enable_terrain", "terrain_type", "goal_position", "num_checkpoints", "checkpoint_reward",
-    "checkpoint_radius", "start_radius", "end_radius", "num_turns", "max_episode_steps", "ensure_flat_spawn",
+    "xml_file",
+    "frame_skip",
+    "default_camera_config",
+    "forward_reward_weight",
+    "ctrl_cost_weight",
+    "actuator_group",
+    "action_group",
+    "smooth_positions",
+    "clip_actions",
+    "contact_cost_weight",
+    "yvel_cost_weight",
+    "constraint_cost_weight",
+    "acc_cost_weight",
+    "distance_reward_weight",
+    "early_termination_penalty",
+    "joint_vel_cost_weight",
+    "stagnation_penalty_weight",
+    "alive_bonus",
+    "max_increment",
+    "enable_terrain",
+    "terrain_type",
+    "goal_position",
+    "num_checkpoints",
+    "checkpoint_reward",
+    "checkpoint_radius",
+    "start_radius",
+    "end_radius",
+    "num_turns",
+    "max_episode_steps",
+    "ensure_flat_spawn",
 )
 BASE_CLASS_VIEWER = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
 
@@ -105,36 +129,46 @@ def test_the_issue_example_and_coupled_terrain_arguments():
         assert build_config("flat", enable_terrain=False, terrain_type="poles").scene == "flat"
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"frame_skp": 3}, r"unknown argument\(s\) \['frame_skp'\].*'frame_skip'.*'control__frame_skip'"),
-    ({"frame_skip": 5, "control__frame_skip": 4}, "frame_skip and the config key control__frame_skip both set"),
-    ({"goal_position": [1, 0], "goal": {"mode": "radial"}}, "goal_position and the config key goal__mode"),
-    ({"enable_terrain": True, "scene": "terrain"}, "enable_terrain and the config key scene"),
-    ({"frame_skip": 0}, "'control.frame_skip' must be > 0.*original argument frame_skip=0"),
-    ({"terrain_type": "craters"}, "needs the heightfield scene: pass enable_terrain=True"),
-    ({"terrain_type": "lava", "enable_terrain": True}, "not a terrain type"),
-    ({"enable_terrain": "yes"}, "enable_terrain must be True or False"),
-    ({"actuator_group": [0, 1]}, r"actuator_group=\[0, 1\] is not supported: only \[1\]"),
-    ({"action_group": [2]}, "action_group"),
-    ({"xml_file": "hsaModel.xml"}, "could not load it either"),
-    ({"xml_file": "robot.xml"}, "hsaLooseModel.xml"),
-    ({"goal_position": [1.0]}, r"goal_position must be a list \[x, y\]"),
-    ({"goal_position": ["a", "b"]}, "goal_position must be a list"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"frame_skp": 3}, r"unknown argument\(s\) \['frame_skp'\].*'frame_skip'.*'control__frame_skip'"),
+        ({"frame_skip": 5, "control__frame_skip": 4}, "frame_skip and the config key control__frame_skip both set"),
+        ({"goal_position": [1, 0], "goal": {"mode": "radial"}}, "goal_position and the config key goal__mode"),
+        ({"enable_terrain": True, "scene": "terrain"}, "enable_terrain and the config key scene"),
+        ({"frame_skip": 0}, "'control.frame_skip' must be > 0.*original argument frame_skip=0"),
+        ({"terrain_type": "craters"}, "needs the heightfield scene: pass enable_terrain=True"),
+        ({"terrain_type": "lava", "enable_terrain": True}, "not a terrain type"),
+        ({"enable_terrain": "yes"}, "enable_terrain must be True or False"),
+        ({"actuator_group": [0, 1]}, r"actuator_group=\[0, 1\] is not supported: only \[1\]"),
+        ({"action_group": [2]}, "action_group"),
+        ({"xml_file": "hsaModel.xml"}, "could not load it either"),
+        ({"xml_file": "robot.xml"}, "hsaLooseModel.xml"),
+        ({"goal_position": [1.0]}, r"goal_position must be a list \[x, y\]"),
+        ({"goal_position": ["a", "b"]}, "goal_position must be a list"),
+    ],
+)
 def test_bad_original_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
         build_config("flat", **kwargs)
 
 
 def test_original_arguments_through_gymnasium_make_and_make_vec(env):
-    single = gymnasium.make("hsa_mjx/HSA-v0", frame_skip=10, max_increment=0.2, yvel_cost_weight=0.5,
-                            render_mode="rgb_array", camera_name="overview")
+    single = gymnasium.make(
+        "hsa_mjx/HSA-v0",
+        frame_skip=10,
+        max_increment=0.2,
+        yvel_cost_weight=0.5,
+        render_mode="rgb_array",
+        camera_name="overview",
+    )
     config = single.unwrapped.env.config
     assert (config.control.frame_skip, config.control.max_increment, config.reward.lateral) == (10, 0.2, 0.5)
     assert single.unwrapped._camera == "overview" and single.metadata["render_fps"] == 100  # dt = 10 ms
     single.close()
-    envs = gymnasium.make_vec("hsa_mjx/HSA-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                              num_checkpoints=5, camera_id=-1)
+    envs = gymnasium.make_vec(
+        "hsa_mjx/HSA-v0", num_envs=2, vectorization_mode="vector_entry_point", num_checkpoints=5, camera_id=-1
+    )
     assert envs.unwrapped.env.config.goal.num_checkpoints == 5 and envs.unwrapped._camera == -1
     envs.close()
     with pytest.raises(ValueError, match="pass one camera argument"):

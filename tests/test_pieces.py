@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx.task import control, goals, observation, termination
-from hsa_mjx.sim import physics
 from hsa_mjx.config import GoalConfig, ObservationConfig, TerminationConfig
+from hsa_mjx.sim import physics
+from hsa_mjx.task import control, goals, observation, termination
 
 
 def test_targets_are_clipped_to_ctrlrange():
@@ -122,22 +122,31 @@ def test_qacc_limit_checks_the_last_substep_unless_asked_for_every_one():
 def _fake_robot(block_a_xy, block_b_xy):
     """Synthetic data and index for ``observation.observe``: two blocks, 8 hinges, rest elsewhere."""
     xpos = jnp.zeros((3, 3)).at[1, :2].set(jnp.array(block_a_xy)).at[2, :2].set(jnp.array(block_b_xy))
-    data = SimpleNamespace(xpos=xpos, qpos=jnp.arange(30.0), qvel=jnp.arange(30.0) / 10,
-                           ctrl=-jnp.arange(12.0) / 4)
-    index = SimpleNamespace(block_body=np.array([1, 2]), joint_qpos=np.arange(7, 15), joint_qvel=np.arange(6, 14),
-                            block_qvel=np.array([0, 14]), servo_ids=np.array([3, 1, 4, 1, 5, 9, 2, 6]))
+    data = SimpleNamespace(xpos=xpos, qpos=jnp.arange(30.0), qvel=jnp.arange(30.0) / 10, ctrl=-jnp.arange(12.0) / 4)
+    index = SimpleNamespace(
+        block_body=np.array([1, 2]),
+        joint_qpos=np.arange(7, 15),
+        joint_qvel=np.arange(6, 14),
+        block_qvel=np.array([0, 14]),
+        servo_ids=np.array([3, 1, 4, 1, 5, 9, 2, 6]),
+    )
     return data, index
 
 
 def test_optional_observation_entries_come_after_the_original_in_a_fixed_order():
-    sizes = {(h, t, c): observation.observation_size(ObservationConfig(heading=h, servo_targets=t, clock_period_s=c))
-             for h in (False, True) for t in (False, True) for c in (0.0, 4.0)}
+    sizes = {
+        (h, t, c): observation.observation_size(ObservationConfig(heading=h, servo_targets=t, clock_period_s=c))
+        for h in (False, True)
+        for t in (False, True)
+        for c in (0.0, 4.0)
+    }
     assert sizes == {(h, t, c): 24 + 4 * h + 8 * t + 2 * (c > 0) for h, t, c in sizes}
     data, index = _fake_robot((-0.2, 0.0), (0.2, 0.0))
     goal = jnp.array([0.0, 3.0])
     base = observation.observe(data, goal, index)
-    full = observation.observe(data, goal, index, ObservationConfig(heading=True, servo_targets=True,
-                                                                    clock_period_s=4.0), time_s=1.0)
+    full = observation.observe(
+        data, goal, index, ObservationConfig(heading=True, servo_targets=True, clock_period_s=4.0), time_s=1.0
+    )
     assert full.shape == (38,) and full.dtype == jnp.float32
     np.testing.assert_array_equal(full[:24], base)
     np.testing.assert_array_equal(full[28:36], -np.array([3, 1, 4, 1, 5, 9, 2, 6]) / 4)  # ctrl by servo id
@@ -163,11 +172,14 @@ def test_hinge_angle_modes_wrap_or_expand_only_the_first_eight_values():
         config = ObservationConfig(heading=True, hinge_angles=mode)
         obs = observation.observe(data, goal, index, config)
         assert obs.shape == (observation.observation_size(config),) == (size,)
-        np.testing.assert_array_equal(obs[size - 20:], raw[8:])  # everything after the angles is unchanged
+        np.testing.assert_array_equal(obs[size - 20 :], raw[8:])  # everything after the angles is unchanged
         labels = observation.observation_labels(config)
         assert len(labels) == len(set(labels)) == size and labels[size - 20] == "hinge_velocity_0"
-    np.testing.assert_allclose(observation.observe(data, goal, index, ObservationConfig(hinge_angles="wrapped"))[:8],
-                               np.mod(np.arange(107.0, 115.0) + np.pi, 2 * np.pi) - np.pi, atol=1e-4)
+    np.testing.assert_allclose(
+        observation.observe(data, goal, index, ObservationConfig(hinge_angles="wrapped"))[:8],
+        np.mod(np.arange(107.0, 115.0) + np.pi, 2 * np.pi) - np.pi,
+        atol=1e-4,
+    )
 
 
 def test_gait_clock_is_periodic_and_exact_late_in_long_episodes():
@@ -190,7 +202,11 @@ def test_observation_size_follows_the_heading_option():
     assert full.shape == (28,)
     np.testing.assert_array_equal(full[:24], base)  # the original's 24 values come first, unchanged
     labels = observation.observation_labels(ObservationConfig(heading=True, servo_targets=True, clock_period_s=4.0))
-    assert len(labels) == len(set(labels)) == 38 and labels[24] == "heading_cos" and labels[-2:] == ("clock_sin", "clock_cos")
+    assert (
+        len(labels) == len(set(labels)) == 38
+        and labels[24] == "heading_cos"
+        and labels[-2:] == ("clock_sin", "clock_cos")
+    )
 
 
 def test_heading_frame_rotation_on_hand_made_vectors():
@@ -199,8 +215,9 @@ def test_heading_frame_rotation_on_hand_made_vectors():
     np.testing.assert_allclose(observation.to_heading_frame(jnp.array([-1.0, 0.0]), along_y), [0.0, 1.0], atol=1e-7)
     np.testing.assert_allclose(observation.to_heading_frame(jnp.array([1.0, 0.0]), along_y), [0.0, -1.0], atol=1e-7)
     diagonal = jnp.array([np.sqrt(0.5), np.sqrt(0.5)])  # yaw 45 degrees
-    np.testing.assert_allclose(observation.to_heading_frame(jnp.array([1.0, 0.0]), diagonal),
-                               [np.sqrt(0.5), -np.sqrt(0.5)], atol=1e-7)
+    np.testing.assert_allclose(
+        observation.to_heading_frame(jnp.array([1.0, 0.0]), diagonal), [np.sqrt(0.5), -np.sqrt(0.5)], atol=1e-7
+    )
 
 
 def test_heading_points_from_block_a_to_block_b_and_stays_finite():

@@ -12,7 +12,6 @@ from hsa_mjx.deploy import policy as pol
 from hsa_mjx.sim.host_physics import HostPhysics
 from train import evaluate
 
-
 SHIPPED = list(pol.shipped())
 EPISODES, STEPS = 4, 250  # per policy: the corridor policy, slowest between its walls, closes the least
 MARGIN_M = 0.02
@@ -44,16 +43,29 @@ def test_shipped_policy_beats_a_zero_policy(name):
     The physics runs in C MuJoCo (the original's engine; the policies trained on MJX)."""
     import jax
     import jax.numpy as jnp
+
     config, env, _, policy = evaluate.load_shipped_policy(pol.shipped()[name])
     trained = jax.tree.map(jnp.asarray, policy.params)
-    zero = {**trained, "kernels": tuple(jnp.zeros_like(k) for k in trained["kernels"]),
-            "biases": tuple(jnp.zeros_like(b) for b in trained["biases"])}
+    zero = {
+        **trained,
+        "kernels": tuple(jnp.zeros_like(k) for k in trained["kernels"]),
+        "biases": tuple(jnp.zeros_like(b) for b in trained["biases"]),
+    }
     params = jax.tree.map(lambda a, b: jnp.stack([a] * EPISODES + [b] * EPISODES), trained, zero)
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
     goal_range = jnp.asarray(evaluate.default_goal_range(config), jnp.float32)
     c_mujoco = HostPhysics(env.robot.mj_model, env.index)  # the substeps in C MuJoCo: fast on a CPU
-    traces = jax.device_get(evaluate.rollout(env, evaluate.shipped_policy_apply(policy), jnp.concatenate([keys, keys]),
-                                             goal_range, STEPS, params=params, simulate=c_mujoco))
+    traces = jax.device_get(
+        evaluate.rollout(
+            env,
+            evaluate.shipped_policy_apply(policy),
+            jnp.concatenate([keys, keys]),
+            goal_range,
+            STEPS,
+            params=params,
+            simulate=c_mujoco,
+        )
+    )
     traces = {k: np.asarray(v) for k, v in traces.items()}
     assert np.all(traces["action"][EPISODES:] == 0.0) and np.any(traces["action"][:EPISODES] != 0.0)
     np.testing.assert_allclose(traces["goal"][:EPISODES, 0], traces["goal"][EPISODES:, 0])  # same goals
@@ -64,8 +76,12 @@ def test_shipped_policy_beats_a_zero_policy(name):
 
 
 def test_goal_progress_leaves_out_goal_switches():
-    traces = {"start_distance": np.array([2.0]), "distance": np.array([[1.9, 1.8, 3.0, 2.9, 2.9]]),
-              "checkpoint": np.array([[0, 0, 1, 1, 1]]), "alive": np.array([[1, 1, 1, 1, 0]])}
+    traces = {
+        "start_distance": np.array([2.0]),
+        "distance": np.array([[1.9, 1.8, 3.0, 2.9, 2.9]]),
+        "checkpoint": np.array([[0, 0, 1, 1, 1]]),
+        "alive": np.array([[1, 1, 1, 1, 0]]),
+    }
     np.testing.assert_allclose(goal_progress(traces), [0.3])  # 0.2 to checkpoint 0, then 0.1 to checkpoint 1
 
 
@@ -96,11 +112,28 @@ def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
 
 def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys):
     from train import export
+
     assert export.main([str(tiny_run_dir), "--format", "npz", "--out", str(tmp_path / "tiny")]) == 0
     out = tmp_path / "eval"
     goal = ["--set", "env.goal.mode=fixed", "--set", "env.goal.position=[2.5,0.0]"]  # not the run's radial goals
-    assert evaluate.main(["--policy", str(tmp_path / "tiny"), "--episodes", "2", "--steps", "12",
-                          "--backend", "c", "--out", str(out), *goal]) == 0
+    assert (
+        evaluate.main(
+            [
+                "--policy",
+                str(tmp_path / "tiny"),
+                "--episodes",
+                "2",
+                "--steps",
+                "12",
+                "--backend",
+                "c",
+                "--out",
+                str(out),
+                *goal,
+            ]
+        )
+        == 0
+    )
     assert f"wrote 4 files to {out}" in capsys.readouterr().out
     result = json.loads((out / "eval.json").read_text())
     assert result["policy_dir"] == str(tmp_path / "tiny") and result["policy"] == "deterministic"
@@ -114,7 +147,9 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
 
 def test_gif_frames_are_capped(env, tmp_path):
     from PIL import Image
+
     from train import diagnostics
+
     steps = 12
     qpos = np.tile(env.robot.mj_model.qpos0, (1, steps, 1))
     qpos[0, :, env.index.joint_qpos] += np.linspace(0.0, 3.0, steps)[None, :]  # distinct frames: GIF merges repeats

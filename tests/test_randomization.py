@@ -12,11 +12,20 @@ from hsa_mjx.randomization_config import RandomizationConfig
 from hsa_mjx.task import randomization
 from hsa_mjx.task.observation import observation_labels
 
-RANGES = dict(friction=(0.5, 1.5), block_mass=(0.8, 1.2), hsa_stiffness=(0.7, 1.3), hsa_damping=(0.9, 1.1),
-              servo_gain=(0.8, 1.2), servo_force_limit=(0.3, 0.6))
+RANGES = dict(
+    friction=(0.5, 1.5),
+    block_mass=(0.8, 1.2),
+    hsa_stiffness=(0.7, 1.3),
+    hsa_damping=(0.9, 1.1),
+    servo_gain=(0.8, 1.2),
+    servo_force_limit=(0.3, 0.6),
+)
 # physics on MJX's JAX implementation: friction and block masses randomised (one compile for both tests)
-PHYSICS = {"randomization__friction": [0.5, 1.5], "randomization__block_mass": [1.0, 1.5],
-           "termination__max_episode_steps": 1000}
+PHYSICS = {
+    "randomization__friction": [0.5, 1.5],
+    "randomization__block_mass": [1.0, 1.5],
+    "termination__max_episode_steps": 1000,
+}
 
 
 def _scales(env, state, **values):
@@ -59,9 +68,12 @@ def test_the_same_key_draws_the_same_episode_on_every_backend():
 def test_model_fields_scale_the_assets_values_and_leave_the_rest():
     env = hsa_mjx.make_env("flat", physics__backend="c", **{f"randomization__{k}": list(v) for k, v in RANGES.items()})
     nominal, mj = env._nominal, env.robot.mj_model
-    scales = randomization.PhysicsScales.nominal().replace(friction=jnp.float32(0.5), servo_gain=jnp.float32(2.0),
-                                                           block_mass=jnp.asarray([1.5, 1.0], jnp.float32),
-                                                           servo_force_limit=jnp.float32(0.4))
+    scales = randomization.PhysicsScales.nominal().replace(
+        friction=jnp.float32(0.5),
+        servo_gain=jnp.float32(2.0),
+        block_mass=jnp.asarray([1.5, 1.0], jnp.float32),
+        servo_force_limit=jnp.float32(0.4),
+    )
     fields = randomization.model_fields(nominal, scales, env.config.randomization)
     assert set(fields) == set(randomization.FIELDS)
     np.testing.assert_allclose(fields["pair_friction"][:, :2], 0.5 * mj.pair_friction[:, :2], rtol=1e-6)
@@ -105,8 +117,10 @@ def test_heavier_blocks_fall_the_same_but_press_harder(physics_env):
     for heights in fall:
         np.testing.assert_allclose(heights[0], heights[1], atol=2e-4)
     # at rest (40 steps = 0.8 s later): the floor carries the weight, about 1.5x for the heavier blocks
-    normal = [float(np.abs(np.asarray(states[-1].pipeline_state.physics.sensordata[e])[
-        env.index.foot_sensors[..., 0]]).sum()) for e in range(2)]
+    normal = [
+        float(np.abs(np.asarray(states[-1].pipeline_state.physics.sensordata[e])[env.index.foot_sensors[..., 0]]).sum())
+        for e in range(2)
+    ]
     assert normal[1] > 1.2 * normal[0] > 0
 
 
@@ -117,7 +131,8 @@ def _slide(env, reset, step, **alike) -> np.ndarray:
     state = _run(step, _scales(env, state, friction=[0.5, 1.5], **alike), 30)[-1]
     data = state.pipeline_state.physics
     shove = jax.vmap(lambda qvel: randomization.pushed(qvel, jnp.asarray([0.4, 0.0, 0.0]), env.index.block_qvel))(
-        data.qvel)
+        data.qvel
+    )
     state = state.replace(pipeline_state=state.pipeline_state.replace(physics=data.replace(qvel=shove)))
     start = np.asarray(state.pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
     end = np.asarray(_run(step, state, 15)[-1].pipeline_state.physics.xpos[:, env.index.block_body, 0]).mean(axis=1)
@@ -164,8 +179,13 @@ def test_pushes_come_at_their_interval_and_add_horizontal_speed():
 
 
 def test_observation_noise_touches_only_its_groups():
-    env = hsa_mjx.make_env("flat", physics__backend="c", observation__noise__position=0.05,
-                           observation__noise__hinge_velocities=0.2, observation__servo_targets=True)
+    env = hsa_mjx.make_env(
+        "flat",
+        physics__backend="c",
+        observation__noise__position=0.05,
+        observation__noise__hinge_velocities=0.2,
+        observation__servo_targets=True,
+    )
     labels = observation_labels(env.config.observation)
     scales = randomization.noise_scales(labels, env.config.observation.noise)
     noisy = {labels[i] for i in np.flatnonzero(scales)}
@@ -177,14 +197,17 @@ def test_observation_noise_touches_only_its_groups():
     assert not np.any(difference[scales == 0])
 
 
-@pytest.mark.parametrize("key, value, message", [
-    ("randomization__friction", [0.0, 1.0], "randomization.friction' must be a range"),
-    ("randomization__block_mass", [1.2, 0.8], "randomization.block_mass' must be a range"),
-    ("randomization__latency_steps", [-1, 2], "randomization.latency_steps' must be a range"),
-    ("randomization__push_speed", 0.2, "push_interval_s' must be > 0 s when push_speed > 0"),
-    ("observation__noise__goal", -0.1, "observation.noise.goal' must be >= 0"),
-    ("randomization__mass", [1, 1], "valid keys: \\['block_mass'"),
-])
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("randomization__friction", [0.0, 1.0], "randomization.friction' must be a range"),
+        ("randomization__block_mass", [1.2, 0.8], "randomization.block_mass' must be a range"),
+        ("randomization__latency_steps", [-1, 2], "randomization.latency_steps' must be a range"),
+        ("randomization__push_speed", 0.2, "push_interval_s' must be > 0 s when push_speed > 0"),
+        ("observation__noise__goal", -0.1, "observation.noise.goal' must be >= 0"),
+        ("randomization__mass", [1, 1], "valid keys: \\['block_mass'"),
+    ],
+)
 def test_bad_randomization_values_are_refused(key, value, message):
     with pytest.raises(ValueError, match=message):
         hsa_mjx.build_config("flat", **{key: value})

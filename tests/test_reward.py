@@ -4,22 +4,35 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx.task import reward as R
 from hsa_mjx.config import RewardConfig
+from hsa_mjx.task import reward as R
 
 W = R.RewardWeights.from_config(RewardConfig())
 
 
 def inputs(**kw):
     base = dict(
-        velocity=jnp.zeros(2), goal_direction=jnp.array([1.0, 0.0]), action=jnp.zeros(8),
-        prev_action=jnp.zeros(8), joint_pos=jnp.zeros(8), joint_vel=jnp.zeros(8),
-        prev_joint_vel=jnp.zeros(8), foot_force=jnp.zeros(4), distance=jnp.array(2.0),
-        prev_distance=jnp.array(2.0), stagnation_progress=jnp.array(1.0),
-        history_full=jnp.array(True), checkpoint_collected=jnp.array(False),
-        spiral_complete=jnp.array(False), goal_reached=jnp.array(False), failed=jnp.array(False),
-        terminated=jnp.array(False), heading_before=jnp.array([1.0, 0.0]),
-        heading_after=jnp.array([1.0, 0.0]), dt=0.02)
+        velocity=jnp.zeros(2),
+        goal_direction=jnp.array([1.0, 0.0]),
+        action=jnp.zeros(8),
+        prev_action=jnp.zeros(8),
+        joint_pos=jnp.zeros(8),
+        joint_vel=jnp.zeros(8),
+        prev_joint_vel=jnp.zeros(8),
+        foot_force=jnp.zeros(4),
+        distance=jnp.array(2.0),
+        prev_distance=jnp.array(2.0),
+        stagnation_progress=jnp.array(1.0),
+        history_full=jnp.array(True),
+        checkpoint_collected=jnp.array(False),
+        spiral_complete=jnp.array(False),
+        goal_reached=jnp.array(False),
+        failed=jnp.array(False),
+        terminated=jnp.array(False),
+        heading_before=jnp.array([1.0, 0.0]),
+        heading_after=jnp.array([1.0, 0.0]),
+        dt=0.02,
+    )
     base.update(kw)
     return R.RewardInputs(**base)
 
@@ -110,6 +123,8 @@ def test_heading_alignment_pays_turning_towards_the_goal_either_end():
 def test_heading_alignment_telescopes_over_a_full_spin():
     w = W.replace(heading_alignment=jnp.float32(100.0))
     angles = np.arange(0, 361, 15)
-    total = sum(float(R.heading_alignment(inputs(heading_before=_unit(a), heading_after=_unit(b),
-                                                 goal_direction=_unit(70)), w)) for a, b in zip(angles[:-1], angles[1:]))
+    total = sum(
+        float(R.heading_alignment(inputs(heading_before=_unit(a), heading_after=_unit(b), goal_direction=_unit(70)), w))
+        for a, b in zip(angles[:-1], angles[1:])
+    )
     assert abs(total) < 1e-3

@@ -12,6 +12,7 @@ EPISODE, ENVS = 5, 8
 def envs():
     import jax
     from conftest import OPTIMISED
+
     venv = SB3VecEnv(ENVS, termination__max_episode_steps=EPISODE)
     batched = venv.venv.unwrapped  # PPO runs this step 256 times: compiled at O3, as conftest's hot batch step
     batched._step_fn = jax.jit(batched._step_outputs, compiler_options=OPTIMISED)
@@ -38,6 +39,7 @@ def test_step_contract_terminal_observation_and_episode_info(envs):
 
 def test_sb3_ppo_trains_2048_steps_on_the_adapter(envs):
     from stable_baselines3 import PPO
+
     model = PPO("MlpPolicy", envs, n_steps=256, batch_size=256, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=2048)
     assert model.num_timesteps == 2048

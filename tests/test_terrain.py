@@ -10,11 +10,21 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx.task import goals
 from hsa_mjx.sim.model import load_mj_model
+from hsa_mjx.task import goals
 from hsa_mjx.terrain import (
-    TERRAIN_TYPES, CorridorParams, FlatSpawnConfig, Grid, InclineParams, PolesParams, StairsParams,
-    TerrainConfig, TerrainSampler, generate, surface_height, to_hfield_data,
+    TERRAIN_TYPES,
+    CorridorParams,
+    FlatSpawnConfig,
+    Grid,
+    InclineParams,
+    PolesParams,
+    StairsParams,
+    TerrainConfig,
+    TerrainSampler,
+    generate,
+    surface_height,
+    to_hfield_data,
 )
 from hsa_mjx.terrain.generators import pole_centres
 from hsa_mjx.terrain.sampler import apply_flat_spawn, spawn_level
@@ -23,11 +33,17 @@ GRID = Grid()  # the asset's 50 x 50 vertices over 10 x 10 m, z scale 0.5 m
 D = TerrainConfig()
 # World height bounds (m) of each generator with the default parameters (before lifting).
 BOUNDS = {
-    "wavy": (-D.wavy.amplitude, D.wavy.amplitude), "perlin": (-0.5, 0.5), "stairs": (-0.2, 0.2),
-    "flat": (0.0, 0.0), "incline": (-0.1, 0.1), "craters": (-D.craters.num * D.craters.depth[1], 0.0),
-    "poles": (0.0, D.poles.height[1]), "flat_with_incline": (0.0, 0.14),
+    "wavy": (-D.wavy.amplitude, D.wavy.amplitude),
+    "perlin": (-0.5, 0.5),
+    "stairs": (-0.2, 0.2),
+    "flat": (0.0, 0.0),
+    "incline": (-0.1, 0.1),
+    "craters": (-D.craters.num * D.craters.depth[1], 0.0),
+    "poles": (0.0, D.poles.height[1]),
+    "flat_with_incline": (0.0, 0.14),
     "flat_with_ramp": (0.0, D.flat_with_ramp.height),
-    "corridor": (0.0, D.corridor.wall_height), "spiral": (0.0, D.spiral.wall_height),
+    "corridor": (0.0, D.corridor.wall_height),
+    "spiral": (0.0, D.spiral.wall_height),
 }
 RANDOM = {"perlin", "craters", "poles"}
 
@@ -88,19 +104,26 @@ def test_layout_and_lookup_match_mujoco_ray_casts():
     points = np.random.default_rng(0).uniform(-4.9, 4.9, (200, 2))
     points = points[np.abs(points).max(axis=1) > 0.8]  # keep clear of the robot at the origin
     geom = np.zeros(1, np.int32)
-    rays = np.array([3.0 - mujoco.mj_ray(model, mj_data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]),
-                                         None, 1, -1, geom) for x, y in points])
-    np.testing.assert_allclose(np.asarray(surface_height(jnp.asarray(data), grid, jnp.asarray(points))), rays,
-                               atol=2e-5)
+    rays = np.array(
+        [
+            3.0 - mujoco.mj_ray(model, mj_data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
+            for x, y in points
+        ]
+    )
+    np.testing.assert_allclose(
+        np.asarray(surface_height(jnp.asarray(data), grid, jnp.asarray(points))), rays, atol=2e-5
+    )
     plain = np.asarray(to_hfield_data(rise, grid))
-    east, west, north = (float(surface_height(jnp.asarray(plain), grid, jnp.array(p))) for p in
-                         ([3.0, 0.0], [-3.0, 0.0], [0.0, 3.0]))
+    east, west, north = (
+        float(surface_height(jnp.asarray(plain), grid, jnp.array(p))) for p in ([3.0, 0.0], [-3.0, 0.0], [0.0, 3.0])
+    )
     assert east - west == pytest.approx(6.0 * math.tan(math.radians(2.0)), abs=1e-4)  # rises along world x
     assert north == pytest.approx(float(surface_height(jnp.asarray(plain), grid, jnp.zeros(2))), abs=1e-6)
 
 
-@pytest.mark.parametrize("terrain_type", ["wavy", "perlin", "stairs", "incline", "craters", "poles",
-                                          "flat_with_incline", "flat_with_ramp"])
+@pytest.mark.parametrize(
+    "terrain_type", ["wavy", "perlin", "stairs", "incline", "craters", "poles", "flat_with_incline", "flat_with_ramp"]
+)
 def test_spawn_zone_is_flat(terrain_type):
     config = _single(terrain_type)
     heights, _ = TerrainSampler(config, GRID).heights(jax.random.PRNGKey(4))
@@ -132,8 +155,9 @@ def test_stairs_are_monotone_steps_of_the_requested_height():
     np.testing.assert_allclose(np.diff(levels), 0.04, atol=1e-5)
 
 
-@pytest.mark.parametrize("direction, axis", [("x", (1.0, 0.0)), ("y", (0.0, 1.0)),
-                                             ("diagonal", (0.7071068, 0.7071068))])
+@pytest.mark.parametrize(
+    "direction, axis", [("x", (1.0, 0.0)), ("y", (0.0, 1.0)), ("diagonal", (0.7071068, 0.7071068))]
+)
 @pytest.mark.parametrize("angle", [1.04, 2.5])
 def test_incline_has_the_requested_angle(direction, axis, angle):
     data = _data(_no_zone("incline", incline=InclineParams(angle=angle, direction=direction)))
@@ -168,6 +192,7 @@ def test_spiral_preset_has_the_originals_floor():
     """The original zeroed every vertex within 0.4 m of the line; our half-height edge at 0.4 m leaves
     fewer floor vertices on the scene's 0.2 m grid, which the preset's 0.95 m track makes up for."""
     from hsa_mjx.terrain.generators import spiral, spiral_extension, spiral_track_distance
+
     x, y = (jnp.asarray(v, jnp.float32) for v in GRID.mesh())
     preset = cfg.get_preset("spiral").terrain.spiral
     original = dataclasses.replace(preset, track_width=0.8)
@@ -176,6 +201,7 @@ def test_spiral_preset_has_the_originals_floor():
 
     def floor(params) -> int:
         return int(jnp.sum(spiral(jax.random.PRNGKey(0), params, GRID, x, y) < 0.01))
+
     assert floor(original) < 0.85 * original_floor  # the generator's 0.8 m default: a floor one vertex narrower
     assert floor(preset) == pytest.approx(original_floor, rel=0.05)
 
@@ -227,11 +253,16 @@ def test_mixed_sampler_draws_types_in_proportion_and_fresh_terrain_per_key():
 def test_presets_are_the_shipped_yaml_files():
     """The flat YAML states the config defaults; every preset is its file (no copy elsewhere)."""
     from hsa_mjx import resources
+
     assert cfg.get_preset("flat") == cfg.EnvConfig()
     for name, file in cfg.PRESET_FILES.items():
-        assert cfg.get_preset(name) == cfg.load_config(resources.data_dir("configs") / file) and \
-            cfg.get_preset(name).name == name, name
-    assert cfg.get_preset("spiral").goal.mode == "spiral" and cfg.get_preset("corridor").control.servo_target_limit == 6.28
+        assert (
+            cfg.get_preset(name) == cfg.load_config(resources.data_dir("configs") / file)
+            and cfg.get_preset(name).name == name
+        ), name
+    assert (
+        cfg.get_preset("spiral").goal.mode == "spiral" and cfg.get_preset("corridor").control.servo_target_limit == 6.28
+    )
 
 
 def test_terrain_type_and_types_stay_in_step():
@@ -243,24 +274,35 @@ def test_terrain_type_and_types_stay_in_step():
     assert cfg.from_dict(cfg.to_dict(cfg.get_preset("mixed"))) == cfg.get_preset("mixed")
 
 
-@pytest.mark.parametrize("data, message", [
-    ({"terrain": {"types": ["wavy", "lava"]}}, r"unknown terrain type 'lava'; valid types: \['wavy'"),
-    ({"terrain_type": "lava"}, r"terrain_type.*not valid.*'craters'"),
-    ({"terrain": {"types": ["wavy", "stairs"], "proportions": [0.5, 0.6]}}, "proportions.*sum to 1"),
-    ({"terrain": {"types": ["wavy", "stairs"], "proportions": [1.0]}}, "proportions.*one entry per type"),
-    ({"terrain": {"types": ["wavy", "wavy"]}}, "must not repeat"),
-    ({"terrain_type": "craters", "terrain": {"craters": {"radius": [-1.0, 2.0]}}}, r"craters.radius.*> 0"),
-    ({"terrain_type": "poles", "terrain": {"poles": {"radius": [0.3, 0.2]}}}, r"poles.radius.*min <= max"),
-    ({"terrain_type": "craters", "terrain": {"flat_spawn": {"radius": -0.1}}}, "flat_spawn.radius.*>= 0"),
-    ({"terrain_type": "incline", "terrain": {"incline": {"angle": 95.0}}}, "incline.angle.*between -90 and 90"),
-    ({"terrain_type": "incline", "terrain": {"incline": {"direction": "z"}}},
-     r"incline.direction.*\['x', 'y', 'diagonal'\]"),
-    ({"terrain_type": "corridor", "terrain": {"corridor": {"corridor_width": 0.0}}}, "corridor_width.*> 0"),
-    ({"terrain_type": "stairs", "terrain": {"types": ["wavy"]}}, "terrain_type.*does not match"),
-    ({"terrain_type": "spiral"}, "goal.mode: spiral"),
-    ({"terrain_type": "spiral", "goal": {"mode": "spiral", "spiral_turns": 3.0}, "terrain": {"spiral": {"turns": 2.0}}},
-     r"'goal.spiral_turns' = 3.0 differs from 'terrain.spiral.turns' = 2.0"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"terrain": {"types": ["wavy", "lava"]}}, r"unknown terrain type 'lava'; valid types: \['wavy'"),
+        ({"terrain_type": "lava"}, r"terrain_type.*not valid.*'craters'"),
+        ({"terrain": {"types": ["wavy", "stairs"], "proportions": [0.5, 0.6]}}, "proportions.*sum to 1"),
+        ({"terrain": {"types": ["wavy", "stairs"], "proportions": [1.0]}}, "proportions.*one entry per type"),
+        ({"terrain": {"types": ["wavy", "wavy"]}}, "must not repeat"),
+        ({"terrain_type": "craters", "terrain": {"craters": {"radius": [-1.0, 2.0]}}}, r"craters.radius.*> 0"),
+        ({"terrain_type": "poles", "terrain": {"poles": {"radius": [0.3, 0.2]}}}, r"poles.radius.*min <= max"),
+        ({"terrain_type": "craters", "terrain": {"flat_spawn": {"radius": -0.1}}}, "flat_spawn.radius.*>= 0"),
+        ({"terrain_type": "incline", "terrain": {"incline": {"angle": 95.0}}}, "incline.angle.*between -90 and 90"),
+        (
+            {"terrain_type": "incline", "terrain": {"incline": {"direction": "z"}}},
+            r"incline.direction.*\['x', 'y', 'diagonal'\]",
+        ),
+        ({"terrain_type": "corridor", "terrain": {"corridor": {"corridor_width": 0.0}}}, "corridor_width.*> 0"),
+        ({"terrain_type": "stairs", "terrain": {"types": ["wavy"]}}, "terrain_type.*does not match"),
+        ({"terrain_type": "spiral"}, "goal.mode: spiral"),
+        (
+            {
+                "terrain_type": "spiral",
+                "goal": {"mode": "spiral", "spiral_turns": 3.0},
+                "terrain": {"spiral": {"turns": 2.0}},
+            },
+            r"'goal.spiral_turns' = 3.0 differs from 'terrain.spiral.turns' = 2.0",
+        ),
+    ],
+)
 def test_bad_terrain_config_raises_when_loading(data, message):
     with pytest.raises(ValueError, match=message):
         cfg.from_dict(dict(data, scene="terrain"))
@@ -273,8 +315,11 @@ def test_terrain_on_a_plane_is_refused():
 
 def test_keys_of_older_configs_map_onto_the_current_ones():
     """Older files (policies, checkpoints) hold ``terrain_type`` and the goal's spiral keys: both load."""
-    old = {"scene": "terrain", "terrain_type": "spiral",
-           "goal": {"mode": "spiral", "spiral_start_radius": 0.7, "spiral_end_radius": 4.0, "spiral_turns": 3.0}}
+    old = {
+        "scene": "terrain",
+        "terrain_type": "spiral",
+        "goal": {"mode": "spiral", "spiral_start_radius": 0.7, "spiral_end_radius": 4.0, "spiral_turns": 3.0},
+    }
     config = cfg.from_dict(old)
     assert config.terrain.types == ("spiral",) and config.terrain_type == "spiral"
     assert (config.terrain.spiral.start_radius, config.terrain.spiral.turns) == (0.7, 3.0)

@@ -71,28 +71,38 @@ def test_atlas_holds_every_level_of_every_type():
     assert spread[2] > 0 and spread[4] > 0 and 0 < spread[7] < spread[8]  # random tiles differ per level
     for row, level in [(0, 2), (1, 1), (0, 0)]:
         tiles, types = jax.vmap(lambda k: pool.draw(k, jnp.asarray([row, level])))(
-            jax.random.split(jax.random.PRNGKey(row), 16))
+            jax.random.split(jax.random.PRNGKey(row), 16)
+        )
         assert set(np.asarray(pool.tile_level)[np.asarray(tiles)]) == {level}
         assert set(np.asarray(types)) == {TERRAIN_TYPES.index(config.types[row])}
     free, _ = jax.vmap(pool.draw)(jax.random.split(jax.random.PRNGKey(9), 200))
     assert set(np.asarray(pool.tile_level)[np.asarray(free)]) == {0, 1, 2}  # no curriculum: every level
 
 
-@pytest.mark.parametrize("override, key", [
-    ({"difficulty": 1.5}, "terrain.difficulty"), ({"difficulty": -0.1}, "terrain.difficulty"),
-    ({"levels": 0}, "terrain.levels"), ({"levels": 2, "per_env": False}, "terrain.levels"),
-    ({"types": ["flat", "lava"], "proportions": [0.5, 0.5]}, "lava"),
-    ({"types": ["flat", "wavy"], "proportions": [0.5, 0.4]}, "terrain.proportions"),
-])
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ({"difficulty": 1.5}, "terrain.difficulty"),
+        ({"difficulty": -0.1}, "terrain.difficulty"),
+        ({"levels": 0}, "terrain.levels"),
+        ({"levels": 2, "per_env": False}, "terrain.levels"),
+        ({"types": ["flat", "lava"], "proportions": [0.5, 0.5]}, "lava"),
+        ({"types": ["flat", "wavy"], "proportions": [0.5, 0.4]}, "terrain.proportions"),
+    ],
+)
 def test_bad_terrain_levels_are_refused_at_load(override, key):
     with pytest.raises(ValueError, match=key):
         cfg.from_dict({"terrain": override}, base=cfg.get_preset("mixed"))
 
 
-@pytest.mark.parametrize("section, key", [
-    ({"promote_progress": 0.2, "demote_progress": 0.5}, "demote_progress"),
-    ({"initial_spread": 2.0}, "initial_spread"), ({"speed": 1}, "speed"),
-])
+@pytest.mark.parametrize(
+    "section, key",
+    [
+        ({"promote_progress": 0.2, "demote_progress": 0.5}, "demote_progress"),
+        ({"initial_spread": 2.0}, "initial_spread"),
+        ({"speed": 1}, "speed"),
+    ],
+)
 def test_bad_terrain_curriculum_is_refused_at_load(section, key):
     data = tcfg.read_yaml("configs/train_rough.yaml")
     data["terrain_curriculum"] = {**data["terrain_curriculum"], **section}
@@ -114,8 +124,9 @@ def test_types_split_by_proportion_and_levels_spread_at_start():
     levels = np.asarray(state.level)
     assert set(levels.tolist()) == set(range(6))  # levels 0..5 (half of 0..10), every one used
     assert np.asarray(state.row).tolist() == rows.tolist()
-    none = tcur.init(jax.random.split(jax.random.PRNGKey(0), 8), dataclasses.replace(config, initial_spread=0.0),
-                     terrain)
+    none = tcur.init(
+        jax.random.split(jax.random.PRNGKey(0), 8), dataclasses.replace(config, initial_spread=0.0), terrain
+    )
     assert np.all(np.asarray(none.level) == 0)
 
 
@@ -176,11 +187,17 @@ def test_level_logs_per_type_and_top_share():
 def test_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores (the same batch), or the same mix (another batch)."""
     from train.trainer import _payload, restore_terrain
+
     config = tcfg.load("configs/train_rough.yaml")
     levels = tcur.init(jax.random.split(jax.random.PRNGKey(2), 64), config.terrain_curriculum, config.env.terrain)
     host = tcur.to_host([jax.device_get(levels)])
-    path = checkpoint.save(tmp_path, 5, _payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), host),
-                           tcfg.to_dict(config), extra={"terrain_envs": 64})
+    path = checkpoint.save(
+        tmp_path,
+        5,
+        _payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), host),
+        tcfg.to_dict(config),
+        extra={"terrain_envs": 64},
+    )
     meta = {**checkpoint.read_meta(path), "path": path}
     same = restore_terrain(config, meta, 64)
     np.testing.assert_array_equal(np.asarray(same.level), np.asarray(levels.level))
@@ -193,6 +210,7 @@ def test_levels_round_trip_through_a_checkpoint(tmp_path):
 
 def test_terrain_evaluation_arguments():
     from train import terrain_eval
+
     rough = tcfg.load("configs/train_rough.yaml").env
     assert terrain_eval.parse_types("all", rough) == tuple(rough.terrain.types)
     assert terrain_eval.parse_types("stairs, poles", rough) == ("stairs", "poles")
@@ -211,9 +229,16 @@ def test_terrain_evaluation_arguments():
 
 def test_terrain_table_rows_and_means():
     from train import terrain_eval
-    rows = [{"type": t, "difficulty": d, "success_rate": s, "mean_progress_m": p}
-            for t, d, s, p in (("flat", 0.0, 1.0, 2.0), ("flat", 1.0, 1.0, 2.0),
-                               ("poles", 0.0, 1.0, 2.0), ("poles", 1.0, 0.5, 1.0))]
+
+    rows = [
+        {"type": t, "difficulty": d, "success_rate": s, "mean_progress_m": p}
+        for t, d, s, p in (
+            ("flat", 0.0, 1.0, 2.0),
+            ("flat", 1.0, 1.0, 2.0),
+            ("poles", 0.0, 1.0, 2.0),
+            ("poles", 1.0, 0.5, 1.0),
+        )
+    ]
     lines = terrain_eval.table(rows).splitlines()
     assert lines[2].split() == ["flat", "100%", "2.00", "100%", "2.00"]
     assert lines[-1].split() == ["mean", "100%", "2.00", "75%", "1.50"]

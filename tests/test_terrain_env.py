@@ -7,12 +7,12 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import TERRAIN_BATCH
 
 import hsa_mjx
-from conftest import TERRAIN_BATCH
 from hsa_mjx import config as cfg
-from hsa_mjx.task import goals, observation
 from hsa_mjx.sim.model import BLOCKS, load_scene
+from hsa_mjx.task import goals, observation
 from hsa_mjx.terrain import TERRAIN_TYPES, surface_height
 from hsa_mjx.terrain.atlas import TerrainPool
 from hsa_mjx.terrain.world import TerrainWorld
@@ -85,8 +85,10 @@ def test_tile_lookup_matches_mujoco_ray_casts_on_a_moved_atlas():
     for tile in (0, 3):
         data.mocap_pos[floor] = np.asarray(world.floor_position(tile))
         mujoco.mj_forward(model, data)
-        rays = [3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
-                for x, y in points]
+        rays = [
+            3.0 - mujoco.mj_ray(model, data, np.array([x, y, 3.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
+            for x, y in points
+        ]
         np.testing.assert_allclose(np.asarray(world.ground(tile, jnp.asarray(points))), rays, atol=2e-5)
         own = surface_height(jnp.asarray(world.pool.tiles)[tile], world.grid, jnp.asarray(points))
         np.testing.assert_allclose(np.asarray(own), rays, atol=2e-5)  # the tile's own data, as generated
@@ -200,14 +202,22 @@ def test_shared_mode_puts_one_terrain_into_the_model():
     assert int(tile) == 0 and TERRAIN_TYPES[int(type_id)] == "craters"
     np.testing.assert_array_equal(np.asarray(world.floor_position(tile)), 0.0)
     assert float(world.ground(tile, jnp.array([3.0, 3.0]))) == pytest.approx(
-        float(surface_height(jnp.asarray(shared), world.grid, jnp.array([3.0, 3.0]))))
+        float(surface_height(jnp.asarray(shared), world.grid, jnp.array([3.0, 3.0])))
+    )
     other, _ = _world(cfg.with_overrides(config, terrain__seed=4))
     assert not np.array_equal(other.pool.tiles[0], shared)  # the seed picks the terrain
 
 
 def test_gymnasium_renders_each_episodes_own_terrain():
-    env = gymnasium.make("hsa_mjx/HSA-v0", config="mixed", render_mode="rgb_array", width=64, height=48,
-                         camera="overview", terrain__types=["flat", "poles"])
+    env = gymnasium.make(
+        "hsa_mjx/HSA-v0",
+        config="mixed",
+        render_mode="rgb_array",
+        width=64,
+        height=48,
+        camera="overview",
+        terrain__types=["flat", "poles"],
+    )
     try:
         frames, poles = [], []
         for seed in range(6):
@@ -216,8 +226,9 @@ def test_gymnasium_renders_each_episodes_own_terrain():
             state = env.unwrapped._state
             poles.append(TERRAIN_TYPES[int(state.pipeline_state.task.terrain_id)] == "poles")
             drawn = env.unwrapped._renderer._data.mocap_pos[env.unwrapped.env.index.terrain_mocap]
-            np.testing.assert_allclose(drawn, np.asarray(state.pipeline_state.physics.mocap_pos)[
-                env.unwrapped.env.index.terrain_mocap])  # the drawn floor is the episode's tile
+            np.testing.assert_allclose(
+                drawn, np.asarray(state.pipeline_state.physics.mocap_pos)[env.unwrapped.env.index.terrain_mocap]
+            )  # the drawn floor is the episode's tile
         assert any(poles) and not all(poles)  # both flat and pole tiles were drawn
         flat, pole = poles.index(False), poles.index(True)
         assert np.abs(frames[flat].astype(int) - frames[pole].astype(int)).mean() > 1.0

@@ -7,9 +7,12 @@ import yaml
 
 from benchmarks import time_to_target as ttt
 
-CONFIG = {"env": {"physics": {"backend": "warp"}}, "run": {"num_envs": 64, "num_devices": 2},
-          "ppo": {"batch_size": 8, "num_minibatches": 4, "unroll_length": 20},
-          "curriculum": {"enabled": True, "target_range": [1.5, 4.5]}}
+CONFIG = {
+    "env": {"physics": {"backend": "warp"}},
+    "run": {"num_envs": 64, "num_devices": 2},
+    "ppo": {"batch_size": 8, "num_minibatches": 4, "unroll_length": 20},
+    "curriculum": {"enabled": True, "target_range": [1.5, 4.5]},
+}
 
 
 def _run(tmp_path, rows, config=CONFIG):
@@ -24,9 +27,12 @@ def _row(step, wall, goal, success):
 
 
 def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path):
-    rows = [_row(640, 10.0, 1.8, 0.95), _row(1280, 20.0, 4.5, 0.85),  # range not full, then success too low
-            _row(1920, 5.0, 4.5, 0.92),  # a resumed call: its clock restarts
-            _row(2560, 9.0, 4.5, 0.97)]
+    rows = [
+        _row(640, 10.0, 1.8, 0.95),
+        _row(1280, 20.0, 4.5, 0.85),  # range not full, then success too low
+        _row(1920, 5.0, 4.5, 0.92),  # a resumed call: its clock restarts
+        _row(2560, 9.0, 4.5, 0.97),
+    ]
     result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
     assert result["iteration_env_steps"] == 640
     assert result["first_log_s"] == 10.0

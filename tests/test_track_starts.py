@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from hsa_mjx import config as cfg
-from hsa_mjx.task import goals
 from hsa_mjx import pose
 from hsa_mjx.config import GoalConfig
+from hsa_mjx.task import goals
 from train.evaluate import evaluation_env_config
 
 
@@ -50,7 +50,8 @@ def test_track_start_zero_is_the_original_start_and_others_face_the_next_checkpo
     checkpoints = jnp.asarray(goals.spiral_checkpoints(GoalConfig(num_checkpoints=20)))
     origin = jnp.array([0.01, 0.0])
     draws = jax.vmap(lambda k: goals.track_start(k, checkpoints, 5, origin))(
-        jax.random.split(jax.random.PRNGKey(0), 400))
+        jax.random.split(jax.random.PRNGKey(0), 400)
+    )
     index, start, yaw = (np.asarray(x) for x in draws)
     assert set(index.tolist()) == set(range(6))  # uniform over 0..5, nothing beyond
     first = index == 0
@@ -59,8 +60,11 @@ def test_track_start_zero_is_the_original_start_and_others_face_the_next_checkpo
     later = ~first
     np.testing.assert_allclose(start[later], np.asarray(checkpoints)[index[later] - 1], atol=1e-6)
     ahead = np.asarray(checkpoints)[index[later]] - start[later]
-    np.testing.assert_allclose(np.stack([np.cos(yaw[later]), np.sin(yaw[later])], 1),
-                               ahead / np.linalg.norm(ahead, axis=1, keepdims=True), atol=1e-5)
+    np.testing.assert_allclose(
+        np.stack([np.cos(yaw[later]), np.sin(yaw[later])], 1),
+        ahead / np.linalg.norm(ahead, axis=1, keepdims=True),
+        atol=1e-5,
+    )
     # a given index gives the start a draw of that index gives, whatever the key
     for k in (0, 3, 5, 12):
         given = goals.track_start(jax.random.PRNGKey(k), checkpoints, 5, origin, jnp.asarray(k))
@@ -73,11 +77,14 @@ def test_track_start_zero_is_the_original_start_and_others_face_the_next_checkpo
             np.testing.assert_allclose(np.asarray(given[1]), np.asarray(checkpoints)[k - 1], atol=1e-6)
 
 
-@pytest.mark.parametrize("overrides, match", [
-    ({"goal__track_starts": 3}, "needs goal.mode 'spiral'"),
-    ({"goal__mode": "spiral", "goal__num_checkpoints": 8, "goal__track_starts": 8}, "0..7"),
-    ({"goal__mode": "spiral", "goal__track_starts": -1}, "0..7"),
-])
+@pytest.mark.parametrize(
+    "overrides, match",
+    [
+        ({"goal__track_starts": 3}, "needs goal.mode 'spiral'"),
+        ({"goal__mode": "spiral", "goal__num_checkpoints": 8, "goal__track_starts": 8}, "0..7"),
+        ({"goal__mode": "spiral", "goal__track_starts": -1}, "0..7"),
+    ],
+)
 def test_bad_track_starts_are_refused(overrides, match):
     with pytest.raises(ValueError, match=match):
         cfg.validate(cfg.with_overrides(cfg.EnvConfig(), **overrides))

@@ -36,15 +36,22 @@ def test_default_and_shipped_configs_validate():
     assert rough.ppo.privileged_critic and rough.terrain_curriculum.top_redraw
     assert not corridor["env"]["observation"].pop("height_scan")["enabled"]
     assert not any(corridor["env"]["observation"].pop("noise").values())
-    assert corridor["env"]["observation"] == {"heading": True, "servo_targets": True, "clock_period_s": 4.0,
-                                              "hinge_angles": "raw"}
+    assert corridor["env"]["observation"] == {
+        "heading": True,
+        "servo_targets": True,
+        "clock_period_s": 4.0,
+        "hinge_angles": "raw",
+    }
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
     # the corridor with perception continues the rough policy: its inputs and servo range, radial goals
     scan = tcfg.validate(tcfg.load("configs/train_corridor_scan.yaml"))
     assert scan.run.init_from == "rough" and scan.ppo.privileged_critic and not scan.curriculum.enabled
     assert observation_size(scan.env.observation) == observation_size(rough.env.observation) == 91
     assert scan.env.control.servo_target_limit == 3141.5 and scan.env.goal.mode == "radial"
-    assert scan.env.terrain.types == ("corridor",) and scan.env.physics == tcfg.load("configs/train_corridor.yaml").env.physics
+    assert (
+        scan.env.terrain.types == ("corridor",)
+        and scan.env.physics == tcfg.load("configs/train_corridor.yaml").env.physics
+    )
     # the spiral starts from a flat run's networks: the flat task's servo range and 28 observation slots
     spiral = tcfg.to_dict(tcfg.load("configs/train_spiral.yaml"))
     assert spiral["env"]["control"]["servo_target_limit"] == flat["env"]["control"]["servo_target_limit"] == 3141.5
@@ -62,32 +69,36 @@ def test_default_and_shipped_configs_validate():
 def test_training_configs_use_the_guarded_physics():
     """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+
     for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_corridor_scan", "train_spiral"):
         physics = tcfg.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name
 
 
-@pytest.mark.parametrize("data, match", [
-    ({"trainer": {}}, "unknown config section"),
-    ({"ppo": {"learning_rat": 1e-3}}, r"unknown config key.*learning_rate"),
-    ({"ppo": {"activation": "gelu"}}, "activation"),
-    ({"ppo": {"distribution_type": "beta"}}, r"ppo.distribution_type.*'tanh_normal', 'normal'"),
-    ({"ppo": {"noise_std_type": "exp"}}, r"ppo.noise_std_type.*'scalar', 'log'"),
-    ({"run": {"num_envs": "many"}}, "run.num_envs"),
-    ({"run": {"num_envs": 3}}, "multiple of run.num_envs"),
-    ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
-    ({"env": {"preset": "nope"}}, "unknown preset"),
-    ({"curriculum": {"window_size": 0}}, "window_size"),
-    ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
-    ({"run": {"init_normalizer_count": -5}}, r"run.init_normalizer_count.*>= 0"),
-    ({"ppo": {"learning_rate": -0.001}}, r"ppo.learning_rate' = -0.001 is out of range.*\[0.0, inf\)"),
-    ({"ppo": {"discounting": 1.5}}, r"ppo.discounting' = 1.5 .*\(0.0, 1.0\]"),
-    ({"ppo": {"clipping_epsilon": -0.2}}, r"ppo.clipping_epsilon' = -0.2"),
-    ({"ppo": {"gae_lambda": 7}}, r"ppo.gae_lambda' = 7.0 .*\[0.0, 1.0\]"),
-    ({"ppo": {"entropy_cost": float("nan")}}, r"ppo.entropy_cost' = nan"),
-    ({"run": {"seed": -5}}, r"run.seed' = -5 .*\[0, 4294967295\]"),
-])
+@pytest.mark.parametrize(
+    "data, match",
+    [
+        ({"trainer": {}}, "unknown config section"),
+        ({"ppo": {"learning_rat": 1e-3}}, r"unknown config key.*learning_rate"),
+        ({"ppo": {"activation": "gelu"}}, "activation"),
+        ({"ppo": {"distribution_type": "beta"}}, r"ppo.distribution_type.*'tanh_normal', 'normal'"),
+        ({"ppo": {"noise_std_type": "exp"}}, r"ppo.noise_std_type.*'scalar', 'log'"),
+        ({"run": {"num_envs": "many"}}, "run.num_envs"),
+        ({"run": {"num_envs": 3}}, "multiple of run.num_envs"),
+        ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
+        ({"env": {"preset": "nope"}}, "unknown preset"),
+        ({"curriculum": {"window_size": 0}}, "window_size"),
+        ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
+        ({"run": {"init_normalizer_count": -5}}, r"run.init_normalizer_count.*>= 0"),
+        ({"ppo": {"learning_rate": -0.001}}, r"ppo.learning_rate' = -0.001 is out of range.*\[0.0, inf\)"),
+        ({"ppo": {"discounting": 1.5}}, r"ppo.discounting' = 1.5 .*\(0.0, 1.0\]"),
+        ({"ppo": {"clipping_epsilon": -0.2}}, r"ppo.clipping_epsilon' = -0.2"),
+        ({"ppo": {"gae_lambda": 7}}, r"ppo.gae_lambda' = 7.0 .*\[0.0, 1.0\]"),
+        ({"ppo": {"entropy_cost": float("nan")}}, r"ppo.entropy_cost' = nan"),
+        ({"run": {"seed": -5}}, r"run.seed' = -5 .*\[0, 4294967295\]"),
+    ],
+)
 def test_bad_config_is_named(data, match):
     with pytest.raises(ValueError, match=match):
         tcfg.from_dict(data)
@@ -101,8 +112,9 @@ def test_device_split_checked():
 
 
 def test_set_overrides():
-    data = tcfg.apply_overrides({"ppo": {"learning_rate": 1.0}},
-                                ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"])
+    data = tcfg.apply_overrides(
+        {"ppo": {"learning_rate": 1.0}}, ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"]
+    )
     config = tcfg.from_dict(data)
     assert config.ppo.learning_rate == pytest.approx(2e-4)
     assert config.env.reward.forward == 3.0 and config.run.seed == 7
@@ -120,8 +132,11 @@ def test_missing_config_file():
 
 
 def _payload(scale: float = 1.0):
-    return {"w": jnp.arange(6.0).reshape(2, 3) * scale, "inner": {"n": jnp.asarray(3, jnp.int32)},
-            "rng": jax.random.PRNGKey(5)}
+    return {
+        "w": jnp.arange(6.0).reshape(2, 3) * scale,
+        "inner": {"n": jnp.asarray(3, jnp.int32)},
+        "rng": jax.random.PRNGKey(5),
+    }
 
 
 def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
@@ -137,6 +152,7 @@ def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
     assert checkpoint.read_meta(latest)["step"] == 40
     # a hard stop (second Ctrl-C) names the checkpoint --resume continues from, or says there is none
     from train.cli import interrupted_message
+
     assert interrupted_message(tmp_path).endswith("continues from " + str(latest))
     assert "before any checkpoint" in interrupted_message(tmp_path / "nothing")
 
@@ -146,6 +162,7 @@ def test_stop_flag_takes_a_forwarded_duplicate_as_one_request_and_a_later_one_as
     import signal
 
     from train.trainer import _StopFlag
+
     with _StopFlag(repeat_s=60.0) as stop:
         os.kill(os.getpid(), signal.SIGTERM)
         os.kill(os.getpid(), signal.SIGTERM)  # e.g. pkill reaching both `timeout` and its child
@@ -180,10 +197,11 @@ def test_incompatibilities():
     saved = json.loads(json.dumps(tcfg.to_dict(tcfg.from_dict({}))))
     same = tcfg.to_dict(tcfg.from_dict({"run": {"num_timesteps": 5}, "ppo": {"learning_rate": 1e-5}}))
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(same))) == []
-    other = tcfg.to_dict(tcfg.from_dict({"env": {"reward": {"forward": 1.0}},
-                                         "ppo": {"policy_hidden_sizes": [8]}}))
+    other = tcfg.to_dict(tcfg.from_dict({"env": {"reward": {"forward": 1.0}}, "ppo": {"policy_hidden_sizes": [8]}}))
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(other))) == [
-        "env.reward.forward", "ppo.policy_hidden_sizes"]
+        "env.reward.forward",
+        "ppo.policy_hidden_sizes",
+    ]
 
 
 def test_compat_shim_replicates_onto_devices(monkeypatch):
@@ -206,7 +224,8 @@ def test_incompatibilities_keys_added_later_match_their_default():
     assert checkpoint.incompatibilities(saved, defaults, defaults) == []
     changed = tcfg.to_dict(tcfg.from_dict({"env": {"termination": {"qacc_every_substep": True}}}))
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(changed)), defaults) == [
-        "env.termination.qacc_every_substep"]
+        "env.termination.qacc_every_substep"
+    ]
     assert checkpoint.incompatibilities(saved, defaults) == ["env.termination.qacc_every_substep"]
     without_section = json.loads(json.dumps(defaults))
     del without_section["env"]["observation"]  # written before the observation section existed
@@ -223,9 +242,20 @@ def test_incompatibilities_keys_added_later_match_their_default():
 def test_unsquashed_policy_with_log_std_samples_beyond_one():
     """distribution_type normal + noise_std_type log: SB3-like exploration (the env clips to [-1, 1])."""
     from brax.training.agents.ppo import networks as ppo_networks
+
     from train.ppo import init_training_state, make_networks
-    config = tcfg.from_dict({"ppo": {"distribution_type": "normal", "noise_std_type": "log", "init_noise_std": 3.0,
-                                     "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}})
+
+    config = tcfg.from_dict(
+        {
+            "ppo": {
+                "distribution_type": "normal",
+                "noise_std_type": "log",
+                "init_noise_std": 3.0,
+                "policy_hidden_sizes": [8],
+                "value_hidden_sizes": [8],
+            }
+        }
+    )
     networks = make_networks(config, 5, 2)
     ts = init_training_state(config, networks, jax.random.PRNGKey(0), 5)
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=False)
@@ -244,7 +274,9 @@ def test_observation_clip_bounds_what_the_networks_see():
     from train.ppo import init_training_state, make_networks
 
     def values(clip: float) -> np.ndarray:
-        config = tcfg.from_dict({"ppo": {"observation_clip": clip, "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}})
+        config = tcfg.from_dict(
+            {"ppo": {"observation_clip": clip, "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}}
+        )
         networks = make_networks(config, 3, 2)
         ts = init_training_state(config, networks, jax.random.PRNGKey(0), 3)
         obs = jnp.array([[10.0, 0.0, 0.0], [1e6, 0.0, 0.0], [-1e6, 0.0, 0.0], [-10.0, 0.0, 0.0]])  # mean 0, std 1
@@ -259,7 +291,9 @@ def test_observation_clip_bounds_what_the_networks_see():
 
 def test_multi_device_option_is_checked_and_resolved():
     import jax
+
     from train.per_device import use_per_device
+
     with pytest.raises(ValueError, match=r"run.multi_device.*'pmap', 'per_device'"):
         tcfg.from_dict({"run": {"multi_device": "shard_map"}})
     cpu = jax.devices("cpu")[:1]
@@ -267,22 +301,30 @@ def test_multi_device_option_is_checked_and_resolved():
     class FakeGpu:
         platform = "gpu"
 
-    for mode, devices, expected in (("auto", cpu, False), ("auto", [FakeGpu()], False),
-                                    ("auto", [FakeGpu(), FakeGpu()], True), ("per_device", cpu, True),
-                                    ("pmap", [FakeGpu(), FakeGpu()], False)):
+    for mode, devices, expected in (
+        ("auto", cpu, False),
+        ("auto", [FakeGpu()], False),
+        ("auto", [FakeGpu(), FakeGpu()], True),
+        ("per_device", cpu, True),
+        ("pmap", [FakeGpu(), FakeGpu()], False),
+    ):
         config = tcfg.from_dict({"run": {"multi_device": mode}})
         assert use_per_device(config, devices) is expected, (mode, len(devices))
 
 
 def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     from brax.training.acme import running_statistics as rs
+
     from train.warm_start import restart_count
+
     old = rs.init_state(jnp.zeros(3))
     old = rs.update(old, jax.random.normal(jax.random.PRNGKey(0), (100_000, 3)) * jnp.array([1.0, 0.1, 2.0]))
     fresh = restart_count(old, 1_000)
     np.testing.assert_allclose(fresh.mean, old.mean)
     np.testing.assert_allclose(fresh.std, old.std)
-    np.testing.assert_allclose(rs.update(fresh, jnp.zeros((1, 3))).std, rs.update(old, jnp.zeros((1, 3))).std, rtol=2e-3)
+    np.testing.assert_allclose(
+        rs.update(fresh, jnp.zeros((1, 3))).std, rs.update(old, jnp.zeros((1, 3))).std, rtol=2e-3
+    )
     shifted = jnp.full((1_000, 3), 5.0)  # a new task's observations
     assert float(rs.update(fresh, shifted).mean[0]) == pytest.approx(2.5, abs=0.05)  # half-way after as many samples
     assert float(rs.update(old, shifted).mean[0]) < 0.1
@@ -292,6 +334,7 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
 def test_terrain_evaluation_counts_how_episodes_ended():
     from hsa_mjx.task import termination
     from train import terrain_eval
+
     reasons = np.zeros((4, len(termination.REASONS)), bool)
     reasons[0, termination.REASONS.index("goal_reached")] = reasons[1, termination.REASONS.index("goal_reached")] = True
     reasons[2, termination.REASONS.index("qacc_limit")] = True  # episode 3 ran out of steps
@@ -301,6 +344,7 @@ def test_terrain_evaluation_counts_how_episodes_ended():
 def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     """Three hand-made spiral episodes: 2 checkpoints and a time-out, 5 then qacc_limit, 0 and a time-out."""
     from hsa_mjx.task import termination
+
     episodes, steps, dt = 3, 4, 0.02
     alive = np.array([[1, 1, 1, 1], [1, 1, 0, 0], [1, 1, 1, 1]], float)
     checkpoint_index = np.array([[0, 1, 2, 2], [3, 5, 0, 0], [0, 0, 0, 0]], float)  # episode 2 reset after its end
@@ -308,17 +352,26 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     reasons[1, 1, termination.REASONS.index("qacc_limit")] = 1.0
     done = np.zeros((episodes, steps))
     done[1, 1] = 1.0
-    traces = {"alive": alive, "checkpoint": checkpoint_index, "reasons": reasons, "done": done,
-              "xy": np.zeros((episodes, steps, 2)), "start_xy": np.zeros((episodes, 2)),
-              "distance": np.ones((episodes, steps)), "start_distance": np.ones(episodes),
-              "success": np.zeros((episodes, steps))}
+    traces = {
+        "alive": alive,
+        "checkpoint": checkpoint_index,
+        "reasons": reasons,
+        "done": done,
+        "xy": np.zeros((episodes, steps, 2)),
+        "start_xy": np.zeros((episodes, 2)),
+        "distance": np.ones((episodes, steps)),
+        "start_distance": np.ones(episodes),
+        "success": np.zeros((episodes, steps)),
+    }
     result = evaluate.summarize(traces, dt, checkpoints=True)
     assert result["checkpoints_per_episode"] == [2, 5, 0]  # read at each episode's own last step
     assert result["mean_checkpoints_collected"] == pytest.approx(7 / 3)
     # checkpoint 1: episode 0 at its 2nd step, episode 1 (which holds 3 at its first) at its 1st
-    assert result["checkpoint_timeline"][:3] == [{"checkpoint": 1, "episodes": 2, "mean_step": 1.5},
-                                                 {"checkpoint": 2, "episodes": 2, "mean_step": 2.0},
-                                                 {"checkpoint": 3, "episodes": 1, "mean_step": 1.0}]
+    assert result["checkpoint_timeline"][:3] == [
+        {"checkpoint": 1, "episodes": 2, "mean_step": 1.5},
+        {"checkpoint": 2, "episodes": 2, "mean_step": 2.0},
+        {"checkpoint": 3, "episodes": 1, "mean_step": 1.0},
+    ]
     assert [row["episodes"] for row in result["checkpoint_timeline"]] == [2, 2, 1, 1, 1]
     assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
     assert "checkpoints_per_episode" not in evaluate.summarize(traces, dt)  # goals without checkpoints
@@ -336,6 +389,7 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     from hsa_mjx.deploy import policy as pol
     from train.ppo import init_training_state, make_networks
     from train.warm_start import read_init_from, warm_start
+
     config = tcfg.load("configs/train_quickstart_cpu.yaml")
     init = read_init_from(config)
     assert init["path"].name == "flat" and init["step"] > 60_000_000 and "policy" in init
@@ -343,8 +397,9 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     fresh = init_training_state(config, networks, jax.random.PRNGKey(0), 28)
     ts = warm_start(fresh, init, jax.random.PRNGKey(1))
     shipped = pol.load_policy("policies/flat")
-    obs = (shipped.params["obs_mean"] + shipped.params["obs_std"]
-           * np.random.default_rng(0).normal(size=(16, 28))).astype(np.float32)
+    obs = (
+        shipped.params["obs_mean"] + shipped.params["obs_std"] * np.random.default_rng(0).normal(size=(16, 28))
+    ).astype(np.float32)
     act = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
     np.testing.assert_allclose(np.asarray(act(jnp.asarray(obs), jax.random.PRNGKey(2))[0]), shipped(obs), atol=1e-5)
     assert jax.tree.all(jax.tree.map(np.array_equal, ts.params.value, fresh.params.value))  # the critic is new
@@ -358,6 +413,7 @@ def test_learner_refuses_an_env_built_for_another_batch():
     from hsa_mjx.task.env import HSAEnv
     from train.per_device import make_learner
     from train.ppo import PPOLearner
+
     config = tcfg.from_dict({"run": {"num_envs": 8}, "ppo": {"batch_size": 8, "num_minibatches": 1}})
     learner = make_learner(config, jax.local_devices()[:1])
     assert learner.env.num_envs == 8
@@ -368,12 +424,15 @@ def test_learner_refuses_an_env_built_for_another_batch():
 def test_goal_curriculum_starts_from_the_env_goal_range():
     """One key for the start range (env.goal.radial_range); an older config's curriculum.initial_range maps onto it."""
     near = {"dead_zone_radius": 0.5}
-    assert tcfg.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": near}
-                          ).curriculum.initial_range == (0.6, 0.9)
+    assert tcfg.from_dict(
+        {"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": near}
+    ).curriculum.initial_range == (0.6, 0.9)
     old = tcfg.from_dict({"curriculum": {**near, "initial_range": [0.7, 1.0]}})
     assert old.env.goal.radial_range == old.curriculum.initial_range == (0.7, 1.0)
     with pytest.raises(ValueError, match="differs from env.goal.radial_range"):
-        tcfg.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": {**near, "initial_range": [0.7, 1.0]}})
+        tcfg.from_dict(
+            {"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": {**near, "initial_range": [0.7, 1.0]}}
+        )
     off = tcfg.from_dict({"curriculum": {"enabled": False, "initial_range": [0.7, 1.0]}})  # had no effect: dropped
     assert off.env.goal.radial_range == (1.5, 1.8)
     assert tcfg.from_dict(tcfg.to_dict(old)) == old  # a saved config reloads

@@ -9,11 +9,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from conftest import TINY_RUN as TINY
+
 from train import checkpoint
 from train import config as tcfg
-
 
 
 def tiny(**run) -> tcfg.TrainConfig:
@@ -29,6 +28,7 @@ def run_dir(tiny_run_dir):
 
 def records(path):
     from train.logger import read_jsonl
+
     return read_jsonl(path / "metrics.jsonl")
 
 
@@ -39,8 +39,14 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     recs = records(run_dir)
     assert [r["step"] for r in recs] == [40, 80]
     last = recs[-1]
-    for key in ("loss/total_loss", "loss/policy_loss", "curriculum/max_distance", "curriculum/success_rate",
-                "training/env_steps_per_s", "nonfinite/states"):
+    for key in (
+        "loss/total_loss",
+        "loss/policy_loss",
+        "curriculum/max_distance",
+        "curriculum/success_rate",
+        "training/env_steps_per_s",
+        "nonfinite/states",
+    ):
         assert np.isfinite(last[key]), key
     with_episodes = [r for r in recs if r["episodes"] > 0]
     assert with_episodes and "episode/reward/forward" in with_episodes[0]
@@ -55,6 +61,7 @@ def test_curriculum_updates_inside_training(run_dir):
 
 def test_resume_continues_step_and_curriculum(run_dir):
     from train.trainer import train
+
     before = records(run_dir)[-1]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
     assert summary["env_steps"] == 160
@@ -66,6 +73,7 @@ def test_resume_continues_step_and_curriculum(run_dir):
 
 def test_resume_refuses_other_config_and_overwrite(run_dir):
     from train.trainer import train
+
     other = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"]))
     with pytest.raises(ValueError, match="env.reward.forward"):
         train(other, run_dir, resume=True, quiet=True)
@@ -88,6 +96,7 @@ def _crashed_copy(run_dir, tmp_path):
 
 def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
     from train.trainer import train
+
     copy, step = _crashed_copy(run_dir, tmp_path)
     summary = train(tiny(num_timesteps=step + 80), copy, resume=True, quiet=True)
     assert summary["env_steps"] == step + 80
@@ -100,13 +109,17 @@ def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
 
 def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, capsys):
     from train.trainer import train
+
     copy, step = _crashed_copy(run_dir, tmp_path)
     (checkpoint.latest(copy) / checkpoint.STATE_FILE).write_bytes(b"\x00 not msgpack")
     previous = checkpoint.list_checkpoints(copy)[-2]
     start = int(checkpoint.read_meta(previous)["step"])
     summary = train(tiny(num_timesteps=step + 40), copy, resume=True, quiet=True)
     out = capsys.readouterr().out
-    assert "skipping unreadable checkpoint" in out and f"resuming from the newest readable checkpoint, {previous.name}" in out
+    assert (
+        "skipping unreadable checkpoint" in out
+        and f"resuming from the newest readable checkpoint, {previous.name}" in out
+    )
     assert summary["env_steps"] == step + 40
     steps = [r["step"] for r in records(copy)]
     assert steps == sorted(set(steps)) and steps[-1] == step + 40 and start in steps
@@ -114,6 +127,7 @@ def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, 
 
 def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
     from train.trainer import prepare_run_dir
+
     early = tmp_path / "early"  # killed before its first checkpoint: logs only
     early.mkdir()
     (early / "metrics.jsonl").write_text(json.dumps({"step": 40}) + "\n")
@@ -129,6 +143,7 @@ def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
 
 def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_process(tmp_path, monkeypatch):
     from train import distributed, trainer
+
     started = tmp_path / "started"  # process 0 has already written its config.yaml when process 1 looks
     started.mkdir()
     (started / "config.yaml").write_text("run: {}\n")
@@ -142,6 +157,7 @@ def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_proc
 
 def test_cli_errors_before_compile(run_dir, capsys):
     from train.cli import main
+
     assert main(["--config", "configs/nope.yaml"]) == 2
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--set", "ppo.nope=1"]) == 2
     assert main(["--resume"]) == 2
@@ -153,6 +169,7 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 def test_evaluate_writes_summary_and_plots(run_dir):
     from train.evaluate import main
+
     assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0  # auto: C MuJoCo substeps on this CPU
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert result["physics"] == "c_mujoco"
@@ -175,13 +192,16 @@ def test_evaluate_writes_summary_and_plots(run_dir):
 def test_auto_reset_draws_fresh_goals_from_curriculum():
     """The batch env resets finished envs with the parameters the curricula give; it holds no curriculum."""
     import dataclasses
+
     from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
     from hsa_mjx.curricula import goal as cur
     from hsa_mjx.curricula.state import CurriculumRules
     from hsa_mjx.task.env import HSAEnv
+
     config = tiny()
-    env = HSAEnv(tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)),
-                                                     ["env.termination.max_episode_steps=3"])).env)
+    env = HSAEnv(
+        tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.termination.max_episode_steps=3"])).env
+    )
     batch, rules = AutoResetEnv(env), CurriculumRules(env, config.curriculum)
     assert [f.name for f in dataclasses.fields(BatchState)] == ["env", "episode", "totals"]
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
@@ -200,6 +220,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
     assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes
     from hsa_mjx.batch.auto_reset import summarize
+
     logged = summarize({k: float(v) for k, v in jax.device_get(state.totals).items()})
     assert logged["env_steps"] == 14  # 7 steps x 2 envs
     distances = np.asarray(state.env.metrics["distance_to_goal"])
@@ -208,6 +229,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
 
 def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
     from train.trainer import train
+
     config = tiny(num_timesteps=40, init_from=str(run_dir))  # the tiny run's programs: no new compile
     summary = train(config, tmp_path / "ft", quiet=True)
     assert summary["env_steps"] == 40  # a fresh step count
@@ -215,8 +237,10 @@ def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
     tuned_ts = load_payload(checkpoint.latest(tmp_path / "ft"))
     # 40 env steps are one PPO iteration: 2 Adam steps, each moving a weight by about the learning rate
     # (a fresh initialisation would differ by tenths)
-    moved = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
-                for a, b in zip(jax.tree.leaves(source_ts["params"]), jax.tree.leaves(tuned_ts["params"])))
+    moved = max(
+        float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
+        for a, b in zip(jax.tree.leaves(source_ts["params"]), jax.tree.leaves(tuned_ts["params"]))
+    )
     assert moved < 5 * 2 * config.ppo.learning_rate
     assert _count(tuned_ts["normalizer"]["count"]) > _count(source_ts["normalizer"]["count"])  # stats carried on
 
@@ -228,23 +252,42 @@ def _count(value) -> int:
 
 def load_payload(path):
     from flax import serialization
+
     return serialization.msgpack_restore((path / checkpoint.STATE_FILE).read_bytes())["training_state"]
 
 
 def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
     from train.cli import main
     from train.warm_start import read_init_from
-    heading = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
-        "env.observation.heading=true", f"run.init_from={run_dir}"]))
+
+    heading = tcfg.from_dict(
+        tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.observation.heading=true", f"run.init_from={run_dir}"])
+    )
     with pytest.raises(ValueError, match="observation size"):
         read_init_from(heading)
-    wider = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
-        "ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"]))
+    wider = tcfg.from_dict(
+        tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"])
+    )
     with pytest.raises(ValueError, match="policy_hidden_sizes"):
         read_init_from(wider)
-    other_task = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), [
-        "env.reward.forward=1.0", "ppo.learning_rate=0.0", f"run.init_from={run_dir}"]))
+    other_task = tcfg.from_dict(
+        tcfg.apply_overrides(
+            json.loads(json.dumps(TINY)),
+            ["env.reward.forward=1.0", "ppo.learning_rate=0.0", f"run.init_from={run_dir}"],
+        )
+    )
     assert read_init_from(other_task)["step"] >= 80  # another env and optimiser: the same networks fit
-    assert main(["--config", "configs/train_quickstart_cpu.yaml", "--run-dir", str(tmp_path / "x"),
-                 "--init-from", str(tmp_path / "missing")]) == 2
+    assert (
+        main(
+            [
+                "--config",
+                "configs/train_quickstart_cpu.yaml",
+                "--run-dir",
+                str(tmp_path / "x"),
+                "--init-from",
+                str(tmp_path / "missing"),
+            ]
+        )
+        == 2
+    )
     assert "run.init_from" in capsys.readouterr().err and not (tmp_path / "x").exists()

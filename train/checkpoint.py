@@ -26,8 +26,14 @@ STATE_FILE, META_FILE = "state.msgpack", "meta.json"
 _NAME = re.compile(r"^step_(\d{12})$")
 # Config keys that must match for a resume (the rest, e.g. run length or learning rate, may change).
 COMPATIBLE_SECTIONS = ("env", "curriculum")
-COMPATIBLE_PPO_KEYS = ("policy_hidden_sizes", "value_hidden_sizes", "activation", "normalize_observations",
-                       "distribution_type", "noise_std_type")
+COMPATIBLE_PPO_KEYS = (
+    "policy_hidden_sizes",
+    "value_hidden_sizes",
+    "activation",
+    "normalize_observations",
+    "distribution_type",
+    "noise_std_type",
+)
 # Keys of those sections that may change on resume: which MJX implementation runs the same physics.
 FREE_KEYS = ("env.physics.backend", "env.physics.contacts_per_env", "env.physics.constraints_per_env")
 
@@ -37,8 +43,9 @@ def checkpoint_dir(run_dir: str | Path) -> Path:
     return Path(run_dir) / "checkpoints"
 
 
-def save(run_dir: str | Path, step: int, payload: dict[str, Any], config: dict, keep: int = 3,
-         extra: dict | None = None) -> Path:
+def save(
+    run_dir: str | Path, step: int, payload: dict[str, Any], config: dict, keep: int = 3, extra: dict | None = None
+) -> Path:
     """Write checkpoint ``step`` atomically and keep only the newest ``keep``; return its path.
 
     ``extra``: more metadata for ``meta.json`` (e.g. the physics backend the run used).
@@ -85,8 +92,9 @@ def latest(run_dir: str | Path) -> Path:
     """The newest checkpoint of a run (FileNotFoundError naming the directory if none)."""
     found = list_checkpoints(run_dir)
     if not found:
-        raise FileNotFoundError(f"no checkpoint found in {checkpoint_dir(run_dir)} "
-                                f"(expected directories named step_<12 digits>)")
+        raise FileNotFoundError(
+            f"no checkpoint found in {checkpoint_dir(run_dir)} (expected directories named step_<12 digits>)"
+        )
     return found[-1]
 
 
@@ -104,8 +112,10 @@ def latest_readable(run_dir: str | Path) -> tuple[Path, list[str]]:
             return path, skipped
         except Exception as err:  # msgpack raises several unrelated types on garbage
             skipped.append(f"{path.name}: {type(err).__name__}: {err}")
-    raise FileNotFoundError(f"no readable checkpoint in {checkpoint_dir(run_dir)}"
-                            + (f" (unreadable: {skipped})" if skipped else " (expected directories named step_<12 digits>)"))
+    raise FileNotFoundError(
+        f"no readable checkpoint in {checkpoint_dir(run_dir)}"
+        + (f" (unreadable: {skipped})" if skipped else " (expected directories named step_<12 digits>)")
+    )
 
 
 def read_meta(path: str | Path) -> dict:
@@ -118,8 +128,10 @@ def read_meta(path: str | Path) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise ValueError(f"checkpoint {path} is corrupt: {META_FILE} is not valid JSON ({err})") from err
     if not isinstance(meta, dict) or meta.get("format") != FORMAT_VERSION or "config" not in meta:
-        raise ValueError(f"checkpoint {path}: unsupported or corrupt metadata (format {meta.get('format')!r}, "
-                         f"expected {FORMAT_VERSION})")
+        raise ValueError(
+            f"checkpoint {path}: unsupported or corrupt metadata (format {meta.get('format')!r}, "
+            f"expected {FORMAT_VERSION})"
+        )
     return meta
 
 
@@ -132,7 +144,9 @@ def load(path: str | Path, template: dict[str, Any]) -> dict[str, Any]:
     try:
         raw = serialization.msgpack_restore(state_file.read_bytes())
     except Exception as err:  # msgpack raises several unrelated types on garbage
-        raise ValueError(f"checkpoint {state_file} is corrupt and cannot be decoded ({type(err).__name__}: {err})") from err
+        raise ValueError(
+            f"checkpoint {state_file} is corrupt and cannot be decoded ({type(err).__name__}: {err})"
+        ) from err
     host_template = jax.tree.map(np.asarray, jax.device_get(template))
     try:
         restored = serialization.from_state_dict(host_template, raw)
@@ -147,8 +161,10 @@ def _check_shapes(template: Any, restored: Any, path: Path) -> None:
     for (where, want), got in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(restored)):
         got = np.asarray(got)
         if np.shape(want) != got.shape:
-            raise ValueError(f"checkpoint {path} does not match this config: {jax.tree_util.keystr(where)} "
-                             f"has shape {got.shape}, expected {np.shape(want)}")
+            raise ValueError(
+                f"checkpoint {path} does not match this config: {jax.tree_util.keystr(where)} "
+                f"has shape {got.shape}, expected {np.shape(want)}"
+            )
 
 
 def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) -> list[str]:
@@ -160,9 +176,11 @@ def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) 
     defaults = defaults or {}
     problems = []
     for section in COMPATIBLE_SECTIONS:
-        problems += [f"{section}.{k}" for k in _diff(saved.get(section, {}), current.get(section, {}),
-                                                     defaults.get(section, {}))
-                     if f"{section}.{k}" not in FREE_KEYS]
+        problems += [
+            f"{section}.{k}"
+            for k in _diff(saved.get(section, {}), current.get(section, {}), defaults.get(section, {}))
+            if f"{section}.{k}" not in FREE_KEYS
+        ]
     ppo_saved, ppo_now, ppo_default = saved.get("ppo", {}), current.get("ppo", {}), defaults.get("ppo", {})
     problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k, ppo_default.get(k)) != ppo_now.get(k)]
     return problems

@@ -26,34 +26,69 @@ DEFAULT_CONFIG = "auto"
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Parse the training command line."""
-    parser = argparse.ArgumentParser(prog="python -m train", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=DEFAULT_CONFIG,
-                        help=f"training YAML (default: {GPU_CONFIG} on a GPU, {CPU_CONFIG} otherwise)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override a config value, e.g. --set ppo.learning_rate=1e-4 (repeatable)")
+    parser = argparse.ArgumentParser(
+        prog="python -m train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--config",
+        default=DEFAULT_CONFIG,
+        help=f"training YAML (default: {GPU_CONFIG} on a GPU, {CPU_CONFIG} otherwise)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a config value, e.g. --set ppo.learning_rate=1e-4 (repeatable)",
+    )
     parser.add_argument("--run-dir", default=None, help="output directory (default runs/<config name>-<time>)")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue from the run dir's newest readable checkpoint (later log records are dropped)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace the run already in --run-dir (its checkpoints, logs and plots)")
-    parser.add_argument("--init-from", default=None, metavar="PATH",
-                        help="start from the networks of another run (a run dir or checkpoint dir): "
-                             "sets run.init_from; fresh optimiser, curriculum and step count")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue from the run dir's newest readable checkpoint (later log records are dropped)",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the run already in --run-dir (its checkpoints, logs and plots)",
+    )
+    parser.add_argument(
+        "--init-from",
+        default=None,
+        metavar="PATH",
+        help="start from the networks of another run (a run dir or checkpoint dir): "
+        "sets run.init_from; fresh optimiser, curriculum and step count",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     group = parser.add_argument_group("several hosts (jax.distributed; docs/scaling.md)")
-    group.add_argument("--coordinator", default=None, metavar="HOST:PORT",
-                       help=f"process 0's address (env {distributed.ENV_VARS['coordinator']})")
-    group.add_argument("--num-processes", type=int, default=None, metavar="N",
-                       help=f"processes (hosts) taking part (env {distributed.ENV_VARS['num_processes']})")
-    group.add_argument("--process-id", type=int, default=None, metavar="I",
-                       help=f"this process, 0..N-1; 0 writes the run dir (env {distributed.ENV_VARS['process_id']})")
+    group.add_argument(
+        "--coordinator",
+        default=None,
+        metavar="HOST:PORT",
+        help=f"process 0's address (env {distributed.ENV_VARS['coordinator']})",
+    )
+    group.add_argument(
+        "--num-processes",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"processes (hosts) taking part (env {distributed.ENV_VARS['num_processes']})",
+    )
+    group.add_argument(
+        "--process-id",
+        type=int,
+        default=None,
+        metavar="I",
+        help=f"this process, 0..N-1; 0 writes the run dir (env {distributed.ENV_VARS['process_id']})",
+    )
     return parser.parse_args(argv)
 
 
 def default_config() -> str:
     """The full-size GPU config when JAX sees a GPU, else the CPU quickstart."""
     import jax
+
     return GPU_CONFIG if jax.default_backend() == "gpu" else CPU_CONFIG
 
 
@@ -68,13 +103,16 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
             config_path = Path(args.run_dir) / "config.yaml"  # a resumed run keeps its own config
     overrides = args.overrides + ([f"run.init_from={args.init_from}"] if args.init_from else [])
     config = tcfg.load(config_path, overrides)
-    run_dir = Path(args.run_dir) if args.run_dir else Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    run_dir = (
+        Path(args.run_dir) if args.run_dir else Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+    )
     return config, run_dir
 
 
 def interrupted_message(run_dir: str | Path) -> str:
     """What a hard stop leaves: the newest periodic checkpoint to ``--resume`` from, or none."""
     from train import checkpoint
+
     found = checkpoint.list_checkpoints(run_dir)
     if not found:
         return f"interrupted before any checkpoint was written in {run_dir}"
@@ -90,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         distributed.initialize(spec)  # before anything asks JAX for its devices
         config, run_dir = resolve(args)
         from train.trainer import train  # imports JAX; config errors above come first
+
         if args.resume and args.overwrite:
             raise ValueError("--resume continues the run in --run-dir and --overwrite replaces it: give one")
         summary = train(config, run_dir, resume=args.resume, quiet=args.quiet, overwrite=args.overwrite)

@@ -9,7 +9,8 @@ the function. Remove this module once a Brax release with the upstream fix is re
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import jax
 import numpy as np

@@ -15,17 +15,18 @@ compilation. ``--set section.key=value`` overrides use the same checks.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
 from hsa_mjx import config as env_config
 from hsa_mjx import resources
-from hsa_mjx.deploy.policy import ACTIVATIONS
+from hsa_mjx.config import EnvConfig, build_section
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.config import EnvConfig, build_section
+from hsa_mjx.deploy.policy import ACTIVATIONS
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
@@ -135,13 +136,18 @@ def _start_range_in_env(env: Any, curriculum: Any) -> tuple[Any, Any]:
     curriculum = dict(curriculum)
     start = list(curriculum.pop("initial_range"))
     goal = env.get("goal") if isinstance(env, Mapping) else None
-    if not curriculum.get("enabled", True) or not isinstance(env, (Mapping, type(None))) \
-            or not isinstance(goal, (Mapping, type(None))):
+    if (
+        not curriculum.get("enabled", True)
+        or not isinstance(env, (Mapping, type(None)))
+        or not isinstance(goal, (Mapping, type(None)))
+    ):
         return env, curriculum  # off: it had no effect; a malformed section gets its own error later
     goal = dict(goal or {})
     if list(goal.setdefault("radial_range", start)) != start:
-        raise ValueError(f"curriculum.initial_range {start} differs from env.goal.radial_range "
-                         f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone")
+        raise ValueError(
+            f"curriculum.initial_range {start} differs from env.goal.radial_range "
+            f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone"
+        )
     return {**(env or {}), "goal": goal}, curriculum
 
 
@@ -157,10 +163,12 @@ def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
     config = TrainConfig(
         env=env,
         curriculum=dataclasses.replace(curriculum, initial_range=tuple(env.goal.radial_range)),
-        terrain_curriculum=build_section(tcur.TerrainCurriculumConfig, data.get("terrain_curriculum") or {},
-                                         "terrain_curriculum"),
+        terrain_curriculum=build_section(
+            tcur.TerrainCurriculumConfig, data.get("terrain_curriculum") or {}, "terrain_curriculum"
+        ),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
-        run=build_section(RunConfig, data.get("run") or {}, "run"))
+        run=build_section(RunConfig, data.get("run") or {}, "run"),
+    )
     return validate(config)
 
 
@@ -170,8 +178,11 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
     env = config.env
     tcur.validate(config.terrain_curriculum, env.terrain, env.scene == "terrain" and env.terrain.per_env, env.goal.mode)
     ppo, run = config.ppo, config.run
-    for key, choices in (("activation", ACTIVATIONS), ("distribution_type", DISTRIBUTIONS),
-                         ("noise_std_type", NOISE_STD_TYPES)):
+    for key, choices in (
+        ("activation", ACTIVATIONS),
+        ("distribution_type", DISTRIBUTIONS),
+        ("noise_std_type", NOISE_STD_TYPES),
+    ):
         if getattr(ppo, key) not in choices:
             raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
     _validate_ranges(config)
@@ -184,19 +195,27 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
         if getattr(run, key) < 1:
             raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
     if run.init_normalizer_count < 0:
-        raise ValueError(f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
-                         f"got {run.init_normalizer_count}")
+        raise ValueError(
+            f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
+            f"got {run.init_normalizer_count}"
+        )
     if run.multi_device not in MULTI_DEVICE:
         raise ValueError(f"config key 'run.multi_device' = {run.multi_device!r}; choose one of {list(MULTI_DEVICE)}")
     if config.curriculum.enabled and config.env.goal.mode != "radial":
-        raise ValueError("curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum "
-                         f"range), got {config.env.goal.mode!r}; set curriculum.enabled: false or env.goal.mode: radial")
+        raise ValueError(
+            "curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum "
+            f"range), got {config.env.goal.mode!r}; set curriculum.enabled: false or env.goal.mode: radial"
+        )
     if (ppo.batch_size * ppo.num_minibatches) % run.num_envs:
-        raise ValueError(f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
-                         f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)")
+        raise ValueError(
+            f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
+            f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)"
+        )
     if run.steps_per_epoch and run.steps_per_epoch % config.env_steps_per_iteration:
-        raise ValueError(f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
-                         f"PPO iteration ({config.env_steps_per_iteration})")
+        raise ValueError(
+            f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
+            f"PPO iteration ({config.env_steps_per_iteration})"
+        )
     if device_count is not None:
         _validate_devices(config, device_count)
     return config
@@ -244,7 +263,9 @@ def apply_overrides(data: dict, assignments: list[str]) -> dict:
         dotted, raw = item.split("=", 1)
         parts = dotted.strip().split(".")
         if len(parts) < 2 or parts[0] not in SECTIONS:
-            raise ValueError(f"--set key {dotted!r} must start with one of {list(SECTIONS)}, e.g. ppo.learning_rate=1e-4")
+            raise ValueError(
+                f"--set key {dotted!r} must start with one of {list(SECTIONS)}, e.g. ppo.learning_rate=1e-4"
+            )
         node = data.setdefault(parts[0], {})
         for part in parts[1:-1]:
             node = node.setdefault(part, {})

@@ -31,10 +31,10 @@ def plot_actions(traces: dict, path: Path) -> Path:
     delta = np.abs(np.diff(traces["action"], axis=1))[alive[:, 1:]]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
     axes[0].violinplot([actions[:, i] for i in range(actions.shape[1])], showmeans=True)
-    axes[0].set_xticks(range(1, actions.shape[1] + 1), SERVO_LABELS[:actions.shape[1]])
+    axes[0].set_xticks(range(1, actions.shape[1] + 1), SERVO_LABELS[: actions.shape[1]])
     axes[0].set_title("action distribution per servo")
     axes[1].boxplot([delta[:, i] for i in range(delta.shape[1])], showfliers=False)
-    axes[1].set_xticks(range(1, delta.shape[1] + 1), SERVO_LABELS[:delta.shape[1]])
+    axes[1].set_xticks(range(1, delta.shape[1] + 1), SERVO_LABELS[: delta.shape[1]])
     axes[1].set_title(f"action smoothness |a_t - a_t-1| (mean {delta.mean():.3f})")
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -95,14 +95,16 @@ def plot_trajectories(traces: dict, path: Path) -> Path:
     return path
 
 
-def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480),
-               max_frames: int = GIF_FRAMES) -> Path:
+def render_gif(
+    traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480), max_frames: int = GIF_FRAMES
+) -> Path:
     """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
     ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames."""
     if ctypes.util.find_library("EGL"):  # offscreen; without the library mujoco's import would fail
         os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
     from PIL import Image
+
     model = env.robot.mj_model
     data = mujoco.MjData(model)
     qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")
@@ -123,9 +125,12 @@ def render_gif(traces: dict, env, path: Path, every: int = 2, size: tuple[int, i
 def write_all(traces: dict, env, out: Path, video: bool = False) -> list[Path]:
     """Every diagnostic plot (and the GIF when ``video``) into ``out``."""
     pairs = np.asarray(env.index.constraint_pairs)
-    written = [plot_actions(traces, out / "actions.png"), plot_joints(traces, env.dt, out / "joints.png"),
-               plot_constraint(traces, pairs, env.dt, out / "constraint.png"),
-               plot_trajectories(traces, out / "trajectories.png")]
+    written = [
+        plot_actions(traces, out / "actions.png"),
+        plot_joints(traces, env.dt, out / "joints.png"),
+        plot_constraint(traces, pairs, env.dt, out / "constraint.png"),
+        plot_trajectories(traces, out / "trajectories.png"),
+    ]
     if video:
         written.append(render_gif(traces, env, out / "episode.gif"))
     return written

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import jax
 import numpy as np
@@ -41,21 +42,33 @@ def _int_setting(value: int | str | None, flag: str, env_var: str) -> int | None
         raise ValueError(f"{flag} / {env_var} must be an integer, got {value!r}") from err
 
 
-def resolve_spec(coordinator: str | None = None, num_processes: int | None = None, process_id: int | None = None,
-                 environ: Mapping[str, str] | None = None) -> ClusterSpec | None:
+def resolve_spec(
+    coordinator: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> ClusterSpec | None:
     """The cluster from flags, else ``HSA_*`` environment variables; None when none is asked for."""
     environ = os.environ if environ is None else environ
     coordinator = coordinator or environ.get(ENV_VARS["coordinator"]) or None
-    count = _int_setting(num_processes if num_processes is not None else environ.get(ENV_VARS["num_processes"]),
-                         "--num-processes", ENV_VARS["num_processes"])
-    index = _int_setting(process_id if process_id is not None else environ.get(ENV_VARS["process_id"]),
-                         "--process-id", ENV_VARS["process_id"])
+    count = _int_setting(
+        num_processes if num_processes is not None else environ.get(ENV_VARS["num_processes"]),
+        "--num-processes",
+        ENV_VARS["num_processes"],
+    )
+    index = _int_setting(
+        process_id if process_id is not None else environ.get(ENV_VARS["process_id"]),
+        "--process-id",
+        ENV_VARS["process_id"],
+    )
     if coordinator is None and count is None and index is None:
         return None
     if coordinator is None or count is None or index is None:
-        raise ValueError("several processes need all of --coordinator HOST:PORT, --num-processes N and "
-                         f"--process-id I (or {', '.join(ENV_VARS.values())}); got coordinator={coordinator!r}, "
-                         f"num_processes={count}, process_id={index}")
+        raise ValueError(
+            "several processes need all of --coordinator HOST:PORT, --num-processes N and "
+            f"--process-id I (or {', '.join(ENV_VARS.values())}); got coordinator={coordinator!r}, "
+            f"num_processes={count}, process_id={index}"
+        )
     host, _, port = coordinator.rpartition(":")
     if not host or not port.isdigit():
         raise ValueError(f"--coordinator must be HOST:PORT (process 0's address), got {coordinator!r}")
@@ -68,8 +81,9 @@ def initialize(spec: ClusterSpec | None) -> None:
     """Join the cluster with ``jax.distributed.initialize`` (call before any other JAX call); None: one host."""
     if spec is None:
         return
-    jax.distributed.initialize(coordinator_address=spec.coordinator, num_processes=spec.num_processes,
-                               process_id=spec.process_id)
+    jax.distributed.initialize(
+        coordinator_address=spec.coordinator, num_processes=spec.num_processes, process_id=spec.process_id
+    )
     # Open the collectives now, while the processes are together: a collective's first use waits only
     # 30 s for the others, and later set-up and compiles may keep one process longer than that.
     any_process(False)
@@ -107,6 +121,7 @@ def all_devices(tree: Any) -> Any:
     if jax.process_count() == 1:
         return tree
     from jax.experimental import multihost_utils
+
     return multihost_utils.process_allgather(tree, tiled=True)
 
 
@@ -115,6 +130,7 @@ def all_processes(values: np.ndarray) -> np.ndarray:
     if jax.process_count() == 1:
         return np.asarray(values)[None]
     from jax.experimental import multihost_utils
+
     return np.asarray(multihost_utils.process_allgather(np.asarray(values)))
 
 
@@ -123,4 +139,5 @@ def any_process(flag: bool) -> bool:
     if jax.process_count() == 1:
         return bool(flag)
     from jax.experimental import multihost_utils
+
     return bool(np.any(multihost_utils.process_allgather(np.asarray(flag))))

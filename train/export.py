@@ -66,8 +66,10 @@ def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
     tree = ts.params.policy["params"]
     dense = [dict(layer_at(tree, path)) for path in layer_paths(tree)]
     # a tanh_normal policy's last layer also outputs the noise scale: the mean is its first action_size
-    dense[-1] = {"kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
-                 "bias": np.asarray(dense[-1]["bias"])[:action_size]}
+    dense[-1] = {
+        "kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
+        "bias": np.asarray(dense[-1]["bias"])[:action_size],
+    }
     n_obs = np.asarray(dense[0]["kernel"]).shape[0]
     if config.ppo.normalize_observations:
         # the policy's own inputs only: a privileged critic's follow them in the statistics
@@ -75,19 +77,29 @@ def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
     else:
         mean, std = np.zeros(n_obs), np.ones(n_obs)
     f32 = lambda x: np.asarray(x, np.float32)  # noqa: E731
-    return {"obs_mean": f32(mean), "obs_std": f32(std), "kernels": tuple(f32(d["kernel"]) for d in dense),
-            "biases": tuple(f32(d["bias"]) for d in dense)}
+    return {
+        "obs_mean": f32(mean),
+        "obs_std": f32(std),
+        "kernels": tuple(f32(d["kernel"]) for d in dense),
+        "biases": tuple(f32(d["bias"]) for d in dense),
+    }
 
 
 def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPolicy:
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
-    from hsa_mjx.task import observation
     from hsa_mjx.sim.model import SERVOS
+    from hsa_mjx.task import observation
+
     ppo = config.ppo
     params = policy_params(config, ts, len(SERVOS))
     clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.ppo.make_networks
-    meta = pol.describe(params, ppo.activation, ppo.distribution_type, clip,
-                        list(observation.observation_labels(config.env.observation)))
+    meta = pol.describe(
+        params,
+        ppo.activation,
+        ppo.distribution_type,
+        clip,
+        list(observation.observation_labels(config.env.observation)),
+    )
     # the policy runs wherever it is loaded: the physics backend is picked there (the training's is in source)
     config_dict = tcfg.to_dict(config)
     config_dict["env"]["physics"]["backend"] = "auto"
@@ -101,12 +113,18 @@ def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol
     from hsa_mjx.sim.model import SERVOS
     from hsa_mjx.task.observation import observation_size
     from train.evaluate import load_training_state
+
     config, path, step = read_checkpoint(run_dir, checkpoint_path)
     _, ts = load_training_state(config, path, observation_size(config.env.observation), len(SERVOS))
     trained_on = checkpoint.read_meta(path).get("physics_backend", config.env.physics.backend)
-    source = {"run": str(run_dir), "checkpoint": str(path), "step": step, "env_steps": step,
-              "physics_backend": trained_on,
-              "exported": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")}
+    source = {
+        "run": str(run_dir),
+        "checkpoint": str(path),
+        "step": step,
+        "env_steps": step,
+        "physics_backend": trained_on,
+        "exported": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
     return to_numpy_policy(config, ts, source)
 
 
@@ -115,9 +133,11 @@ def write(policy: pol.NumpyPolicy, out: Path, fmt: str) -> Path:
     if fmt == "npz":
         return pol.save_policy(out, policy.params, policy.meta)
     from train import onnx_policy
+
     model = onnx_policy.build(policy)
-    return pol.write_directory(out, {ONNX_FILE: model.SerializeToString(),
-                                     pol.META_FILE: json.dumps(policy.meta, indent=1).encode()})
+    return pol.write_directory(
+        out, {ONNX_FILE: model.SerializeToString(), pol.META_FILE: json.dumps(policy.meta, indent=1).encode()}
+    )
 
 
 def check_output(out: Path, fmt: str) -> None:
@@ -132,10 +152,13 @@ def check_output(out: Path, fmt: str) -> None:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line's arguments."""
-    parser = argparse.ArgumentParser(prog="python -m train.export", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("run_dir", help="a run directory written by python -m train, or a policy directory "
-                                        "(e.g. policies/flat) to convert")
+    parser = argparse.ArgumentParser(
+        prog="python -m train.export", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "run_dir",
+        help="a run directory written by python -m train, or a policy directory (e.g. policies/flat) to convert",
+    )
     parser.add_argument("--checkpoint", default=None, help="a checkpoint directory (default: the run's latest)")
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("--out", default=None, help="output directory (default: RUN_DIR/export_<format>)")
@@ -162,8 +185,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     src = policy.meta["source"]
-    print(f"exported the deterministic policy of {src['checkpoint']} ({src['env_steps']:,} env steps) "
-          f"as {args.format} to {written}")
+    print(
+        f"exported the deterministic policy of {src['checkpoint']} ({src['env_steps']:,} env steps) "
+        f"as {args.format} to {written}"
+    )
     return 0
 
 

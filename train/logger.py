@@ -75,6 +75,7 @@ class MetricsLogger:
         if tensorboard:
             try:
                 from tensorboardX import SummaryWriter  # a Brax dependency
+
                 purge = None if resume_step is None else resume_step + 1
                 self.writer = SummaryWriter(str(Path(run_dir) / "tensorboard"), purge_step=purge)
             except ImportError:  # pragma: no cover - logged to JSONL only

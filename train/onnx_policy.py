@@ -20,10 +20,13 @@ INPUT, OUTPUT = "observation", "action"
 def _activation(nodes: list, x: str, name: str, prefix: str) -> str:
     """Append the nodes of one activation (flax's definitions) and return its output name."""
     from onnx import helper
+
     out = f"{prefix}_{name}"
     if name == "swish":  # x * sigmoid(x)
-        nodes += [helper.make_node("Sigmoid", [x], [f"{prefix}_sigmoid"]),
-                  helper.make_node("Mul", [x, f"{prefix}_sigmoid"], [out])]
+        nodes += [
+            helper.make_node("Sigmoid", [x], [f"{prefix}_sigmoid"]),
+            helper.make_node("Mul", [x, f"{prefix}_sigmoid"], [out]),
+        ]
     elif name in ("tanh", "relu"):
         nodes.append(helper.make_node(name.capitalize(), [x], [out]))
     elif name == "elu":
@@ -36,9 +39,12 @@ def _activation(nodes: list, x: str, name: str, prefix: str) -> str:
 def _normalizer(nodes: list, inits: dict, params: dict, clip: float) -> str:
     """(obs - obs_mean) / obs_std, clipped to +-clip when clip > 0; returns the output name."""
     from onnx import helper
+
     inits["obs_mean"], inits["obs_std"] = params["obs_mean"], params["obs_std"]
-    nodes += [helper.make_node("Sub", [INPUT, "obs_mean"], ["centred"]),
-              helper.make_node("Div", ["centred", "obs_std"], ["normalized"])]
+    nodes += [
+        helper.make_node("Sub", [INPUT, "obs_mean"], ["centred"]),
+        helper.make_node("Div", ["centred", "obs_std"], ["normalized"]),
+    ]
     if clip <= 0:
         return "normalized"
     inits["clip_min"], inits["clip_max"] = np.float32(-clip), np.float32(clip)
@@ -50,6 +56,7 @@ def build(policy: pol.NumpyPolicy):
     """The ONNX ``ModelProto`` computing ``policy``'s deterministic action (checked with onnx.checker)."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
+
     net, params = policy.meta["network"], policy.params
     nodes: list = []
     inits: dict[str, np.ndarray] = {}
@@ -57,18 +64,27 @@ def build(policy: pol.NumpyPolicy):
     layers = pol.layer_names(len(params["kernels"]))
     for i, ((k, b), kernel, bias) in enumerate(zip(layers, params["kernels"], params["biases"])):
         inits[k], inits[b] = kernel, bias
-        nodes += [helper.make_node("MatMul", [x, k], [f"dense_{i}_matmul"]),
-                  helper.make_node("Add", [f"dense_{i}_matmul", b], [f"dense_{i}_out"])]
+        nodes += [
+            helper.make_node("MatMul", [x, k], [f"dense_{i}_matmul"]),
+            helper.make_node("Add", [f"dense_{i}_matmul", b], [f"dense_{i}_out"]),
+        ]
         x = f"dense_{i}_out"
         if i < len(layers) - 1:
             x = _activation(nodes, x, net["activation"], f"dense_{i}")
     nodes.append(helper.make_node("Tanh" if net["output"] == "tanh" else "Identity", [x], [OUTPUT]))
     graph = helper.make_graph(
-        nodes, "hsa_mjx_policy",
+        nodes,
+        "hsa_mjx_policy",
         [helper.make_tensor_value_info(INPUT, TensorProto.FLOAT, ["batch", policy.observation_size])],
         [helper.make_tensor_value_info(OUTPUT, TensorProto.FLOAT, ["batch", policy.action_size])],
-        initializer=[numpy_helper.from_array(np.asarray(v, np.float32), name) for name, v in inits.items()])
-    model = helper.make_model(graph, producer_name="hsa_mjx", opset_imports=[helper.make_opsetid("", OPSET)],
-                              ir_version=IR_VERSION, doc_string=net["deterministic_action"])
+        initializer=[numpy_helper.from_array(np.asarray(v, np.float32), name) for name, v in inits.items()],
+    )
+    model = helper.make_model(
+        graph,
+        producer_name="hsa_mjx",
+        opset_imports=[helper.make_opsetid("", OPSET)],
+        ir_version=IR_VERSION,
+        doc_string=net["deterministic_action"],
+    )
     onnx.checker.check_model(model, full_check=True)
     return model

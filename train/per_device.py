@@ -22,8 +22,9 @@ them on fake CPU devices).
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
@@ -84,8 +85,9 @@ def _unlead(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[0], tree)
 
 
-def _drain_piece(state: LoopState, learner: PPOLearner, batch_env: AutoResetEnv,
-                 rules: CurriculumRules) -> tuple[LoopState, dict]:
+def _drain_piece(
+    state: LoopState, learner: PPOLearner, batch_env: AutoResetEnv, rules: CurriculumRules
+) -> tuple[LoopState, dict]:
     """One GPU's drained state and its totals with a leading device axis of 1."""
     state, totals = learner._drain(state, batch_env, rules)
     return state, _lead(totals)
@@ -110,12 +112,18 @@ class PerDeviceLearner(PPOLearner):
                 self.batch_envs.append(AutoResetEnv(piece))
                 self.piece_rules.append(CurriculumRules(piece, config.curriculum, config.terrain_curriculum))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # CPU buffers cannot be donated
-        self.collect_fns = [jax.jit(functools.partial(self._collect_piece, batch_env=b, rules=r), donate_argnums=donate)
-                            for b, r in zip(self.batch_envs, self.piece_rules)]
-        self.reset_fns = [jax.jit(functools.partial(self._reset, batch_env=b, rules=r))
-                          for b, r in zip(self.batch_envs, self.piece_rules)]
-        self.drain_fns = [jax.jit(functools.partial(_drain_piece, learner=self, batch_env=b, rules=r))
-                          for b, r in zip(self.batch_envs, self.piece_rules)]
+        self.collect_fns = [
+            jax.jit(functools.partial(self._collect_piece, batch_env=b, rules=r), donate_argnums=donate)
+            for b, r in zip(self.batch_envs, self.piece_rules)
+        ]
+        self.reset_fns = [
+            jax.jit(functools.partial(self._reset, batch_env=b, rules=r))
+            for b, r in zip(self.batch_envs, self.piece_rules)
+        ]
+        self.drain_fns = [
+            jax.jit(functools.partial(_drain_piece, learner=self, batch_env=b, rules=r))
+            for b, r in zip(self.batch_envs, self.piece_rules)
+        ]
         self.learn_fn = jax.pmap(self._learn, axis_name=AXIS)
         self.sum_fn = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
@@ -129,8 +137,15 @@ class PerDeviceLearner(PPOLearner):
         """One key per device (leading axis 1), each made on its own device (no wait on another GPU)."""
         return [jax.device_put(np.asarray(k)[None], d) for k, d in zip(np.asarray(keys), self.devices)]
 
-    def _collect_piece(self, ts: TrainingState, goal: cur.CurriculumState, state: LoopState, key: jax.Array,
-                       batch_env: AutoResetEnv, rules: CurriculumRules):
+    def _collect_piece(
+        self,
+        ts: TrainingState,
+        goal: cur.CurriculumState,
+        state: LoopState,
+        key: jax.Array,
+        batch_env: AutoResetEnv,
+        rules: CurriculumRules,
+    ):
         """One GPU's collection (arguments and outputs with a leading device axis of 1, ``state`` without)."""
         ts, goal, key = _unlead((ts, goal, key))
         key, k_collect, k_sgd = jax.random.split(key, 3)
@@ -138,16 +153,23 @@ class PerDeviceLearner(PPOLearner):
         state, data = self._collect(ts, state, k_collect, batch_env, rules)
         return state, _lead((data, key, k_sgd))
 
-    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
-              terrain: tcur.TerrainLevels | None = None) -> DeviceStates:
+    def reset(
+        self, env_keys: jax.Array, curriculum: cur.CurriculumState, terrain: tcur.TerrainLevels | None = None
+    ) -> DeviceStates:
         """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)
         and, when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
         keys, host = np.asarray(env_keys), jax.device_get(curriculum)
-        levels = [None] * len(self.devices) if terrain is None else \
-            [jax.tree.map(lambda x, i=i: np.asarray(x).reshape(keys.shape[:2])[i], terrain)
-             for i in range(len(self.devices))]
-        envs = self._on_each(lambda i, k, t: self.reset_fns[i](*jax.device_put((k, host, t), self.devices[i])),
-                             keys, levels)
+        levels = (
+            [None] * len(self.devices)
+            if terrain is None
+            else [
+                jax.tree.map(lambda x, i=i: np.asarray(x).reshape(keys.shape[:2])[i], terrain)
+                for i in range(len(self.devices))
+            ]
+        )
+        envs = self._on_each(
+            lambda i, k, t: self.reset_fns[i](*jax.device_put((k, host, t), self.devices[i])), keys, levels
+        )
         pieces = [jax.device_put(jax.tree.map(lambda x: np.asarray(x)[None], host), d) for d in self.devices]
         return DeviceStates(pieces=tuple(envs), goal=stack(pieces, self.devices))
 
@@ -156,8 +178,9 @@ class PerDeviceLearner(PPOLearner):
         keys = self._device_keys(keys)
         envs, goal, losses = list(states.pieces), states.goal, []
         for _ in range(self.iterations_per_epoch):
-            outs = self._on_each(lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices),
-                                 split(goal, self.devices), envs, keys)
+            outs = self._on_each(
+                lambda i, *a: self.collect_fns[i](*a), split(ts, self.devices), split(goal, self.devices), envs, keys
+            )
             envs, keys = [o[0] for o in outs], [o[1][1] for o in outs]
             data, k_sgd = stack([o[1][0] for o in outs], self.devices), stack([o[1][2] for o in outs], self.devices)
             ts, goal, metrics = self.learn_fn(ts, goal, data, k_sgd)

@@ -36,9 +36,10 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
         return None
     steps = [r["step"] for r in records]
     panels = [p for p in PANELS if not p[0].startswith("terrain/") or any(p[0] in r for r in records)]
-    fig, axes = plt.subplots(3, (len(panels) + 2) // 3, figsize=(4.4 * ((len(panels) + 2) // 3), 10),
-                             constrained_layout=True)
-    for ax in axes.flat[len(panels):]:
+    fig, axes = plt.subplots(
+        3, (len(panels) + 2) // 3, figsize=(4.4 * ((len(panels) + 2) // 3), 10), constrained_layout=True
+    )
+    for ax in axes.flat[len(panels) :]:
         ax.axis("off")
     for ax, (key, label) in zip(axes.flat, panels):
         values = [r.get(key) for r in records]
@@ -63,11 +64,17 @@ def terrain_grid(rows: list[dict], out_path: str | Path) -> Path:
     levels = sorted({r["difficulty"] for r in rows})
     cell = {(r["type"], r["difficulty"]): r for r in rows}
     fig, axes = plt.subplots(1, 2, figsize=(4 + 1.6 * len(levels), 1.5 + 0.45 * len(types)), constrained_layout=True)
-    for ax, (key, label, fmt) in zip(axes, (("success_rate", "success rate", "{:.0%}"),
-                                            ("mean_progress_m", "net progress (m)", "{:.2f}"))):
+    for ax, (key, label, fmt) in zip(
+        axes, (("success_rate", "success rate", "{:.0%}"), ("mean_progress_m", "net progress (m)", "{:.2f}"))
+    ):
         grid = [[cell[(t, d)][key] for d in levels] for t in types]
-        image = ax.imshow(grid, cmap="viridis", aspect="auto", vmin=0.0 if key == "success_rate" else None,
-                          vmax=1.0 if key == "success_rate" else None)
+        image = ax.imshow(
+            grid,
+            cmap="viridis",
+            aspect="auto",
+            vmin=0.0 if key == "success_rate" else None,
+            vmax=1.0 if key == "success_rate" else None,
+        )
         for i, line in enumerate(grid):
             for j, value in enumerate(line):
                 ax.text(j, i, fmt.format(value), ha="center", va="center", color="w", fontsize=8)

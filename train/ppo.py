@@ -15,7 +15,8 @@ jitted per GPU (``run.multi_device``).
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -60,8 +61,9 @@ class TrainingState:
     normalizer: running_statistics.RunningStatisticsState
 
 
-def make_networks(config: TrainConfig, observation_size: int, action_size: int,
-                  privileged_size: int = 0) -> ppo_networks.PPONetworks:
+def make_networks(
+    config: TrainConfig, observation_size: int, action_size: int, privileged_size: int = 0
+) -> ppo_networks.PPONetworks:
     """Brax PPO actor and critic MLPs with the configured sizes.
 
     With ``privileged_size`` > 0 (``ppo.privileged_critic``) the networks' input is the policy's
@@ -75,24 +77,35 @@ def make_networks(config: TrainConfig, observation_size: int, action_size: int,
         normalize = functools.partial(running_statistics.normalize, max_abs_value=ppo.observation_clip or None)
     actor_normalize = normalize if privileged_size == 0 else _actor_view(normalize, observation_size)
     networks = ppo_networks.make_ppo_networks(  # the policy's parameters are sized for the observation alone
-        observation_size, action_size, preprocess_observations_fn=actor_normalize,
-        policy_hidden_layer_sizes=ppo.policy_hidden_sizes, value_hidden_layer_sizes=ppo.value_hidden_sizes,
-        activation=ACTIVATIONS[ppo.activation], init_noise_std=ppo.init_noise_std,
-        distribution_type=ppo.distribution_type, noise_std_type=ppo.noise_std_type)
+        observation_size,
+        action_size,
+        preprocess_observations_fn=actor_normalize,
+        policy_hidden_layer_sizes=ppo.policy_hidden_sizes,
+        value_hidden_layer_sizes=ppo.value_hidden_sizes,
+        activation=ACTIVATIONS[ppo.activation],
+        init_noise_std=ppo.init_noise_std,
+        distribution_type=ppo.distribution_type,
+        noise_std_type=ppo.noise_std_type,
+    )
     if privileged_size == 0:
         return networks
     value = brax_networks.make_value_network(
-        observation_size + privileged_size, preprocess_observations_fn=normalize,
-        hidden_layer_sizes=ppo.value_hidden_sizes, activation=ACTIVATIONS[ppo.activation])
+        observation_size + privileged_size,
+        preprocess_observations_fn=normalize,
+        hidden_layer_sizes=ppo.value_hidden_sizes,
+        activation=ACTIVATIONS[ppo.activation],
+    )
     return networks.replace(value_network=value)
 
 
 def _actor_view(normalize: Callable, actor_size: int) -> Callable:
     """The policy's preprocessing under a privileged critic: normalise, then keep the actor's values."""
+
     def preprocess(obs: jax.Array, stats: running_statistics.RunningStatisticsState) -> jax.Array:
         if obs.shape[-1] == actor_size:  # the policy's observation alone
             return normalize(obs, stats.replace(mean=stats.mean[:actor_size], std=stats.std[:actor_size]))
         return normalize(obs, stats)[..., :actor_size]
+
     return preprocess
 
 
@@ -113,12 +126,14 @@ def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
     return optax.chain(optax.clip_by_global_norm(config.ppo.max_grad_norm), optax.adam(config.ppo.learning_rate))
 
 
-def init_training_state(config: TrainConfig, networks: ppo_networks.PPONetworks, key: jax.Array,
-                        observation_size: int) -> TrainingState:
+def init_training_state(
+    config: TrainConfig, networks: ppo_networks.PPONetworks, key: jax.Array, observation_size: int
+) -> TrainingState:
     """Fresh parameters, optimiser and normaliser state (unreplicated)."""
     k_policy, k_value = jax.random.split(key)
-    params = ppo_losses.PPONetworkParams(policy=networks.policy_network.init(k_policy),
-                                         value=networks.value_network.init(k_value))
+    params = ppo_losses.PPONetworkParams(
+        policy=networks.policy_network.init(k_policy), value=networks.value_network.init(k_value)
+    )
     normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((observation_size,), jnp.float32))
     return TrainingState(params=params, optimizer_state=make_optimizer(config).init(params), normalizer=normalizer)
 
@@ -148,35 +163,49 @@ class PPOLearner:
         ppo = config.ppo
         self.envs_per_device = config.run.num_envs // num_devices
         if env.num_envs != self.envs_per_device:
-            raise ValueError(f"the env is built for batches of {env.num_envs}, but each of the {num_devices} devices "
-                             f"steps {self.envs_per_device} envs (run.num_envs {config.run.num_envs}): build it with "
-                             f"HSAEnv(config.env, num_envs={self.envs_per_device}) (train.per_device.make_learner does)")
+            raise ValueError(
+                f"the env is built for batches of {env.num_envs}, but each of the {num_devices} devices "
+                f"steps {self.envs_per_device} envs (run.num_envs {config.run.num_envs}): build it with "
+                f"HSAEnv(config.env, num_envs={self.envs_per_device}) (train.per_device.make_learner does)"
+            )
         self.unrolls_per_iteration = ppo.batch_size * ppo.num_minibatches // config.run.num_envs
         self.iterations_per_epoch = max(1, config.run.steps_per_epoch // config.env_steps_per_iteration)
         self.loss_fn = functools.partial(
-            ppo_losses.compute_ppo_loss, ppo_network=self.networks, entropy_cost=ppo.entropy_cost,
-            discounting=ppo.discounting, reward_scaling=ppo.reward_scaling, gae_lambda=ppo.gae_lambda,
-            clipping_epsilon=ppo.clipping_epsilon, normalize_advantage=ppo.normalize_advantage,
-            vf_coefficient=ppo.vf_loss_coefficient)
-        self.update_fn = gradients.gradient_update_fn(self.loss_fn, self.optimizer, pmap_axis_name=AXIS,
-                                                      has_aux=True)
-        self.reset_fn = jax.pmap(functools.partial(self._reset, batch_env=self.batch_env, rules=self.rules),
-                                 axis_name=AXIS)
+            ppo_losses.compute_ppo_loss,
+            ppo_network=self.networks,
+            entropy_cost=ppo.entropy_cost,
+            discounting=ppo.discounting,
+            reward_scaling=ppo.reward_scaling,
+            gae_lambda=ppo.gae_lambda,
+            clipping_epsilon=ppo.clipping_epsilon,
+            normalize_advantage=ppo.normalize_advantage,
+            vf_coefficient=ppo.vf_loss_coefficient,
+        )
+        self.update_fn = gradients.gradient_update_fn(self.loss_fn, self.optimizer, pmap_axis_name=AXIS, has_aux=True)
+        self.reset_fn = jax.pmap(
+            functools.partial(self._reset, batch_env=self.batch_env, rules=self.rules), axis_name=AXIS
+        )
         self.epoch_fn = jax.pmap(self._epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self.collect_epoch_fn = jax.pmap(self._collect_epoch, axis_name=AXIS)
 
     @staticmethod
-    def _reset(keys: jax.Array, goal: cur.CurriculumState, levels: tcur.TerrainLevels | None,
-               batch_env: AutoResetEnv, rules: CurriculumRules) -> LoopState:
+    def _reset(
+        keys: jax.Array,
+        goal: cur.CurriculumState,
+        levels: tcur.TerrainLevels | None,
+        batch_env: AutoResetEnv,
+        rules: CurriculumRules,
+    ) -> LoopState:
         """One device's fresh envs on the curricula's start (or restored) state."""
         curricula = rules.init(keys, goal, levels)
         return LoopState(envs=batch_env.reset(keys, rules.params(curricula)), curricula=curricula)
 
-    def reset(self, env_keys: jax.Array, curriculum: cur.CurriculumState,
-              terrain: tcur.TerrainLevels | None = None) -> LoopState:
+    def reset(
+        self, env_keys: jax.Array, curriculum: cur.CurriculumState, terrain: tcur.TerrainLevels | None = None
+    ) -> LoopState:
         """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``curriculum`` (unreplicated)
         and, when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
-        devices = jax.local_devices()[:env_keys.shape[0]]
+        devices = jax.local_devices()[: env_keys.shape[0]]
         if terrain is not None:
             terrain = jax.tree.map(lambda x: jnp.reshape(x, env_keys.shape[:2]), terrain)
         return self.reset_fn(jax.device_put(env_keys), replicate(curriculum, devices), terrain)
@@ -205,8 +234,9 @@ class PPOLearner:
         return self.iterations_per_epoch * self.config.env_steps_per_iteration
 
     # ----- rollout ------------------------------------------------------------------------
-    def _unroll(self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv,
-                rules: CurriculumRules) -> tuple[LoopState, types.Transition]:
+    def _unroll(
+        self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv, rules: CurriculumRules
+    ) -> tuple[LoopState, types.Transition]:
         """``unroll_length`` steps of every env under the current stochastic policy; the terrain
         curriculum moves the envs whose episode ended before they reset."""
         policy = self.make_policy((ts.normalizer, ts.params.policy))
@@ -219,18 +249,32 @@ class PPOLearner:
             stepped, _ = batch_env.advance(loop.envs, actions)
             curricula = rules.after_step(loop.curricula, stepped.env)
             ns = batch_env.reset_done(stepped, rules.params(curricula))
-            state_extras = {"truncation": ns.env.info["truncation"], "episode_done": ns.env.done,
-                            "goal_reached": ns.env.metrics["termination/goal_reached"]}
+            state_extras = {
+                "truncation": ns.env.info["truncation"],
+                "episode_done": ns.env.done,
+                "goal_reached": ns.env.metrics["termination/goal_reached"],
+            }
             transition = types.Transition(
-                observation=obs, action=actions, reward=ns.env.reward, discount=1.0 - ns.env.done,
-                next_observation=network_obs(ns.env, self.privileged), extras={"policy_extras": extras, "state_extras": state_extras})
+                observation=obs,
+                action=actions,
+                reward=ns.env.reward,
+                discount=1.0 - ns.env.done,
+                next_observation=network_obs(ns.env, self.privileged),
+                extras={"policy_extras": extras, "state_extras": state_extras},
+            )
             return (LoopState(envs=ns, curricula=curricula), k), transition
 
         (state, _), data = jax.lax.scan(step, (state, key), None, length=self.config.ppo.unroll_length)
         return state, data
 
-    def _collect(self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv | None = None,
-                 rules: CurriculumRules | None = None) -> tuple[LoopState, types.Transition]:
+    def _collect(
+        self,
+        ts: TrainingState,
+        state: LoopState,
+        key: jax.Array,
+        batch_env: AutoResetEnv | None = None,
+        rules: CurriculumRules | None = None,
+    ) -> tuple[LoopState, types.Transition]:
         """Several unrolls, reshaped to (sequences, unroll_length, ...), sequences unroll-major."""
         batch_env, rules = batch_env or self.batch_env, rules or self.rules
 
@@ -250,12 +294,18 @@ class PPOLearner:
         """One gradient step; a non-finite loss leaves parameters and optimiser untouched."""
         params, opt_state, normalizer, key, skipped = carry
         key, k_loss = jax.random.split(key)
-        (loss, metrics), new_params, new_opt = self.update_fn(params, normalizer, minibatch, k_loss,
-                                                              optimizer_state=opt_state)
+        (loss, metrics), new_params, new_opt = self.update_fn(
+            params, normalizer, minibatch, k_loss, optimizer_state=opt_state
+        )
         bad = jax.lax.psum(jnp.logical_not(jnp.isfinite(loss)).astype(jnp.int32), AXIS) > 0
         keep = lambda old, new: jax.tree.map(lambda a, b: jnp.where(bad, a, b), old, new)  # noqa: E731
-        return (keep(params, new_params), keep(opt_state, new_opt), normalizer, key,
-                skipped + bad.astype(jnp.float32)), metrics
+        return (
+            keep(params, new_params),
+            keep(opt_state, new_opt),
+            normalizer,
+            key,
+            skipped + bad.astype(jnp.float32),
+        ), metrics
 
     def _sgd_pass(self, carry, _, data: types.Transition):
         """One pass over the collected data in shuffled minibatches."""
@@ -283,21 +333,28 @@ class PPOLearner:
             return jax.lax.all_gather(x.reshape((unrolls * length, -1)), AXIS, axis=1, tiled=True)
 
         extras = data.extras["state_extras"]
-        return self.rules.after_collection(goal, step_major(extras["goal_reached"]) > 0,
-                                           step_major(extras["episode_done"]) > 0)
+        return self.rules.after_collection(
+            goal, step_major(extras["goal_reached"]) > 0, step_major(extras["episode_done"]) > 0
+        )
 
-    def _learn(self, ts: TrainingState, goal: cur.CurriculumState, data: types.Transition,
-               key: jax.Array) -> tuple[TrainingState, cur.CurriculumState, dict]:
+    def _learn(
+        self, ts: TrainingState, goal: cur.CurriculumState, data: types.Transition, key: jax.Array
+    ) -> tuple[TrainingState, cur.CurriculumState, dict]:
         """Observation statistics, curriculum, then ``num_updates_per_batch`` SGD passes over ``data``."""
         obs = data.observation.reshape((-1, data.observation.shape[-1]))
         finite = jnp.all(jnp.isfinite(obs), axis=-1)
         normalizer = ts.normalizer
         if self.config.ppo.normalize_observations:
-            normalizer = running_statistics.update(normalizer, jnp.where(finite[:, None], obs, 0.0),
-                                                   weights=finite.astype(jnp.float32), pmap_axis_name=AXIS)
+            normalizer = running_statistics.update(
+                normalizer,
+                jnp.where(finite[:, None], obs, 0.0),
+                weights=finite.astype(jnp.float32),
+                pmap_axis_name=AXIS,
+            )
         carry = (ts.params, ts.optimizer_state, normalizer, key, jnp.zeros(()))
         (params, opt_state, _, _, skipped), metrics = jax.lax.scan(
-            functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch)
+            functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch
+        )
         metrics = jax.tree.map(jnp.mean, metrics)
         metrics["skipped_updates"] = skipped
         return TrainingState(params, opt_state, normalizer), self._curriculum(goal, data), metrics
@@ -312,13 +369,13 @@ class PPOLearner:
 
     def _epoch(self, ts: TrainingState, state: LoopState, key: jax.Array):
         """``iterations_per_epoch`` PPO iterations; returns the drained episode totals and losses."""
-        (ts, state, _), metrics = jax.lax.scan(self._iteration, (ts, state, key), None,
-                                               length=self.iterations_per_epoch)
+        (ts, state, _), metrics = jax.lax.scan(
+            self._iteration, (ts, state, key), None, length=self.iterations_per_epoch
+        )
         state, totals = self._drain(state, self.batch_env, self.rules)
         totals = jax.lax.psum(totals, AXIS)
         metrics = jax.tree.map(jnp.mean, metrics)
         return ts, state, {"totals": totals, "losses": metrics}
-
 
     def _drain(self, state: LoopState, batch_env: AutoResetEnv, rules: CurriculumRules) -> tuple[LoopState, dict]:
         """The episode totals and the curricula's per-cell sums since the last drain; both zeroed."""
@@ -328,6 +385,7 @@ class PPOLearner:
 
     def _collect_epoch(self, ts: TrainingState, state: LoopState, key: jax.Array):
         """``iterations_per_epoch`` collections with the same keys as ``_epoch``, without learning."""
+
         def one(carry, _):
             state, key = carry
             key, k_collect, _ = jax.random.split(key, 3)

@@ -12,15 +12,16 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_mjx.task import termination
 from hsa_mjx.config import EnvConfig
+from hsa_mjx.task import termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
@@ -35,11 +36,14 @@ def parse_types(text: str, config: EnvConfig) -> tuple[str, ...]:
         types = tuple(t.strip() for t in text.split(",") if t.strip())
     unknown = [t for t in types if t not in TERRAIN_TYPES]
     if not types or unknown:
-        raise ValueError(f"--terrain-types: unknown type(s) {unknown or [text]}; give 'all' or a comma-separated "
-                         f"list of {list(TERRAIN_TYPES)}")
+        raise ValueError(
+            f"--terrain-types: unknown type(s) {unknown or [text]}; give 'all' or a comma-separated "
+            f"list of {list(TERRAIN_TYPES)}"
+        )
     if config.goal.mode != "spiral" and any(t in TRACK_TYPES for t in types):
-        raise ValueError(f"--terrain-types: {list(TRACK_TYPES)} need goal.mode spiral; this run's goals are "
-                         f"{config.goal.mode!r}")
+        raise ValueError(
+            f"--terrain-types: {list(TRACK_TYPES)} need goal.mode spiral; this run's goals are {config.goal.mode!r}"
+        )
     return types
 
 
@@ -58,8 +62,15 @@ def parse_levels(text: str) -> tuple[float, ...]:
 def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, ...]) -> EnvConfig:
     """The env with one tile of each of ``types`` per difficulty level (random types: one drawn terrain);
     ``levels`` must be one difficulty, or evenly spaced from 0 (``level_groups``)."""
-    terrain = dataclasses.replace(config.terrain, types=types, proportions=(1.0 / len(types),) * len(types),
-                                  levels=len(levels), difficulty=max(levels), per_env=True, tiles_per_type=1)
+    terrain = dataclasses.replace(
+        config.terrain,
+        types=types,
+        proportions=(1.0 / len(types),) * len(types),
+        levels=len(levels),
+        difficulty=max(levels),
+        per_env=True,
+        tiles_per_type=1,
+    )
     if not np.allclose(terrain.level_difficulties, levels):
         raise ValueError(f"difficulties {levels} are not one value or evenly spaced from 0")
     return dataclasses.replace(config, scene="terrain", terrain=terrain)
@@ -75,8 +86,14 @@ def level_groups(levels: tuple[float, ...]) -> list[tuple[float, ...]]:
     return [(d,) for d in ordered]
 
 
-def evaluate(config: EnvConfig, rollout: Callable[..., dict], types: tuple[str, ...], levels: tuple[float, ...],
-             episodes: int, seed: int) -> list[dict[str, Any]]:
+def evaluate(
+    config: EnvConfig,
+    rollout: Callable[..., dict],
+    types: tuple[str, ...],
+    levels: tuple[float, ...],
+    episodes: int,
+    seed: int,
+) -> list[dict[str, Any]]:
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
@@ -94,11 +111,17 @@ def evaluate(config: EnvConfig, rollout: Callable[..., dict], types: tuple[str, 
         outcome = episode_outcomes(traces)
         for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
             mine = (type_of == i) & (level_of == level)
-            rows.append({"type": name, "difficulty": difficulty, "episodes": int(mine.sum()),
-                         "success_rate": float(outcome["success"][mine].mean()),
-                         "mean_progress_m": float(outcome["progress"][mine].mean()),
-                         "mean_final_distance": float(outcome["final_distance"][mine].mean()),
-                         "ended_by": ended_by(outcome["reasons"][mine])})
+            rows.append(
+                {
+                    "type": name,
+                    "difficulty": difficulty,
+                    "episodes": int(mine.sum()),
+                    "success_rate": float(outcome["success"][mine].mean()),
+                    "mean_progress_m": float(outcome["progress"][mine].mean()),
+                    "mean_final_distance": float(outcome["final_distance"][mine].mean()),
+                    "ended_by": ended_by(outcome["reasons"][mine]),
+                }
+            )
     return sorted(rows, key=lambda r: (types.index(r["type"]), r["difficulty"]))
 
 
@@ -108,8 +131,12 @@ def episode_outcomes(traces: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     last = np.maximum(alive.sum(axis=1) - 1, 0)
     rows = np.arange(alive.shape[0])
     final = traces["distance"][rows, last]
-    return {"success": traces["success"][rows, last] > 0.5, "progress": traces["start_distance"] - final,
-            "final_distance": final, "reasons": traces["reasons"][rows, last] > 0.5}
+    return {
+        "success": traces["success"][rows, last] > 0.5,
+        "progress": traces["start_distance"] - final,
+        "final_distance": final,
+        "reasons": traces["reasons"][rows, last] > 0.5,
+    }
 
 
 def ended_by(reasons: np.ndarray) -> dict[str, float]:
@@ -131,8 +158,10 @@ def table(rows: list[dict[str, Any]]) -> str:
         parts = []
         for d in levels:
             group = [cell[(t, d)] for t in types] if name == "mean" else [cell[(name, d)]]
-            parts.append(f"{np.mean([g['success_rate'] for g in group]):>15.0%}"
-                         f"{np.mean([g['mean_progress_m'] for g in group]):>12.2f}")
+            parts.append(
+                f"{np.mean([g['success_rate'] for g in group]):>15.0%}"
+                f"{np.mean([g['mean_progress_m'] for g in group]):>12.2f}"
+            )
         lines.append(f"{name:<18}" + "".join(parts))
     return "\n".join(lines)
 
@@ -140,6 +169,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 def write(rows: list[dict[str, Any]], header: dict[str, Any], out: Path) -> list[Path]:
     """``terrain_eval.json`` and ``terrain_eval.png`` (success rate and progress per type and difficulty)."""
     from train.plots import terrain_grid
+
     out.mkdir(parents=True, exist_ok=True)
     path = out / "terrain_eval.json"
     path.write_text(json.dumps({**header, "rows": rows}, indent=1))

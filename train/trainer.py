@@ -18,9 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
+from hsa_mjx.batch.auto_reset import summarize
 from hsa_mjx.curricula import goal as cur
 from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.batch.auto_reset import summarize
 from train import checkpoint, distributed, plots
 from train import config as tcfg
 from train.logger import HEADLINE, MetricsLogger, ProgressBar
@@ -76,7 +76,7 @@ def select_devices(config: tcfg.TrainConfig) -> list:
     if config.run.num_devices:
         if config.run.num_devices > len(devices):
             raise ValueError(f"run.num_devices = {config.run.num_devices} but only {len(devices)} local devices exist")
-        devices = devices[:config.run.num_devices]
+        devices = devices[: config.run.num_devices]
     tcfg.validate(config, device_count=distributed.global_device_count(devices))
     return devices
 
@@ -91,8 +91,9 @@ def replicate_for_pmap(tree: Any, devices: list) -> Any:
     return jax.pmap(lambda x: x, axis_name=AXIS)(replicate(tree, devices))
 
 
-def _payload(ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array,
-             terrain: dict | None = None) -> dict[str, Any]:
+def _payload(
+    ts: TrainingState, cstate: cur.CurriculumState, key: jax.Array, terrain: dict | None = None
+) -> dict[str, Any]:
     """What a checkpoint holds; ``terrain``: every env's terrain levels (with the terrain curriculum)."""
     payload = {"training_state": ts, "curriculum": cstate, "rng": key}
     return payload if terrain is None else {**payload, "terrain_levels": terrain}
@@ -105,12 +106,14 @@ def restore_terrain(config: tcfg.TrainConfig, meta: dict, batch: int) -> tcur.Te
         return None
     template = {"terrain_levels": {k: np.zeros((saved,), np.int32) for k in ("row", "level")}}
     restored = checkpoint.load(meta["path"], template)["terrain_levels"]
-    if int(np.max(restored["row"], initial=0)) >= len(config.env.terrain.types) or \
-            int(np.max(restored["level"], initial=0)) >= config.env.terrain.levels:
+    if (
+        int(np.max(restored["row"], initial=0)) >= len(config.env.terrain.types)
+        or int(np.max(restored["level"], initial=0)) >= config.env.terrain.levels
+    ):
         raise ValueError(f"checkpoint {meta['path']}: its terrain levels do not fit env.terrain (types, levels)")
     if saved == batch * jax.process_count():  # every process's envs, in process order: this one's share
         start = jax.process_index() * batch
-        restored = {k: v[start:start + batch] for k, v in restored.items()}
+        restored = {k: v[start : start + batch] for k, v in restored.items()}
     return tcur.from_host(restored, batch, config.run.seed)
 
 
@@ -150,8 +153,10 @@ def _start_run_dir(run_dir: Path, config_dict: dict, overwrite: bool) -> None:
         return None
     found = run_files(run_dir)
     if found and not overwrite:
-        raise ValueError(f"{run_dir} already holds a run ({', '.join(found)}); pass --resume to continue it, "
-                         f"--overwrite to start it afresh, or choose another --run-dir")
+        raise ValueError(
+            f"{run_dir} already holds a run ({', '.join(found)}); pass --resume to continue it, "
+            f"--overwrite to start it afresh, or choose another --run-dir"
+        )
     for name in found:  # --overwrite: only the run's own files go
         target = run_dir / name
         shutil.rmtree(target) if target.is_dir() else target.unlink()
@@ -172,14 +177,17 @@ def _resume_meta(run_dir: Path, config_dict: dict) -> dict:
     defaults = json.loads(json.dumps(tcfg.to_dict(tcfg.TrainConfig())))
     bad = checkpoint.incompatibilities(_current_keys(meta["config"]), now, defaults)
     if bad:
-        raise ValueError(f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
-                         f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir.")
+        raise ValueError(
+            f"checkpoint {path} was written with a different config; these keys differ: {bad}. "
+            f"Resume with the run's own config ({run_dir / 'config.yaml'}) or start a new run dir."
+        )
     meta["path"] = path
     return meta
 
 
-def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False,
-          overwrite: bool = False) -> dict:
+def train(
+    config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False, overwrite: bool = False
+) -> dict:
     """Train PPO with the curriculum; checkpoints, logs and plots go to ``run_dir``. Returns a summary.
 
     ``resume`` continues the run in ``run_dir`` from its newest readable checkpoint; ``overwrite``
@@ -206,29 +214,39 @@ def train(config: tcfg.TrainConfig, run_dir: str | Path, resume: bool = False, q
         print(f"resumed from {meta['path']} at step {step:,}", flush=True)
     elif init is not None:
         ts = warm_start(ts, init, key)
-        what = ("the policy network and observation statistics of the policy file" if "policy" in init
-                else "networks and observation statistics from")
-        print(f"starting from {what} {init['path']} (trained for {init['step']:,} env steps)"
-              + (f", statistics' count restarted at {init['count']:,}" if init["count"] else "")
-              + ("; the value network starts fresh" if "policy" in init else ""), flush=True)
+        what = (
+            "the policy network and observation statistics of the policy file"
+            if "policy" in init
+            else "networks and observation statistics from"
+        )
+        print(
+            f"starting from {what} {init['path']} (trained for {init['step']:,} env steps)"
+            + (f", statistics' count restarted at {init['count']:,}" if init["count"] else "")
+            + ("; the value network starts fresh" if "policy" in init else ""),
+            flush=True,
+        )
     key, k_env = jax.random.split(key)
     env_keys = distributed.env_keys(k_env, config.run.num_envs, devices)
     ts_r = replicate_for_pmap(ts, devices)
     state = learner.reset(env_keys, cstate, levels)
     extra = {"physics_backend": env.physics_backend}
     if distributed.is_main() and not quiet:
-        print(f"compiling the training epoch on the {env.physics_backend} backend (the first epoch includes it)...",
-              flush=True)
+        print(
+            f"compiling the training epoch on the {env.physics_backend} backend (the first epoch includes it)...",
+            flush=True,
+        )
     return _loop(config, learner, devices, run_dir, ts_r, state, key, step, quiet, extra, resumed=meta is not None)
 
 
 def _announce(config: tcfg.TrainConfig, run_dir: Path, devices: list) -> str:
     """The lines printed before anything compiles: where the run goes and what it trains."""
     env, run = config.env, config.run
-    return (f"run dir: {run_dir}\n"
-            f"  env {env.name} ({env.scene} scene, goals {env.goal.mode}, physics.backend {env.physics.backend}), "
-            f"{run.num_envs:,} envs on {len(devices)} {devices[0].platform.upper()} device(s), "
-            f"{run.num_timesteps:,} env steps, seed {run.seed}")
+    return (
+        f"run dir: {run_dir}\n"
+        f"  env {env.name} ({env.scene} scene, goals {env.goal.mode}, physics.backend {env.physics.backend}), "
+        f"{run.num_envs:,} envs on {len(devices)} {devices[0].platform.upper()} device(s), "
+        f"{run.num_timesteps:,} env steps, seed {run.seed}"
+    )
 
 
 def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra, resumed: bool = False) -> dict:
@@ -251,8 +269,9 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
             for k, v in out["totals"].items():
                 totals_acc[k] = totals_acc.get(k, 0.0) + float(np.asarray(v)[0])
             if epoch % config.run.epochs_per_log == 0 or step >= config.run.num_timesteps:
-                record = _record(out, totals_acc, learner.goal_curriculum(state), config, learner.env_steps_per_epoch / dt,
-                                 t_start)
+                record = _record(
+                    out, totals_acc, learner.goal_curriculum(state), config, learner.env_steps_per_epoch / dt, t_start
+                )
                 logger.log(step, record)
                 latest.update({k: record[k] for k in HEADLINE if k in record})  # a log without episodes has none
                 totals_acc = {}
@@ -265,8 +284,15 @@ def _loop(config, learner, devices, run_dir, ts, state, key, step, quiet, extra,
             _save(run_dir, step, ts, state, key, config, learner, extra)
     bar.close()
     logger.close()
-    summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s,
-               "interrupted": stopped, "checkpoint": None, **extra, **{k: latest.get(k) for k in HEADLINE}}
+    summary = {
+        "env_steps": step,
+        "wall_s": time.perf_counter() - t_start,
+        "first_epoch_s": first_epoch_s,
+        "interrupted": stopped,
+        "checkpoint": None,
+        **extra,
+        **{k: latest.get(k) for k in HEADLINE},
+    }
     return _finish(run_dir, summary) if main else summary
 
 

@@ -38,17 +38,24 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
         return _read_policy(config, directory)
     source = Path(config.run.init_from)
     if not source.exists():
-        raise FileNotFoundError(f"run.init_from: {source} not found (give a run dir, one of its checkpoint dirs, "
-                                "a policy dir or a shipped policy's name)")
+        raise FileNotFoundError(
+            f"run.init_from: {source} not found (give a run dir, one of its checkpoint dirs, "
+            "a policy dir or a shipped policy's name)"
+        )
     path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
     meta = checkpoint.read_meta(path)
     src = tcfg.from_dict(meta["config"])
-    bad = [f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
-           for k in checkpoint.COMPATIBLE_PPO_KEYS if getattr(src.ppo, k) != getattr(config.ppo, k)]
+    bad = [
+        f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
+        for k in checkpoint.COMPATIBLE_PPO_KEYS
+        if getattr(src.ppo, k) != getattr(config.ppo, k)
+    ]
     bad += _observation_mismatch(observation_size(src.env.observation), config)
     if privileged_size(src) != privileged_size(config):
-        bad.append(f"privileged critic inputs ({privileged_size(src)} vs {privileged_size(config)}: ppo.privileged_critic, "
-                   "env.observation.height_scan)")
+        bad.append(
+            f"privileged critic inputs ({privileged_size(src)} vs {privileged_size(config)}: ppo.privileged_critic, "
+            "env.observation.height_scan)"
+        )
     if bad:
         raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
     return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
@@ -59,8 +66,10 @@ def _observation_mismatch(size: int, config: tcfg.TrainConfig) -> list[str]:
     own = observation_size(config.env.observation)
     if size == own:
         return []
-    return [f"observation size ({size} vs {own}: env.observation: heading, servo_targets, clock_period_s, "
-            "hinge_angles, height_scan)"]
+    return [
+        f"observation size ({size} vs {own}: env.observation: heading, servo_targets, clock_period_s, "
+        "hinge_angles, height_scan)"
+    ]
 
 
 def _read_policy(config: tcfg.TrainConfig, directory: Path) -> dict:
@@ -69,18 +78,27 @@ def _read_policy(config: tcfg.TrainConfig, directory: Path) -> dict:
     net, ppo = policy.meta["network"], config.ppo
     hidden = [int(layer["out"]) for layer in net["layers"][:-1]]
     bad = _observation_mismatch(policy.observation_size, config)
-    for key, theirs, ours in (("policy_hidden_sizes", hidden, list(ppo.policy_hidden_sizes)),
-                              ("activation", net["activation"], ppo.activation),
-                              ("distribution_type", net["distribution_type"], ppo.distribution_type),
-                              ("observation_clip", float(net["observation_clip"]),
-                               ppo.observation_clip if ppo.normalize_observations else 0.0)):
+    for key, theirs, ours in (
+        ("policy_hidden_sizes", hidden, list(ppo.policy_hidden_sizes)),
+        ("activation", net["activation"], ppo.activation),
+        ("distribution_type", net["distribution_type"], ppo.distribution_type),
+        (
+            "observation_clip",
+            float(net["observation_clip"]),
+            ppo.observation_clip if ppo.normalize_observations else 0.0,
+        ),
+    ):
         if theirs != ours:
             bad.append(f"ppo.{key} ({theirs!r} vs {ours!r})")
     if bad:
         raise ValueError(f"run.init_from: the policy in {directory} does not fit this config: {bad}")
     step = int(policy.meta.get("source", {}).get("env_steps") or 0)
-    return {"policy": policy, "path": directory, "step": step,
-            "count": config.run.init_normalizer_count or POLICY_NORMALIZER_COUNT}
+    return {
+        "policy": policy,
+        "path": directory,
+        "step": step,
+        "count": config.run.init_normalizer_count or POLICY_NORMALIZER_COUNT,
+    }
 
 
 def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
@@ -97,6 +115,7 @@ def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
 def _from_policy(ts: TrainingState, policy: pol.NumpyPolicy, count: int) -> TrainingState:
     """The policy file's layers and normaliser in ``ts``; the value network and noise scale stay fresh."""
     from train.export import layer_at, layer_paths
+
     new = jax.tree.map(lambda x: x, ts.params.policy["params"])  # fresh containers to write into
     for path, kernel, bias in zip(layer_paths(new), policy.params["kernels"], policy.params["biases"]):
         layer = layer_at(new, path)
@@ -114,7 +133,7 @@ def _statistics(stats: Any, policy: pol.NumpyPolicy, count: int) -> Any:
     n = mean.shape[0]
     full_mean, full_std = stats.mean.at[:n].set(mean), stats.std.at[:n].set(std)
     new_count = _count_like(stats.count, count)
-    variance = jnp.where(jnp.arange(size) < n, full_std ** 2 * count, stats.summed_variance)
+    variance = jnp.where(jnp.arange(size) < n, full_std**2 * count, stats.summed_variance)
     return stats.replace(count=new_count, mean=full_mean, std=full_std, summed_variance=variance)
 
 

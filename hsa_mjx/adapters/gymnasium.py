@@ -24,8 +24,8 @@ from gymnasium import spaces
 from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.sim.backend import one_env_config
+from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.termination import REASONS
 from hsa_mjx.task.types import EnvState
 
@@ -47,16 +47,23 @@ def pick_camera(camera: str | int | None, overrides: dict[str, Any]) -> str | in
     if camera is not None:
         given["camera"] = camera
     if len(given) > 1:
-        raise ValueError(f"pass one camera argument, got {sorted(given)} (camera_name and camera_id are the "
-                         "original's names for camera)")
+        raise ValueError(
+            f"pass one camera argument, got {sorted(given)} (camera_name and camera_id are the "
+            "original's names for camera)"
+        )
     return next(iter(given.values()), None)
 
 
 def _with_outputs(state: EnvState) -> tuple[EnvState, dict[str, Any]]:
     """The state and what a Gymnasium step returns from it (fetched from the device in one call)."""
-    return state, {"obs": state.obs, "reward": state.reward, "done": state.done,
-                   "truncation": state.info["truncation"], "metrics": state.metrics,
-                   "goal": state.pipeline_state.task.goal_xy}
+    return state, {
+        "obs": state.obs,
+        "reward": state.reward,
+        "done": state.done,
+        "truncation": state.info["truncation"],
+        "metrics": state.metrics,
+        "goal": state.pipeline_state.task.goal_xy,
+    }
 
 
 def time_limit_of_make() -> int | None:
@@ -74,7 +81,7 @@ def time_limit_of_make() -> int | None:
     return None
 
 
-def from_registry(**kwargs: Any) -> "HSAGymEnv":
+def from_registry(**kwargs: Any) -> HSAGymEnv:
     """The entry point of ``hsa_mjx/HSA-v0``: an :class:`HSAGymEnv` whose own episode limit is the
     ``max_episode_steps`` given to ``gymnasium.make`` (when one is; it must agree with
     ``termination__max_episode_steps`` when both are given)."""
@@ -82,8 +89,10 @@ def from_registry(**kwargs: Any) -> "HSAGymEnv":
     if limit is not None:
         own = kwargs.setdefault("termination__max_episode_steps", limit)
         if own != limit:
-            raise ValueError(f"gymnasium.make got max_episode_steps={limit} and termination__max_episode_steps="
-                             f"{own}: give one (both set the episode's length)")
+            raise ValueError(
+                f"gymnasium.make got max_episode_steps={limit} and termination__max_episode_steps="
+                f"{own}: give one (both set the episode's length)"
+            )
     return HSAGymEnv(**kwargs)
 
 
@@ -111,9 +120,15 @@ class HSAGymEnv(gymnasium.Env):
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50}
 
-    def __init__(self, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
-                 width: int = 640, height: int = 480, camera: str | int | None = None,
-                 **overrides: Any):
+    def __init__(
+        self,
+        config: str | Path | EnvConfig = "flat",
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | int | None = None,
+        **overrides: Any,
+    ):
         from hsa_mjx.adapters.original_args import build_config
 
         self.render_mode = check_render_mode(render_mode)

@@ -18,8 +18,9 @@ both flags false, ignoring that env's action. docs/environment.md has the full c
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium
 import jax
@@ -35,11 +36,11 @@ from gymnasium.wrappers.vector import JaxToNumpy
 from hsa_mjx.adapters.checks import check_actions
 from hsa_mjx.adapters.gymnasium import pick_camera
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
-from hsa_mjx.config import EnvConfig
-from hsa_mjx.task.env import HSAEnv
-from hsa_mjx.sim.model import local_device
-from hsa_mjx.task.termination import REASONS
 from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState, per_env_picker, select_sim
+from hsa_mjx.config import EnvConfig
+from hsa_mjx.sim.model import local_device
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.task.termination import REASONS
 from hsa_mjx.task.types import EnvState
 
 OUTPUTS = ("numpy", "jax")
@@ -85,19 +86,36 @@ class HSAVectorEnv(VectorEnv):
     ``info`` contract. Wrap in :class:`NumpyOutput` (the default of ``make_vector_env``) for numpy.
     """
 
-    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 50,
-                "autoreset_mode": AutoresetMode.SAME_STEP, "jax": True}
+    metadata = {
+        "render_modes": list(RENDER_MODES),
+        "render_fps": 50,
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+        "jax": True,
+    }
 
-    def __init__(self, num_envs: int, config: str | Path | EnvConfig = "flat", render_mode: str | None = None,
-                 width: int = 640, height: int = 480, camera: str | int | None = None, render_env: int = 0,
-                 check_finite: bool = True, autoreset_mode: str | AutoresetMode = "same_step", **overrides: Any):
+    def __init__(
+        self,
+        num_envs: int,
+        config: str | Path | EnvConfig = "flat",
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | int | None = None,
+        render_env: int = 0,
+        check_finite: bool = True,
+        autoreset_mode: str | AutoresetMode = "same_step",
+        **overrides: Any,
+    ):
         from hsa_mjx.adapters.original_args import build_config
 
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.num_envs = int(num_envs)
-        if isinstance(render_env, bool) or not isinstance(render_env, (int, np.integer)) \
-                or not 0 <= render_env < num_envs:
+        if (
+            isinstance(render_env, bool)
+            or not isinstance(render_env, (int, np.integer))
+            or not 0 <= render_env < num_envs
+        ):
             raise ValueError(f"render_env must be an env index in 0..{num_envs - 1}, got {render_env!r}")
         self.render_mode = check_render_mode(render_mode)
         self.autoreset_mode = _check_autoreset_mode(autoreset_mode)
@@ -106,7 +124,9 @@ class HSAVectorEnv(VectorEnv):
         self._camera = check_camera(self.env.robot.mj_model, camera)
         self.render_env, self.check_finite = render_env, check_finite
         self._render_size = (width, height)
-        self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.env.dt)), autoreset_mode=self.autoreset_mode)
+        self.metadata = dict(
+            self.metadata, render_fps=int(round(1.0 / self.env.dt)), autoreset_mode=self.autoreset_mode
+        )
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (self.env.observation_size,), np.float32)
         self.single_action_space = spaces.Box(-1.0, 1.0, (self.env.action_size,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -141,8 +161,9 @@ class HSAVectorEnv(VectorEnv):
             raise RuntimeError("call reset() before step()")
         actions = check_actions(actions, self.action_space.shape, self.check_finite)
         if self.autoreset_mode is AutoresetMode.NEXT_STEP:
-            self._state, self._pending, out = self._next_step_fn(self._state, self._pending,
-                                                                 jax.device_put(actions, self._device))
+            self._state, self._pending, out = self._next_step_fn(
+                self._state, self._pending, jax.device_put(actions, self._device)
+            )
             obs, reward, terminated, truncated, info = out
             return obs, reward, terminated, truncated, self._info(info)
         self._state, out = self._step_fn(self._state, jax.device_put(actions, self._device))
@@ -182,8 +203,16 @@ class HSAVectorEnv(VectorEnv):
         truncated = nxt.info["truncation"] > 0
         final = env_info(nxt)
         final.update(episode_return=episode.ret, episode_length=episode.length.astype(jnp.int32))
-        return new, (new.env.obs, nxt.reward, done & jnp.logical_not(truncated), truncated,
-                     env_info(new.env), nxt.obs, final, done)
+        return new, (
+            new.env.obs,
+            nxt.reward,
+            done & jnp.logical_not(truncated),
+            truncated,
+            env_info(new.env),
+            nxt.obs,
+            final,
+            done,
+        )
 
     def _next_step_outputs(self, state: BatchState, pending: jax.Array, actions: jax.Array):
         """``next_step``: envs that ended on the last step show the first state of their next episode
@@ -197,8 +226,9 @@ class HSAVectorEnv(VectorEnv):
         reward = jnp.where(pending, 0.0, nxt.reward)
         return kept, done, (shown.obs, reward, done & jnp.logical_not(truncated), truncated, env_info(shown))
 
-    def _info(self, info: dict, final_obs: jax.Array | None = None, final: dict | None = None,
-              done: jax.Array | None = None) -> dict[str, Any]:
+    def _info(
+        self, info: dict, final_obs: jax.Array | None = None, final: dict | None = None, done: jax.Array | None = None
+    ) -> dict[str, Any]:
         """Gymnasium's vector info layout: every ``key`` with a boolean ``_key`` saying which envs hold it."""
         if self._all is None:
             self._all = jnp.ones(self.num_envs, bool)

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -51,8 +52,9 @@ def _servo_limit(name: str, value: Any) -> tuple[float]:
     if base in SERVO_LIMITS:
         return (SERVO_LIMITS[base],)
     why = " (the original could not load it either: it has no 'goal' site)" if base in UNLOADABLE_XML else ""
-    raise ValueError(f"{name}={value!r} is not supported{why}; this project's asset stands for one of "
-                     f"{list(SERVO_LIMITS)}")
+    raise ValueError(
+        f"{name}={value!r} is not supported{why}; this project's asset stands for one of {list(SERVO_LIMITS)}"
+    )
 
 
 def _goal_xy(name: str, value: Any) -> tuple[str, tuple[float, float]]:
@@ -72,30 +74,40 @@ def _same(*keys: str, note: str = "") -> OriginalArg:
 
 def _spiral(key: str) -> OriginalArg:
     """A spiral parameter: the path of the checkpoints and of the spiral terrain's track."""
-    return _same(f"terrain.spiral.{key}",
-                 note="the spiral terrain's track follows it too (the original's track ignored it)")
+    return _same(
+        f"terrain.spiral.{key}", note="the spiral terrain's track follows it too (the original's track ignored it)"
+    )
 
 
 _VIEWER = "a setting of the original's viewer with no counterpart in this renderer"
 ORIGINAL_ARGS: dict[str, OriginalArg] = {
-    "xml_file": OriginalArg(("control.servo_target_limit",), convert=_servo_limit,
-                            note="one asset here; the two loadable models differ only in their servo "
-                                 "range (Loose 6.28, NoStiff 3141.5 rad); the other two are refused"),
+    "xml_file": OriginalArg(
+        ("control.servo_target_limit",),
+        convert=_servo_limit,
+        note="one asset here; the two loadable models differ only in their servo "
+        "range (Loose 6.28, NoStiff 3141.5 rad); the other two are refused",
+    ),
     "frame_skip": _same("control.frame_skip"),
     "max_increment": _same("control.max_increment"),
     "smooth_positions": _same("control.smooth_positions"),
-    "forward_reward_weight": _same("reward.forward", note="pays the signed velocity towards the goal; the "
-                                   "original paid max(0, v.u) (reward__forward_rectified=True restores it)"),
+    "forward_reward_weight": _same(
+        "reward.forward",
+        note="pays the signed velocity towards the goal; the "
+        "original paid max(0, v.u) (reward__forward_rectified=True restores it)",
+    ),
     "ctrl_cost_weight": _same("reward.ctrl"),
-    "contact_cost_weight": _same("reward.contact", note="weighs the real foot contact force above 50 N; "
-                                 "the original's term read a torque and was always 0"),
+    "contact_cost_weight": _same(
+        "reward.contact",
+        note="weighs the real foot contact force above 50 N; the original's term read a torque and was always 0",
+    ),
     "yvel_cost_weight": _same("reward.lateral", note="subtracted as a cost; the original added it as a reward"),
     "constraint_cost_weight": _same("reward.constraint"),
     "acc_cost_weight": _same("reward.acceleration"),
     "joint_vel_cost_weight": _same("reward.joint_velocity"),
     "distance_reward_weight": _same("reward.distance"),
-    "early_termination_penalty": _same("reward.termination", note="acts here; the original ignored it and "
-                                       "always subtracted 100 (the default here)"),
+    "early_termination_penalty": _same(
+        "reward.termination", note="acts here; the original ignored it and always subtracted 100 (the default here)"
+    ),
     "stagnation_penalty_weight": _same("reward.stagnation", note="its position window is cleared at reset"),
     "alive_bonus": _same("reward.alive"),
     "checkpoint_reward": _same("reward.checkpoint"),
@@ -104,32 +116,47 @@ ORIGINAL_ARGS: dict[str, OriginalArg] = {
     "start_radius": _spiral("start_radius"),
     "end_radius": _spiral("end_radius"),
     "num_turns": _spiral("turns"),
-    "max_episode_steps": _same("termination.max_episode_steps", note="the env truncates there; the original "
-                               "left that to a TimeLimit wrapper. gymnasium.make keeps this name for its own "
-                               "TimeLimit; the registered entry point reads it from there and makes it the "
-                               "env's limit too"),
+    "max_episode_steps": _same(
+        "termination.max_episode_steps",
+        note="the env truncates there; the original "
+        "left that to a TimeLimit wrapper. gymnasium.make keeps this name for its own "
+        "TimeLimit; the registered entry point reads it from there and makes it the "
+        "env's limit too",
+    ),
     "ensure_flat_spawn": _same("terrain.flat_spawn.enabled"),
-    "enable_terrain": OriginalArg(("scene", "terrain_type"), "terrain",
-                                  "true: the heightfield scene ('terrain'); false: the plane ('flat')"),
-    "terrain_type": OriginalArg(("terrain_type", "goal.mode"), "terrain",
-                                "a generator name as in the original; 'spiral' also sets spiral goals (as in "
-                                "the original, also without terrain). A type other than flat/spiral without "
-                                "a heightfield: with enable_terrain=False a warning (the original drew no "
-                                "terrain; here the plane keeps the flat goal rule), without it an error"),
-    "goal_position": OriginalArg(("goal.mode", "goal.position"), "terrain",
-                                 note="a fixed goal at (x, y); the original overwrote it at every reset (so its "
-                                      "goals were random); z is the marker height, ignored. Ignored with a "
-                                      "warning when terrain_type='spiral' (the checkpoints are the goals)"),
-    "actuator_group": OriginalArg(handling="only [1]", note="the position servos (group 1) are the only "
-                                  "actuators here; the torque (0) and velocity (2) groups are not modelled"),
+    "enable_terrain": OriginalArg(
+        ("scene", "terrain_type"), "terrain", "true: the heightfield scene ('terrain'); false: the plane ('flat')"
+    ),
+    "terrain_type": OriginalArg(
+        ("terrain_type", "goal.mode"),
+        "terrain",
+        "a generator name as in the original; 'spiral' also sets spiral goals (as in "
+        "the original, also without terrain). A type other than flat/spiral without "
+        "a heightfield: with enable_terrain=False a warning (the original drew no "
+        "terrain; here the plane keeps the flat goal rule), without it an error",
+    ),
+    "goal_position": OriginalArg(
+        ("goal.mode", "goal.position"),
+        "terrain",
+        note="a fixed goal at (x, y); the original overwrote it at every reset (so its "
+        "goals were random); z is the marker height, ignored. Ignored with a "
+        "warning when terrain_type='spiral' (the checkpoints are the goals)",
+    ),
+    "actuator_group": OriginalArg(
+        handling="only [1]",
+        note="the position servos (group 1) are the only "
+        "actuators here; the torque (0) and velocity (2) groups are not modelled",
+    ),
     "action_group": OriginalArg(handling="only [1]", note="actions drive the position servos (group 1)"),
-    "clip_actions": OriginalArg(handling="warn", note="actions are always clipped to [-1, 1]; the original "
-                                "stored this value and never used it"),
+    "clip_actions": OriginalArg(
+        handling="warn", note="actions are always clipped to [-1, 1]; the original stored this value and never used it"
+    ),
     "render_mode": OriginalArg(handling="render", note="the adapter's own render_mode"),
     "width": OriginalArg(handling="render", note="the adapter's rgb_array frame width"),
     "height": OriginalArg(handling="render", note="the adapter's rgb_array frame height"),
-    "camera_name": OriginalArg(handling="render", note="the adapter's camera (a camera of this asset: "
-                               "'track', 'overview')"),
+    "camera_name": OriginalArg(
+        handling="render", note="the adapter's camera (a camera of this asset: 'track', 'overview')"
+    ),
     "camera_id": OriginalArg(handling="render", note="the adapter's camera by id (-1: the free camera)"),
     "default_camera_config": OriginalArg(handling="warn", note=_VIEWER),
     "max_geom": OriginalArg(handling="warn", note=_VIEWER),
@@ -141,23 +168,31 @@ CONFIG_SECTIONS = tuple(field.name for field in dataclasses.fields(EnvConfig))
 
 def config_keys() -> list[str]:
     """Every config key in the ``section__key`` form that keyword arguments use."""
+
     def walk(node: Any, prefix: str) -> list[str]:
         if not dataclasses.is_dataclass(node):
             return [prefix]
-        return [key for field in dataclasses.fields(node)
-                for key in walk(getattr(node, field.name), f"{prefix}__{field.name}" if prefix else field.name)]
+        return [
+            key
+            for field in dataclasses.fields(node)
+            for key in walk(getattr(node, field.name), f"{prefix}__{field.name}" if prefix else field.name)
+        ]
+
     return walk(EnvConfig(), "")
 
 
 def split_arguments(kwargs: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """(original arguments, config overrides); anything else is a ValueError listing both kinds."""
     original = {k: v for k, v in kwargs.items() if k in ORIGINAL_ARGS}
-    config = {k: v for k, v in kwargs.items()
-              if k not in original and k.replace("__", ".").split(".")[0] in CONFIG_SECTIONS}
+    config = {
+        k: v for k, v in kwargs.items() if k not in original and k.replace("__", ".").split(".")[0] in CONFIG_SECTIONS
+    }
     unknown = sorted(set(kwargs) - set(original) - set(config))
     if unknown:
-        raise ValueError(f"unknown argument(s) {unknown}. Accepted: the original hsa_gym HSAEnv arguments "
-                         f"{sorted(ORIGINAL_ARGS)}, and this project's config keys (section__key) {config_keys()}")
+        raise ValueError(
+            f"unknown argument(s) {unknown}. Accepted: the original hsa_gym HSAEnv arguments "
+            f"{sorted(ORIGINAL_ARGS)}, and this project's config keys (section__key) {config_keys()}"
+        )
     return original, config
 
 
@@ -188,14 +223,17 @@ def _ignore(name: str, value: Any, renderer: bool) -> None:
     """Say that an accepted argument has no effect (``clip_actions=1.0`` is what happens anyway)."""
     arg = ORIGINAL_ARGS[name]
     if arg.handling == "render" and not renderer:
-        _warn(f"{name} is ignored: make_env builds the JAX env, which has no renderer; pass it to "
-              "gymnasium.make or gymnasium.make_vec")
+        _warn(
+            f"{name} is ignored: make_env builds the JAX env, which has no renderer; pass it to "
+            "gymnasium.make or gymnasium.make_vec"
+        )
     elif arg.handling == "warn" and not (name == "clip_actions" and value == 1.0):
         _warn(f"{name}={value!r} is ignored: {arg.note}")
 
 
-def terrain_settings(kwargs: Mapping[str, Any], base: EnvConfig, given: Mapping[str, Any]
-                     ) -> list[tuple[str, dict[str, Any]]]:
+def terrain_settings(
+    kwargs: Mapping[str, Any], base: EnvConfig, given: Mapping[str, Any]
+) -> list[tuple[str, dict[str, Any]]]:
     """The coupled ``enable_terrain``, ``terrain_type`` and ``goal_position``: [(argument, {key: value})]."""
     out: list[tuple[str, dict[str, Any]]] = []
     enable, kind = kwargs.get("enable_terrain"), kwargs.get("terrain_type")
@@ -212,8 +250,10 @@ def terrain_settings(kwargs: Mapping[str, Any], base: EnvConfig, given: Mapping[
     if "goal_position" in kwargs:
         mode, xy = _goal_xy("goal_position", kwargs["goal_position"])
         if kind == "spiral":
-            _warn("goal_position is ignored: with terrain_type='spiral' the goals are the spiral checkpoints "
-                  "(the original let the spiral take precedence too)")
+            _warn(
+                "goal_position is ignored: with terrain_type='spiral' the goals are the spiral checkpoints "
+                "(the original let the spiral take precedence too)"
+            )
         else:
             out.append(("goal_position", {"goal.mode": mode, "goal.position": xy}))
     return out
@@ -229,15 +269,20 @@ def _terrain_type(kind: Any, enable: bool | None, heightfield: bool) -> dict[str
     if kind == "spiral":  # the original's spiral goals on the plane
         return {"terrain_type": "flat", **goal}
     if enable is False:
-        _warn(f"terrain_type={kind!r} draws no terrain with enable_terrain=False (as in the original, which "
-              "only picked its goal rule by this name); here the plane keeps the flat goal rule")
+        _warn(
+            f"terrain_type={kind!r} draws no terrain with enable_terrain=False (as in the original, which "
+            "only picked its goal rule by this name); here the plane keeps the flat goal rule"
+        )
         return {"terrain_type": "flat"}
-    raise ValueError(f"terrain_type={kind!r} needs the heightfield scene: pass enable_terrain=True (the original "
-                     "drew no terrain with its default enable_terrain=False), or scene='terrain'")
+    raise ValueError(
+        f"terrain_type={kind!r} needs the heightfield scene: pass enable_terrain=True (the original "
+        "drew no terrain with its default enable_terrain=False), or scene='terrain'"
+    )
 
 
-def config_from_original(kwargs: Mapping[str, Any], base: EnvConfig, given: Mapping[str, Any],
-                         renderer: bool = False) -> tuple[dict[str, Any], dict[str, str]]:
+def config_from_original(
+    kwargs: Mapping[str, Any], base: EnvConfig, given: Mapping[str, Any], renderer: bool = False
+) -> tuple[dict[str, Any], dict[str, str]]:
     """Dotted config overrides for the original arguments, and which argument set each key.
 
     ``given`` holds the dotted config keys passed beside them: setting a key both ways is a
@@ -265,17 +310,21 @@ def _check_conflicts(source: Mapping[str, str], given: Mapping[str, Any]) -> Non
     for key, name in source.items():
         for other in given:
             if other == key or other.startswith(key + ".") or key.startswith(other + "."):
-                raise ValueError(f"the original argument {name} and the config key {other.replace('.', '__')} "
-                                 f"both set '{key}'; pass only one of them")
+                raise ValueError(
+                    f"the original argument {name} and the config key {other.replace('.', '__')} "
+                    f"both set '{key}'; pass only one of them"
+                )
 
 
-def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False,
-                 **overrides: Any) -> EnvConfig:
+def build_config(
+    name_or_config: str | Path | EnvConfig = "flat", renderer: bool = False, **overrides: Any
+) -> EnvConfig:
     """The :class:`EnvConfig` that ``make_env`` builds its env from (same arguments; nothing compiled).
 
     ``renderer``: the caller renders, so the original's viewer arguments are not warned about.
     """
     from hsa_mjx.config import get_preset, load_config, with_overrides
+
     if isinstance(name_or_config, EnvConfig):
         config = name_or_config
     elif isinstance(name_or_config, Path) or str(name_or_config).endswith((".yaml", ".yml")):
@@ -292,6 +341,9 @@ def build_config(name_or_config: str | Path | EnvConfig = "flat", renderer: bool
     try:
         return with_overrides(config, **given, **mapped)
     except ValueError as err:  # name the original argument behind a refused key
-        named = [f"'{key}' comes from the original argument {name}={original[name]!r}"
-                 for key, name in source.items() if f"'{key}'" in str(err)]
+        named = [
+            f"'{key}' comes from the original argument {name}={original[name]!r}"
+            for key, name in source.items()
+            if f"'{key}'" in str(err)
+        ]
         raise ValueError("; ".join([str(err), *named])) from None

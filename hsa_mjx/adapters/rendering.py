@@ -14,8 +14,8 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.sim.gl import has_display
+from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.types import EnvState
 
 RENDER_MODES = ("human", "rgb_array")
@@ -38,8 +38,10 @@ def check_camera(model: mujoco.MjModel, camera: str | int | None) -> str | int:
         return camera
     if isinstance(camera, (int, np.integer)) and not isinstance(camera, bool) and -1 <= camera < model.ncam:
         return int(camera)
-    raise ValueError(f"unknown camera {camera!r}; cameras of the robot asset: {names} "
-                     f"(or an id in -1..{model.ncam - 1}, -1 being MuJoCo's free camera)")
+    raise ValueError(
+        f"unknown camera {camera!r}; cameras of the robot asset: {names} "
+        f"(or an id in -1..{model.ncam - 1}, -1 being MuJoCo's free camera)"
+    )
 
 
 class StateRenderer:
@@ -79,10 +81,12 @@ class StateRenderer:
             try:
                 return mujoco.Renderer(self.env.robot.mj_model, self._height, self._width)
             except Exception as err:  # mujoco.FatalError and friends: no usable OpenGL platform
-                self._gl_error = (f"no OpenGL context for offscreen frames ({type(err).__name__}: {err}); MUJOCO_GL is "
-                                  f"{os.environ.get('MUJOCO_GL')!r}. On a machine without a display set MUJOCO_GL=egl "
-                                  "(or osmesa) before mujoco is first imported; import hsa_mjx does so when EGL or "
-                                  "OSMesa is installed and mujoco was not imported before it")
+                self._gl_error = (
+                    f"no OpenGL context for offscreen frames ({type(err).__name__}: {err}); MUJOCO_GL is "
+                    f"{os.environ.get('MUJOCO_GL')!r}. On a machine without a display set MUJOCO_GL=egl "
+                    "(or osmesa) before mujoco is first imported; import hsa_mjx does so when EGL or "
+                    "OSMesa is installed and mujoco was not imported before it"
+                )
         raise RuntimeError(self._gl_error)
 
     def _sync(self, state: EnvState) -> mujoco.MjData:
@@ -98,12 +102,15 @@ class StateRenderer:
     def _render_human(self, data: mujoco.MjData) -> None:
         if not has_display():
             if not self._warned_no_display:
-                gymnasium.logger.warn("render_mode='human' needs a display (DISPLAY is unset): "
-                                      "nothing is shown; use render_mode='rgb_array' for frames")
+                gymnasium.logger.warn(
+                    "render_mode='human' needs a display (DISPLAY is unset): "
+                    "nothing is shown; use render_mode='rgb_array' for frames"
+                )
                 self._warned_no_display = True
             return None
         if self._viewer is None:
             import mujoco.viewer
+
             self._viewer = mujoco.viewer.launch_passive(self.env.robot.mj_model, data)
         self._viewer.sync()
         return None

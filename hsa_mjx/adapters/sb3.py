@@ -18,7 +18,8 @@ and rewards are writable numpy copies (SB3's buffers and ``VecNormalize`` modify
 from __future__ import annotations
 
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
@@ -67,8 +68,11 @@ class SB3VecEnv(VecEnv):
         for i in np.flatnonzero(dones):
             infos[i]["terminal_observation"] = np.array(final_obs[i])
             infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-            infos[i]["episode"] = {"r": float(final["episode_return"][i]), "l": int(final["episode_length"][i]),
-                                   "t": elapsed}
+            infos[i]["episode"] = {
+                "r": float(final["episode_return"][i]),
+                "l": int(final["episode_length"][i]),
+                "t": elapsed,
+            }
             for key in INFO_KEYS:  # the finished episode's, not the new one's
                 infos[i][key] = _item(final[key][i])
         return np.array(obs), np.array(reward, np.float32), dones, infos

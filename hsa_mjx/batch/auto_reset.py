@@ -13,16 +13,26 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from hsa_mjx.sim import backend
-
-from hsa_mjx.task import reward, termination
 from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.sim import backend
+from hsa_mjx.task import reward, termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState
 
-TOTAL_KEYS = ("episodes", "return", "length", "success", "final_distance", "env_steps",
-              "nonfinite_action", "nonfinite_state", "step_reward", "step_distance", "step_checkpoint")
+TOTAL_KEYS = (
+    "episodes",
+    "return",
+    "length",
+    "success",
+    "final_distance",
+    "env_steps",
+    "nonfinite_action",
+    "nonfinite_state",
+    "step_reward",
+    "step_distance",
+    "step_checkpoint",
+)
 
 
 @struct.dataclass
@@ -48,8 +58,11 @@ class BatchState:
 
 
 def _zero_totals() -> dict[str, jax.Array]:
-    names = TOTAL_KEYS + tuple(f"reward/{k}" for k in reward.TERM_NAMES) + tuple(
-        f"termination/{k}" for k in termination.REASONS)
+    names = (
+        TOTAL_KEYS
+        + tuple(f"reward/{k}" for k in reward.TERM_NAMES)
+        + tuple(f"termination/{k}" for k in termination.REASONS)
+    )
     return {name: jnp.zeros((), jnp.float32) for name in names}
 
 
@@ -91,8 +104,9 @@ class AutoResetEnv:
         """Step every env; reset the finished ones with ``params``; add finished episodes to the totals."""
         return self.step_with_final(state, actions, params)[0]
 
-    def step_with_final(self, state: BatchState, actions: jax.Array, params: EnvParams | None = None,
-                        reset_metrics: bool = False) -> tuple[BatchState, EnvState, EpisodeAccumulator]:
+    def step_with_final(
+        self, state: BatchState, actions: jax.Array, params: EnvParams | None = None, reset_metrics: bool = False
+    ) -> tuple[BatchState, EnvState, EpisodeAccumulator]:
         """``step``, also returning what the auto-reset replaces.
 
         Returns (new batch state, every env's state after the step and before the auto-reset:
@@ -110,12 +124,15 @@ class AutoResetEnv:
         nxt = jax.vmap(self.env.step)(state.env, actions)
         done = nxt.done > 0
         episode = EpisodeAccumulator(
-            ret=state.episode.ret + nxt.reward, length=state.episode.length + 1.0,
-            terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()})
+            ret=state.episode.ret + nxt.reward,
+            length=state.episode.length + 1.0,
+            terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()},
+        )
         totals = self._add_totals(state.totals, nxt, episode, done)
         keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
-        running = EpisodeAccumulator(ret=keep(episode.ret), length=keep(episode.length),
-                                     terms={k: keep(v) for k, v in episode.terms.items()})
+        running = EpisodeAccumulator(
+            ret=keep(episode.ret), length=keep(episode.length), terms={k: keep(v) for k, v in episode.terms.items()}
+        )
         return BatchState(env=nxt, episode=running, totals=totals), episode
 
     def reset_done(self, state: BatchState, params: EnvParams, reset_metrics: bool = False) -> BatchState:
@@ -133,6 +150,7 @@ class AutoResetEnv:
             if "privileged_obs" in info:
                 info["privileged_obs"] = pick(new.info["privileged_obs"], info["privileged_obs"])
             return current.replace(pipeline_state=sim, obs=pick(new.obs, current.obs), metrics=metrics, info=info)
+
         return state.replace(env=jax.lax.cond(jnp.any(done), fresh, lambda s: s, state.env))
 
     @staticmethod
@@ -141,14 +159,17 @@ class AutoResetEnv:
         d = done.astype(jnp.float32)
         m = nxt.metrics
         add = {
-            "episodes": jnp.sum(d), "return": jnp.sum(d * episode.ret), "length": jnp.sum(d * episode.length),
+            "episodes": jnp.sum(d),
+            "return": jnp.sum(d * episode.ret),
+            "length": jnp.sum(d * episode.length),
             "success": jnp.sum(d * m["termination/goal_reached"]),
             "final_distance": jnp.sum(d * m["distance_to_goal"]),
             "env_steps": jnp.asarray(done.shape[0], jnp.float32),
             "nonfinite_action": jnp.sum(m["nonfinite_action"]),
             "nonfinite_state": jnp.sum(m["termination/non_finite"]),
             # per env step, finished or not: what long episodes (corridor, spiral) show before they end
-            "step_reward": jnp.sum(nxt.reward), "step_distance": jnp.sum(m["distance_to_goal"]),
+            "step_reward": jnp.sum(nxt.reward),
+            "step_distance": jnp.sum(m["distance_to_goal"]),
             "step_checkpoint": jnp.sum(m["checkpoint_index"]),
         }
         add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
@@ -167,15 +188,18 @@ def per_env_picker(mask: jax.Array):
 
 def select_sim(mask: jax.Array, a: SimState, b: SimState) -> SimState:
     """Per env, the simulator state of ``a`` where ``mask``, else of ``b`` (Warp's shared buffers kept)."""
-    return SimState(physics=backend.select(mask, a.physics, b.physics),
-                    task=jax.tree.map(per_env_picker(mask), a.task, b.task))
+    return SimState(
+        physics=backend.select(mask, a.physics, b.physics), task=jax.tree.map(per_env_picker(mask), a.task, b.task)
+    )
 
 
 def check_batch(env: HSAEnv, batch: int) -> None:
     """Refuse a batch larger than a Warp env's shared contact buffer was sized for (``HSAEnv(num_envs=...)``)."""
     if env.physics_backend == "warp" and batch > env.num_envs:
-        raise ValueError(f"a batch of {batch} envs on the Warp backend needs an env built for at least that many: "
-                         f"HSAEnv(config, num_envs={batch}) (this one shares its contact buffer among {env.num_envs})")
+        raise ValueError(
+            f"a batch of {batch} envs on the Warp backend needs an env built for at least that many: "
+            f"HSAEnv(config, num_envs={batch}) (this one shares its contact buffer among {env.num_envs})"
+        )
 
 
 def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
@@ -184,18 +208,32 @@ def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
 
     Per-episode keys are left out when no episode ended in the period (rather than logged as 0).
     """
-    out = {"episodes": totals["episodes"], "env_steps": totals["env_steps"],
-           "nonfinite/actions": totals["nonfinite_action"], "nonfinite/states": totals["nonfinite_state"]}
+    out = {
+        "episodes": totals["episodes"],
+        "env_steps": totals["env_steps"],
+        "nonfinite/actions": totals["nonfinite_action"],
+        "nonfinite/states": totals["nonfinite_state"],
+    }
     steps = max(totals["env_steps"], 1.0)
-    out.update({"step/reward": totals["step_reward"] / steps, "step/distance_to_goal": totals["step_distance"] / steps,
-                "step/checkpoint_index": totals["step_checkpoint"] / steps})
+    out.update(
+        {
+            "step/reward": totals["step_reward"] / steps,
+            "step/distance_to_goal": totals["step_distance"] / steps,
+            "step/checkpoint_index": totals["step_checkpoint"] / steps,
+        }
+    )
     out.update(tcur.summarize(totals, levels))
     episodes = totals["episodes"]
     if episodes <= 0:
         return out
-    out.update({"episode/return": totals["return"] / episodes, "episode/length": totals["length"] / episodes,
-                "episode/success_rate": totals["success"] / episodes,
-                "episode/final_distance": totals["final_distance"] / episodes})
+    out.update(
+        {
+            "episode/return": totals["return"] / episodes,
+            "episode/length": totals["length"] / episodes,
+            "episode/success_rate": totals["success"] / episodes,
+            "episode/final_distance": totals["final_distance"] / episodes,
+        }
+    )
     for key, value in totals.items():
         if key.startswith("reward/"):
             out[f"episode/{key}"] = value / episodes

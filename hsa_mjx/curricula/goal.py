@@ -49,22 +49,30 @@ def validate(config: CurriculumConfig) -> CurriculumConfig:
     """Raise ValueError (naming the key) on inconsistent settings; return the config."""
     (i_lo, i_hi), (t_lo, t_hi) = config.initial_range, config.target_range
     if not 0 <= i_lo <= i_hi:
-        raise ValueError(f"the curriculum's initial_range (env.goal.radial_range) must satisfy 0 <= min <= max, "
-                         f"got {config.initial_range}")
+        raise ValueError(
+            f"the curriculum's initial_range (env.goal.radial_range) must satisfy 0 <= min <= max, "
+            f"got {config.initial_range}"
+        )
     if not 0 <= t_lo <= t_hi or t_hi < i_hi:
-        raise ValueError(f"curriculum.target_range must satisfy 0 <= min <= max and max >= initial max, "
-                         f"got {config.target_range} (initial {config.initial_range})")
+        raise ValueError(
+            f"curriculum.target_range must satisfy 0 <= min <= max and max >= initial max, "
+            f"got {config.target_range} (initial {config.initial_range})"
+        )
     if not 0 <= config.failure_threshold <= config.success_threshold <= 1:
-        raise ValueError("curriculum thresholds must satisfy 0 <= failure_threshold <= success_threshold <= 1, "
-                         f"got {config.failure_threshold}, {config.success_threshold}")
+        raise ValueError(
+            "curriculum thresholds must satisfy 0 <= failure_threshold <= success_threshold <= 1, "
+            f"got {config.failure_threshold}, {config.success_threshold}"
+        )
     for key in ("window_size", "min_episodes"):
         if getattr(config, key) < 1:
             raise ValueError(f"curriculum.{key} must be >= 1, got {getattr(config, key)}")
     if config.expansion_step <= 0 or config.dead_zone_radius < 0:
         raise ValueError("curriculum.expansion_step must be > 0 and curriculum.dead_zone_radius >= 0")
     if config.min_distance > i_hi:
-        raise ValueError(f"curriculum: max(initial_range[0], dead_zone_radius) = {config.min_distance} "
-                         f"exceeds initial_range[1] = {i_hi} (initial_range: env.goal.radial_range)")
+        raise ValueError(
+            f"curriculum: max(initial_range[0], dead_zone_radius) = {config.min_distance} "
+            f"exceeds initial_range[1] = {i_hi} (initial_range: env.goal.radial_range)"
+        )
     return config
 
 
@@ -83,8 +91,11 @@ def init(config: CurriculumConfig) -> CurriculumState:
     """The state at the start of training: the initial range, an empty window."""
     return CurriculumState(
         max_distance=jnp.asarray(config.initial_range[1], jnp.float32),
-        outcomes=jnp.zeros((config.window_size,), bool), filled=jnp.zeros((), jnp.int32),
-        episode_count=jnp.zeros((), jnp.int32), episodes_since_change=jnp.zeros((), jnp.int32))
+        outcomes=jnp.zeros((config.window_size,), bool),
+        filled=jnp.zeros((), jnp.int32),
+        episode_count=jnp.zeros((), jnp.int32),
+        episodes_since_change=jnp.zeros((), jnp.int32),
+    )
 
 
 def goal_range(state: CurriculumState, config: CurriculumConfig) -> jax.Array:
@@ -108,12 +119,15 @@ def _insert(state: CurriculumState, success: jax.Array, done: jax.Array) -> Curr
     keep = done & (rank >= n - window)
     position = jnp.where(keep, (state.filled + rank) % window, window)  # out of range: dropped
     outcomes = state.outcomes.at[position].set(success.astype(bool).reshape(-1), mode="drop")
-    return state.replace(outcomes=outcomes, filled=state.filled + n, episode_count=state.episode_count + n,
-                         episodes_since_change=state.episodes_since_change + n)
+    return state.replace(
+        outcomes=outcomes,
+        filled=state.filled + n,
+        episode_count=state.episode_count + n,
+        episodes_since_change=state.episodes_since_change + n,
+    )
 
 
-def update(state: CurriculumState, success: jax.Array, done: jax.Array,
-           config: CurriculumConfig) -> CurriculumState:
+def update(state: CurriculumState, success: jax.Array, done: jax.Array, config: CurriculumConfig) -> CurriculumState:
     """Record a batch of episode ends and widen or narrow the range by the original's rule.
 
     ``success`` and ``done`` are boolean arrays of any (equal) shape; only entries with ``done``
@@ -129,15 +143,19 @@ def update(state: CurriculumState, success: jax.Array, done: jax.Array,
     step = jnp.float32(config.expansion_step)
     wider = jnp.minimum(state.max_distance + step, config.target_range[1])
     narrower = jnp.maximum(state.max_distance - step, config.initial_range[1])
-    new_max = jnp.where(ready & (rate >= config.success_threshold), wider,
-                        jnp.where(ready & (rate < config.failure_threshold), narrower, state.max_distance))
+    new_max = jnp.where(
+        ready & (rate >= config.success_threshold),
+        wider,
+        jnp.where(ready & (rate < config.failure_threshold), narrower, state.max_distance),
+    )
     changed = new_max != state.max_distance
     zero = jnp.zeros((), jnp.int32)
     return state.replace(
         max_distance=new_max.astype(jnp.float32),
         outcomes=jnp.where(changed, jnp.zeros_like(state.outcomes), state.outcomes),
         filled=jnp.where(changed, zero, state.filled),
-        episodes_since_change=jnp.where(changed, zero, state.episodes_since_change))
+        episodes_since_change=jnp.where(changed, zero, state.episodes_since_change),
+    )
 
 
 def metrics(state: CurriculumState, config: CurriculumConfig) -> dict[str, jax.Array]:

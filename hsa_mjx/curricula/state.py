@@ -38,33 +38,45 @@ class CurriculumRules:
         terrain: terrain curriculum settings (needs per-env terrain when enabled).
     """
 
-    def __init__(self, env: HSAEnv, goal: cur.CurriculumConfig | None = None,
-                 terrain: tcur.TerrainCurriculumConfig | None = None):
+    def __init__(
+        self, env: HSAEnv, goal: cur.CurriculumConfig | None = None, terrain: tcur.TerrainCurriculumConfig | None = None
+    ):
         self.env = env
         self.goal = goal or cur.CurriculumConfig(enabled=False)
         if self.goal.enabled and env.config.goal.mode != "radial":
             raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
-        self.terrain = tcur.validate(terrain or tcur.TerrainCurriculumConfig(), env.config.terrain,
-                                     env.world.per_env, env.config.goal.mode)
+        self.terrain = tcur.validate(
+            terrain or tcur.TerrainCurriculumConfig(), env.config.terrain, env.world.per_env, env.config.goal.mode
+        )
         self.cells = len(env.config.terrain.types) * env.config.terrain.levels
 
-    def init(self, keys: jax.Array, goal: cur.CurriculumState | None = None,
-             levels: tcur.TerrainLevels | None = None) -> Curricula:
+    def init(
+        self, keys: jax.Array, goal: cur.CurriculumState | None = None, levels: tcur.TerrainLevels | None = None
+    ) -> Curricula:
         """Start states for a batch (one key per env); a given goal state or levels are kept (resume)."""
         goal = goal if goal is not None else cur.init(self.goal)
         if levels is None:
-            levels = tcur.init(keys, self.terrain, self.env.config.terrain) if self.terrain.enabled \
+            levels = (
+                tcur.init(keys, self.terrain, self.env.config.terrain)
+                if self.terrain.enabled
                 else tcur.placeholder(keys.shape[0])
+            )
         sums = {k: jnp.zeros((self.cells,), jnp.float32) for k in tcur.OUTCOME_KEYS} if self.terrain.enabled else {}
         return Curricula(goal=goal, terrain=levels, cell_totals=sums)
 
     def params(self, state: Curricula) -> EnvParams:
         """Every env's parameters for its next episode, (B,) leading axis."""
         batch = state.terrain.level.shape[0]
-        goal_range = cur.goal_range(state.goal, self.goal) if self.goal.enabled \
+        goal_range = (
+            cur.goal_range(state.goal, self.goal)
+            if self.goal.enabled
             else jnp.asarray(self.env.config.goal.radial_range, jnp.float32)
-        cells = state.terrain.cells() if self.terrain.enabled \
+        )
+        cells = (
+            state.terrain.cells()
+            if self.terrain.enabled
             else jnp.broadcast_to(jnp.asarray(FREE_CELL, jnp.int32), (batch, 2))
+        )
         return EnvParams(goal_range=jnp.broadcast_to(goal_range, (batch, 2)), terrain_cell=cells)
 
     def after_step(self, state: Curricula, stepped: EnvState) -> Curricula:
@@ -76,12 +88,12 @@ class CurriculumRules:
         outcomes = tcur.cell_outcomes(state.terrain, done, success, self.cells, levels)
         start = jnp.linalg.norm(stepped.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
         progress = 1.0 - stepped.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
-        terrain = tcur.update(state.terrain, done, success, progress, self.terrain, levels,
-                              stepped.pipeline_state.task.rng)
+        terrain = tcur.update(
+            state.terrain, done, success, progress, self.terrain, levels, stepped.pipeline_state.task.rng
+        )
         return state.replace(terrain=terrain, cell_totals={k: v + outcomes[k] for k, v in state.cell_totals.items()})
 
-    def after_collection(self, goal: cur.CurriculumState, success: jax.Array, done: jax.Array
-                         ) -> cur.CurriculumState:
+    def after_collection(self, goal: cur.CurriculumState, success: jax.Array, done: jax.Array) -> cur.CurriculumState:
         """The goal curriculum fed with episode ends, (steps, all envs) in step order."""
         if not self.goal.enabled:
             return goal

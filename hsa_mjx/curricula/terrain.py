@@ -44,20 +44,26 @@ class TerrainCurriculumConfig:
     top_redraw: bool = False
 
 
-def validate(config: TerrainCurriculumConfig, terrain: TerrainConfig, per_env: bool, goal_mode: str
-             ) -> TerrainCurriculumConfig:
+def validate(
+    config: TerrainCurriculumConfig, terrain: TerrainConfig, per_env: bool, goal_mode: str
+) -> TerrainCurriculumConfig:
     """Raise ValueError naming the key on settings that cannot work; return the config."""
     if not 0.0 <= config.demote_progress <= config.promote_progress <= 1.0:
-        raise ValueError("terrain_curriculum needs 0 <= demote_progress <= promote_progress <= 1, got "
-                         f"{config.demote_progress}, {config.promote_progress}")
+        raise ValueError(
+            "terrain_curriculum needs 0 <= demote_progress <= promote_progress <= 1, got "
+            f"{config.demote_progress}, {config.promote_progress}"
+        )
     if not 0.0 <= config.initial_spread <= 1.0:
         raise ValueError(f"terrain_curriculum.initial_spread must be in [0, 1], got {config.initial_spread}")
     if config.enabled and not per_env:
-        raise ValueError("terrain_curriculum.enabled needs per-env terrain: env.scene 'terrain' with "
-                         "env.terrain.per_env: true")
+        raise ValueError(
+            "terrain_curriculum.enabled needs per-env terrain: env.scene 'terrain' with env.terrain.per_env: true"
+        )
     if config.enabled and goal_mode == "spiral":
-        raise ValueError("terrain_curriculum.enabled needs goals at a distance (env.goal.mode radial or random); "
-                         "the spiral's checkpoints are a fixed track")
+        raise ValueError(
+            "terrain_curriculum.enabled needs goals at a distance (env.goal.mode radial or random); "
+            "the spiral's checkpoints are a fixed track"
+        )
     return config
 
 
@@ -100,8 +106,15 @@ def placeholder(batch: int) -> TerrainLevels:
     return TerrainLevels(row=zeros, level=zeros)
 
 
-def update(state: TerrainLevels, done: jax.Array, success: jax.Array, progress: jax.Array,
-           config: TerrainCurriculumConfig, levels: int, keys: jax.Array | None = None) -> TerrainLevels:
+def update(
+    state: TerrainLevels,
+    done: jax.Array,
+    success: jax.Array,
+    progress: jax.Array,
+    config: TerrainCurriculumConfig,
+    levels: int,
+    keys: jax.Array | None = None,
+) -> TerrainLevels:
     """Move every env whose episode ended (``done``) up or down a level by its outcome.
 
     ``progress``: the share of the start distance covered, (start - final) / start. ``keys`` (one
@@ -124,13 +137,16 @@ def cell_index(state: TerrainLevels, levels: int) -> jax.Array:
     return state.row * levels + state.level
 
 
-def cell_outcomes(state: TerrainLevels, done: jax.Array, success: jax.Array, cells: int, levels: int
-                  ) -> dict[str, jax.Array]:
+def cell_outcomes(
+    state: TerrainLevels, done: jax.Array, success: jax.Array, cells: int, levels: int
+) -> dict[str, jax.Array]:
     """Episodes ended and goals reached this step per cell (the level the episode ran on), (cells,) each."""
     index = cell_index(state, levels)
     ended = done.astype(jnp.float32)
-    return {OUTCOME_KEYS[0]: jax.ops.segment_sum(ended, index, num_segments=cells),
-            OUTCOME_KEYS[1]: jax.ops.segment_sum(ended * success.astype(jnp.float32), index, num_segments=cells)}
+    return {
+        OUTCOME_KEYS[0]: jax.ops.segment_sum(ended, index, num_segments=cells),
+        OUTCOME_KEYS[1]: jax.ops.segment_sum(ended * success.astype(jnp.float32), index, num_segments=cells),
+    }
 
 
 def name_outcomes(sums: dict[str, jax.Array], types: tuple[str, ...], levels: int) -> dict[str, jax.Array]:
@@ -179,15 +195,16 @@ def _cell_success(sums: dict[str, float]) -> dict[str, float]:
     prefix = f"terrain_{OUTCOME_KEYS[0]}/"
     for key, episodes in sums.items():
         if key.startswith(prefix) and episodes > 0:
-            name, level = key[len(prefix):].rsplit("/", 1)
+            name, level = key[len(prefix) :].rsplit("/", 1)
             out[f"terrain/success/{name}/L{level}"] = sums[f"terrain_{OUTCOME_KEYS[1]}/{name}/{level}"] / episodes
     return out
 
 
 def to_host(states: list[TerrainLevels]) -> dict[str, np.ndarray]:
     """One flat (envs,) array per field from per-device states (device order), for a checkpoint."""
-    return {name: np.concatenate([np.asarray(getattr(s, name)).reshape(-1) for s in states])
-            for name in ("row", "level")}
+    return {
+        name: np.concatenate([np.asarray(getattr(s, name)).reshape(-1) for s in states]) for name in ("row", "level")
+    }
 
 
 def from_host(saved: dict[str, np.ndarray], batch: int, seed: int = 0) -> TerrainLevels:

@@ -22,8 +22,9 @@ ONNX_FILE = "policy.onnx"
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line's arguments."""
-    parser = argparse.ArgumentParser(prog="python -m hsa_mjx.deploy", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python -m hsa_mjx.deploy", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--policy", required=True, metavar="NAME_OR_DIR", help="a shipped policy's name or a folder")
     parser.add_argument("--onnx", action="store_true", help=f"run the folder's {ONNX_FILE} with onnxruntime")
     parser.add_argument("--goal", type=float, nargs=2, default=None, metavar=("X", "Y"), help="one goal (m)")
@@ -83,11 +84,15 @@ def main(argv: list[str] | None = None) -> int:
         robot = loop.SimulatedRobot(mj_model, index, config, realtime=args.realtime)
         result = loop.run(controller, robot, goal, max_steps, config.goal.success_radius)
         results.append(result)
-        print(f"goal ({goal[0]:+.2f}, {goal[1]:+.2f}) m: {'reached' if result['reached'] else 'not reached'} after "
-              f"{result['seconds']:.1f} s, {result['start_distance']:.2f} -> {result['final_distance']:.2f} m")
+        print(
+            f"goal ({goal[0]:+.2f}, {goal[1]:+.2f}) m: {'reached' if result['reached'] else 'not reached'} after "
+            f"{result['seconds']:.1f} s, {result['start_distance']:.2f} -> {result['final_distance']:.2f} m"
+        )
     reached = sum(r["reached"] for r in results)
-    print(f"{reached} of {len(results)} goals reached ({'onnx' if args.onnx else 'numpy'} policy, "
-          f"latency {latency} ticks of {config.dt * 1000:g} ms, C MuJoCo)")
+    print(
+        f"{reached} of {len(results)} goals reached ({'onnx' if args.onnx else 'numpy'} policy, "
+        f"latency {latency} ticks of {config.dt * 1000:g} ms, C MuJoCo)"
+    )
     return 0
 
 

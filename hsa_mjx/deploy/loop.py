@@ -18,7 +18,8 @@ from __future__ import annotations
 import collections
 import dataclasses
 import time
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
@@ -27,7 +28,6 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.task.control import next_targets, substep_targets
 from hsa_mjx.task.observation import GOAL_EPS, HEADING_EPS
-
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,8 +70,9 @@ class SimulatedRobot:
     def read(self) -> Readings:
         """Encoders and tracker, exact (noise is the loop's to add)."""
         d, idx = self.data, self.index
-        return Readings(np.array(d.qpos[idx.joint_qpos]), np.array(d.qvel[idx.joint_qvel]),
-                        np.array(d.xpos[idx.block_body]))
+        return Readings(
+            np.array(d.qpos[idx.joint_qpos]), np.array(d.qvel[idx.joint_qvel]), np.array(d.xpos[idx.block_body])
+        )
 
     def command(self, targets: np.ndarray) -> None:
         """Move the servo targets to ``targets`` over one control tick (ramped or held)."""
@@ -92,15 +93,18 @@ class SimulatedRobot:
 def _hinge_entries(angles: np.ndarray, mode: str) -> dict[str, float]:
     """The hinge angle slots for the observation's ``hinge_angles`` mode."""
     if mode == "sincos":
-        return {**{f"hinge_sin_{i}": v for i, v in enumerate(np.sin(angles))},
-                **{f"hinge_cos_{i}": v for i, v in enumerate(np.cos(angles))}}
+        return {
+            **{f"hinge_sin_{i}": v for i, v in enumerate(np.sin(angles))},
+            **{f"hinge_cos_{i}": v for i, v in enumerate(np.cos(angles))},
+        }
     if mode == "wrapped":
         angles = np.mod(angles + np.pi, 2.0 * np.pi) - np.pi
     return {f"hinge_angle_{i}": v for i, v in enumerate(angles)}
 
 
-def observation_entries(readings: Readings, velocity: np.ndarray, goal_xy: np.ndarray, targets: np.ndarray,
-                        time_s: float, config: EnvConfig) -> dict[str, float]:
+def observation_entries(
+    readings: Readings, velocity: np.ndarray, goal_xy: np.ndarray, targets: np.ndarray, time_s: float, config: EnvConfig
+) -> dict[str, float]:
     """Every observation slot the env can have, by label, from the sensors and the controller's state."""
     obs_cfg = config.observation
     blocks = readings.block_positions
@@ -110,14 +114,23 @@ def observation_entries(readings: Readings, velocity: np.ndarray, goal_xy: np.nd
     direction = delta / (distance + GOAL_EPS)
     heading = (blocks[1, :2] - blocks[0, :2]) / (np.linalg.norm(blocks[1, :2] - blocks[0, :2]) + HEADING_EPS)
     cos, sin = heading
-    entries = {**_hinge_entries(readings.hinge_angles, obs_cfg.hinge_angles),
-               **{f"hinge_velocity_{i}": v for i, v in enumerate(readings.hinge_velocities)},
-               "robot_x": position[0], "robot_y": position[1],
-               "block_vx": velocity[0], "block_vy": velocity[1], "block_vz": velocity[2],
-               "goal_distance": distance, "goal_dir_x": direction[0], "goal_dir_y": direction[1],
-               "heading_cos": cos, "heading_sin": sin, "goal_dir_ahead": cos * direction[0] + sin * direction[1],
-               "goal_dir_left": cos * direction[1] - sin * direction[0],
-               **{f"servo_target_{i}": v for i, v in enumerate(targets)}}
+    entries = {
+        **_hinge_entries(readings.hinge_angles, obs_cfg.hinge_angles),
+        **{f"hinge_velocity_{i}": v for i, v in enumerate(readings.hinge_velocities)},
+        "robot_x": position[0],
+        "robot_y": position[1],
+        "block_vx": velocity[0],
+        "block_vy": velocity[1],
+        "block_vz": velocity[2],
+        "goal_distance": distance,
+        "goal_dir_x": direction[0],
+        "goal_dir_y": direction[1],
+        "heading_cos": cos,
+        "heading_sin": sin,
+        "goal_dir_ahead": cos * direction[0] + sin * direction[1],
+        "goal_dir_left": cos * direction[1] - sin * direction[0],
+        **{f"servo_target_{i}": v for i, v in enumerate(targets)},
+    }
     if obs_cfg.clock_period_s > 0:
         phase = 2.0 * np.pi * np.mod(time_s / obs_cfg.clock_period_s, 1.0)
         entries.update(clock_sin=np.sin(phase), clock_cos=np.cos(phase))
@@ -127,10 +140,13 @@ def observation_entries(readings: Readings, velocity: np.ndarray, goal_xy: np.nd
 def check_deployable(config: EnvConfig, labels: list[str]) -> None:
     """ValueError when the policy needs an input a robot does not read (the terrain height scan)."""
     if config.observation.height_scan.enabled:
-        raise ValueError("this policy reads a terrain height scan, which the deployment loop has no sensor "
-                         "for; deploy a policy without observation.height_scan (e.g. flat)")
-    entries = observation_entries(Readings(np.zeros(8), np.zeros(8), np.zeros((2, 3))), np.zeros(3),
-                                  np.zeros(2), np.zeros(8), 0.0, config)
+        raise ValueError(
+            "this policy reads a terrain height scan, which the deployment loop has no sensor "
+            "for; deploy a policy without observation.height_scan (e.g. flat)"
+        )
+    entries = observation_entries(
+        Readings(np.zeros(8), np.zeros(8), np.zeros((2, 3))), np.zeros(3), np.zeros(2), np.zeros(8), 0.0, config
+    )
     missing = [label for label in labels if label not in entries]
     if missing:
         raise ValueError(f"the deployment loop cannot build observation slots {missing}")
@@ -160,8 +176,9 @@ class Controller:
         now = readings.block_positions.mean(axis=0)
         velocity = np.zeros(3) if self.previous is None else (now - self.previous) / self.config.dt
         self.previous = now
-        entries = observation_entries(readings, velocity, goal_xy, self.targets, self.steps * self.config.dt,
-                                      self.config)
+        entries = observation_entries(
+            readings, velocity, goal_xy, self.targets, self.steps * self.config.dt, self.config
+        )
         obs = np.asarray([entries[label] for label in self.labels], np.float32)
         return obs if self.noise is None else self.noise(obs)
 
@@ -177,8 +194,9 @@ class Controller:
         return self.targets
 
 
-def run(controller: Controller, robot: Robot, goal_xy: np.ndarray, max_steps: int,
-        success_radius: float) -> dict[str, Any]:
+def run(
+    controller: Controller, robot: Robot, goal_xy: np.ndarray, max_steps: int, success_radius: float
+) -> dict[str, Any]:
     """Drive ``robot`` to ``goal_xy``: until within ``success_radius`` or ``max_steps`` ticks; a summary."""
     goal_xy = np.asarray(goal_xy, np.float64)
     start = robot.read().block_positions[:, :2].mean(axis=0)
@@ -190,9 +208,14 @@ def run(controller: Controller, robot: Robot, goal_xy: np.ndarray, max_steps: in
         if np.linalg.norm(path[-1] - goal_xy) < success_radius:
             break
     final = float(np.linalg.norm(path[-1] - goal_xy))
-    return {"reached": final < success_radius, "steps": step, "seconds": step * controller.config.dt,
-            "start_distance": float(np.linalg.norm(start - goal_xy)), "final_distance": final,
-            "path": np.asarray(path)}
+    return {
+        "reached": final < success_radius,
+        "steps": step,
+        "seconds": step * controller.config.dt,
+        "start_distance": float(np.linalg.norm(start - goal_xy)),
+        "final_distance": final,
+        "path": np.asarray(path),
+    }
 
 
 # ----- set-up from a policy file ------------------------------------------------------------------
@@ -200,6 +223,7 @@ def policy_env(meta: dict) -> tuple[EnvConfig, list[str], tuple[float, float]]:
     """(env config, observation labels, goal range it trained for) from a policy's ``policy.json``
     (ValueError when its observation needs an input the loop cannot read)."""
     from hsa_mjx.config import from_dict
+
     saved = meta.get("config", {})
     config = from_dict(saved.get("env", {}))
     labels = list(meta["observation"]["labels"])
@@ -220,5 +244,6 @@ def latency_steps(ms: float, dt: float) -> int:
 def load_model(config: EnvConfig) -> tuple[mujoco.MjModel, RobotIndex]:
     """The env's compiled C MuJoCo scene and its name index."""
     from hsa_mjx.sim.model import build_index, load_mj_model
+
     mj_model = load_mj_model(config)
     return mj_model, build_index(mj_model)

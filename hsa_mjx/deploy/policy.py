@@ -40,6 +40,7 @@ SQUASH = {"tanh_normal": "tanh", "normal": "identity"}  # distribution type -> o
 def shipped() -> dict[str, Path]:
     """The policies that ship with the package, by name (``policies/`` in a checkout, package data once installed)."""
     from hsa_mjx.resources import data_dir
+
     return {p.name: p for p in sorted(data_dir("policies").glob("*")) if (p / META_FILE).is_file()}
 
 
@@ -53,8 +54,10 @@ def locate(name_or_dir: str | Path) -> Path:
     """Like :func:`find`, but a FileNotFoundError listing the shipped policies when there is none."""
     found = find(name_or_dir)
     if found is None:
-        raise FileNotFoundError(f"no policy {str(name_or_dir)!r}: not a directory with {META_FILE} and not one of "
-                                f"the shipped policies {list(shipped())}")
+        raise FileNotFoundError(
+            f"no policy {str(name_or_dir)!r}: not a directory with {META_FILE} and not one of "
+            f"the shipped policies {list(shipped())}"
+        )
     return found
 
 
@@ -111,8 +114,10 @@ class NumpyPolicy:
         """Deterministic action(s), float32, shape (action,) or (n, action)."""
         obs = np.asarray(obs, dtype=np.float32)
         if obs.shape[-1:] != (self.observation_size,) or obs.ndim > 2:
-            raise ValueError(f"observation must have shape ({self.observation_size},) or "
-                             f"(n, {self.observation_size}), got {obs.shape}")
+            raise ValueError(
+                f"observation must have shape ({self.observation_size},) or "
+                f"(n, {self.observation_size}), got {obs.shape}"
+            )
         net = self.meta["network"]
         return forward(self.params, obs, net["activation"], net["output"], float(net["observation_clip"]))
 
@@ -130,33 +135,51 @@ def flatten(params: dict) -> dict[str, np.ndarray]:
     return {name: np.asarray(value) for name, value in out.items()}
 
 
-def describe(params: dict, activation: str, distribution_type: str, observation_clip: float,
-             labels: list[str]) -> dict:
+def describe(params: dict, activation: str, distribution_type: str, observation_clip: float, labels: list[str]) -> dict:
     """The format-defining part of ``policy.json`` for ``params`` (sizes, layers, how to compute the action)."""
     if distribution_type not in SQUASH:
         raise ValueError(f"unknown distribution type {distribution_type!r}; choose one of {list(SQUASH)}")
     kernels = params["kernels"]
-    layers = [{"kernel": k, "bias": b, "in": int(w.shape[0]), "out": int(w.shape[1]),
-               "activation": activation if i < len(kernels) - 1 else "none"}
-              for i, ((k, b), w) in enumerate(zip(layer_names(len(kernels)), kernels))]
-    action = ("tanh(mean)" if SQUASH[distribution_type] == "tanh" else "mean") + \
-        " of the Gaussian whose mean the last layer outputs"
-    return {"format": FORMAT, "format_version": FORMAT_VERSION,
-            "observation": {"size": int(kernels[0].shape[0]), "labels": list(labels)},
-            "action": {"size": int(kernels[-1].shape[1]), "range": [-1.0, 1.0],
-                       "note": "the env clips actions to the range"},
-            "network": {"activation": activation, "distribution_type": distribution_type,
-                        "output": SQUASH[distribution_type], "deterministic_action": action,
-                        "observation_clip": float(observation_clip),
-                        "normalizer": "(obs - obs_mean) / obs_std, then clipped to +-observation_clip if > 0",
-                        "layers": layers}}
+    layers = [
+        {
+            "kernel": k,
+            "bias": b,
+            "in": int(w.shape[0]),
+            "out": int(w.shape[1]),
+            "activation": activation if i < len(kernels) - 1 else "none",
+        }
+        for i, ((k, b), w) in enumerate(zip(layer_names(len(kernels)), kernels))
+    ]
+    action = (
+        "tanh(mean)" if SQUASH[distribution_type] == "tanh" else "mean"
+    ) + " of the Gaussian whose mean the last layer outputs"
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "observation": {"size": int(kernels[0].shape[0]), "labels": list(labels)},
+        "action": {
+            "size": int(kernels[-1].shape[1]),
+            "range": [-1.0, 1.0],
+            "note": "the env clips actions to the range",
+        },
+        "network": {
+            "activation": activation,
+            "distribution_type": distribution_type,
+            "output": SQUASH[distribution_type],
+            "deterministic_action": action,
+            "observation_clip": float(observation_clip),
+            "normalizer": "(obs - obs_mean) / obs_std, then clipped to +-observation_clip if > 0",
+            "layers": layers,
+        },
+    }
 
 
 def check_output(out: Path) -> None:
     """Refuse an output path that exists and is neither empty nor a policy directory."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / META_FILE).is_file())):
-        raise ValueError(f"output {out} exists and is not a policy directory (no {META_FILE}); "
-                         f"choose a new or empty directory")
+        raise ValueError(
+            f"output {out} exists and is not a policy directory (no {META_FILE}); choose a new or empty directory"
+        )
 
 
 def write_directory(out: str | Path, files: dict[str, bytes]) -> Path:
@@ -196,13 +219,16 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 def save_policy(out: str | Path, params: dict, meta: dict) -> Path:
     """Write ``policy.npz`` (float32) and ``policy.json`` (``meta``: :func:`describe` plus config and
     source) into directory ``out`` atomically, after checking them against each other."""
-    params = {"obs_mean": np.asarray(params["obs_mean"], np.float32),
-              "obs_std": np.asarray(params["obs_std"], np.float32),
-              "kernels": tuple(np.asarray(k, np.float32) for k in params["kernels"]),
-              "biases": tuple(np.asarray(b, np.float32) for b in params["biases"])}
+    params = {
+        "obs_mean": np.asarray(params["obs_mean"], np.float32),
+        "obs_std": np.asarray(params["obs_std"], np.float32),
+        "kernels": tuple(np.asarray(k, np.float32) for k in params["kernels"]),
+        "biases": tuple(np.asarray(b, np.float32) for b in params["biases"]),
+    }
     check(params, meta, Path(out))
-    return write_directory(out, {WEIGHTS_FILE: npz_bytes(flatten(params)),
-                                 META_FILE: json.dumps(meta, indent=1).encode()})
+    return write_directory(
+        out, {WEIGHTS_FILE: npz_bytes(flatten(params)), META_FILE: json.dumps(meta, indent=1).encode()}
+    )
 
 
 def read_meta(directory: str | Path) -> dict:
@@ -217,8 +243,10 @@ def read_meta(directory: str | Path) -> dict:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise ValueError(f"policy file {path} is not an {FORMAT} file")
     if meta.get("format_version") != FORMAT_VERSION:
-        raise ValueError(f"policy file {path} has format version {meta.get('format_version')!r}; "
-                         f"this code reads version {FORMAT_VERSION}")
+        raise ValueError(
+            f"policy file {path} has format version {meta.get('format_version')!r}; "
+            f"this code reads version {FORMAT_VERSION}"
+        )
     missing = [k for k in ("observation", "action", "network") if not isinstance(meta.get(k), dict)]
     if missing:
         raise ValueError(f"policy file {path} is corrupt: missing section(s) {missing}")
@@ -238,8 +266,12 @@ def read_arrays(path: Path, layers: int) -> dict:
     missing = [n for n in ["obs_mean", "obs_std", *(n for pair in names for n in pair)] if n not in arrays]
     if missing:
         raise ValueError(f"policy file {path} lacks array(s) {missing}")
-    return {"obs_mean": arrays["obs_mean"], "obs_std": arrays["obs_std"],
-            "kernels": tuple(arrays[k] for k, _ in names), "biases": tuple(arrays[b] for _, b in names)}
+    return {
+        "obs_mean": arrays["obs_mean"],
+        "obs_std": arrays["obs_std"],
+        "kernels": tuple(arrays[k] for k, _ in names),
+        "biases": tuple(arrays[b] for _, b in names),
+    }
 
 
 def expected_shapes(meta: dict) -> dict[str, tuple[int, ...]]:
@@ -260,19 +292,23 @@ def check(params: dict, meta: dict, where: Path) -> None:
     """Every array float32, finite and of the shape the metadata says (ValueError naming the problem)."""
     net, obs = meta["network"], meta["observation"]
     if net.get("activation") not in ACTIVATIONS or net.get("output") not in SQUASH.values():
-        raise ValueError(f"policy {where}: unknown activation {net.get('activation')!r} or output "
-                         f"{net.get('output')!r}; supported: {list(ACTIVATIONS)}, {sorted(set(SQUASH.values()))}")
+        raise ValueError(
+            f"policy {where}: unknown activation {net.get('activation')!r} or output "
+            f"{net.get('output')!r}; supported: {list(ACTIVATIONS)}, {sorted(set(SQUASH.values()))}"
+        )
     if len(obs.get("labels", [])) != int(obs["size"]):
-        raise ValueError(f"policy {where}: {len(obs.get('labels', []))} observation labels for "
-                         f"observation size {obs['size']}")
+        raise ValueError(
+            f"policy {where}: {len(obs.get('labels', []))} observation labels for observation size {obs['size']}"
+        )
     try:
         expected = expected_shapes(meta)
     except ValueError as err:
         raise ValueError(f"policy {where}: {err}") from err
     for name, array in flatten(params).items():
         if array.dtype != np.float32 or array.shape != expected[name]:
-            raise ValueError(f"policy {where}: array {name} has {array.dtype} {array.shape}, "
-                             f"expected float32 {expected[name]}")
+            raise ValueError(
+                f"policy {where}: array {name} has {array.dtype} {array.shape}, expected float32 {expected[name]}"
+            )
         if not np.all(np.isfinite(array)):
             raise ValueError(f"policy {where}: array {name} holds NaN or Inf")
     if np.any(params["obs_std"] <= 0):

@@ -23,7 +23,6 @@ import importlib.util
 import io
 import sys
 import warnings
-
 from typing import Any
 
 import jax
@@ -87,11 +86,16 @@ def resolve(name: str, device: jax.Device | None = None) -> str:
         return name
     if name == "warp":
         if not warp_installed():
-            raise ValueError(f"physics.backend 'warp' needs the warp-lang package, which is not installed: {WARP_INSTALL}; "
-                             "or use physics.backend 'jax'")
+            raise ValueError(
+                f"physics.backend 'warp' needs the warp-lang package, which is not installed: {WARP_INSTALL}; "
+                "or use physics.backend 'jax'"
+            )
         if not has_cuda_gpu(device):
-            warnings.warn("physics.backend 'warp' on a CPU runs MuJoCo Warp's CPU kernels: correct but slow "
-                          "(for tests); 'jax' is the CPU path", stacklevel=2)
+            warnings.warn(
+                "physics.backend 'warp' on a CPU runs MuJoCo Warp's CPU kernels: correct but slow "
+                "(for tests); 'jax' is the CPU path",
+                stacklevel=2,
+            )
         _quiet_warp()
     return name
 
@@ -120,6 +124,7 @@ def mjx_impl(physics: str) -> str:
 def _quiet_warp() -> None:
     """Keep Warp's banner and per-module load messages off the console (its warnings stay)."""
     import warp
+
     warp.config.quiet = True
     if hasattr(warp, "LOG_WARNING"):  # warp-lang >= 1.10 times module loads at log level INFO
         warp.config.log_level = warp.LOG_WARNING
@@ -130,13 +135,22 @@ def put_model(mj_model: mujoco.MjModel, backend: str, device: jax.Device) -> mjx
     model = mjx.put_model(mj_model, impl=mjx_impl(backend), device=device)
     if backend == "warp":
         warp_opt = model.opt._impl
-        model = model.replace(opt=model.opt.replace(_impl=warp_opt.replace(
-            warn_overflow=int(warp_opt.warn_overflow) & ~_WARP_ITERATION_FLAGS)))
+        model = model.replace(
+            opt=model.opt.replace(
+                _impl=warp_opt.replace(warn_overflow=int(warp_opt.warn_overflow) & ~_WARP_ITERATION_FLAGS)
+            )
+        )
     return model
 
 
-def make_data(mj_model: mujoco.MjModel, backend: str, device: jax.Device, num_envs: int,
-              contacts_per_env: int, constraints_per_env: int) -> mjx.Data:
+def make_data(
+    mj_model: mujoco.MjModel,
+    backend: str,
+    device: jax.Device,
+    num_envs: int,
+    contacts_per_env: int,
+    constraints_per_env: int,
+) -> mjx.Data:
     """Fresh MJX data for one env of ``backend``.
 
     On Warp, ``num_envs`` is how many envs this data will be vmapped over: their contacts share one
@@ -145,8 +159,13 @@ def make_data(mj_model: mujoco.MjModel, backend: str, device: jax.Device, num_en
     The JAX implementation allocates every candidate contact statically and ignores all three.
     """
     if backend == "warp":
-        return mjx.make_data(mj_model, impl="warp", device=device, naconmax=contacts_per_env * max(num_envs, 1),
-                             njmax=constraints_per_env)
+        return mjx.make_data(
+            mj_model,
+            impl="warp",
+            device=device,
+            naconmax=contacts_per_env * max(num_envs, 1),
+            njmax=constraints_per_env,
+        )
     return mjx.make_data(mj_model, impl="jax", device=device)
 
 
@@ -160,6 +179,8 @@ def select(done: jax.Array, fresh: mjx.Data, current: mjx.Data) -> mjx.Data:
 def where(cond: jax.Array, a: Any, b: Any) -> Any:
     """``a`` where the scalar ``cond`` else ``b``, over any pytree of one env (inside ``vmap``); its
     ``mjx.Data`` are merged with :func:`select`."""
+
     def pick(x: Any, y: Any) -> Any:
         return select(cond, x, y) if isinstance(x, mjx.Data) else jnp.where(cond, x, y)
+
     return jax.tree.map(pick, a, b, is_leaf=lambda x: isinstance(x, mjx.Data))

@@ -58,7 +58,10 @@ def _lapack_cholesky(x: jax.Array) -> jax.Array:
     factor, info = jax.ffi.ffi_call(
         lapack.prepare_lapack_call("potrf_ffi", x.dtype),
         (jax.ShapeDtypeStruct(x.shape, x.dtype), jax.ShapeDtypeStruct(x.shape[:-2], jnp.int32)),
-        input_layouts=[layout], output_layouts=[layout, None], input_output_aliases={0: 0})(x, uplo=_char("L"))
+        input_layouts=[layout],
+        output_layouts=[layout, None],
+        input_output_aliases={0: 0},
+    )(x, uplo=_char("L"))
     return jnp.where((info == 0)[..., None, None], factor, jnp.nan)
 
 
@@ -72,26 +75,44 @@ def _cholesky_rule(ctx, x, **params):
 def _lapack_triangular_solve(a, b, *, left_side, lower, transpose_a, unit_diagonal):
     """``op(a) x = b`` (or ``x op(a) = b``) by LAPACK ``trsm``, for real ``a``."""
     return jax.ffi.ffi_call(
-        lapack.prepare_lapack_call("trsm_ffi", a.dtype), jax.ShapeDtypeStruct(b.shape, b.dtype),
-        input_layouts=[_column_major(a.ndim), _column_major(b.ndim)], output_layouts=_column_major(b.ndim),
-        input_output_aliases={1: 0})(
-        a, b, side=_char("L" if left_side else "R"), uplo=_char("L" if lower else "U"),
-        trans_x=_char("T" if transpose_a else "N"), diag=_char("U" if unit_diagonal else "N"))
+        lapack.prepare_lapack_call("trsm_ffi", a.dtype),
+        jax.ShapeDtypeStruct(b.shape, b.dtype),
+        input_layouts=[_column_major(a.ndim), _column_major(b.ndim)],
+        output_layouts=_column_major(b.ndim),
+        input_output_aliases={1: 0},
+    )(
+        a,
+        b,
+        side=_char("L" if left_side else "R"),
+        uplo=_char("L" if lower else "U"),
+        trans_x=_char("T" if transpose_a else "N"),
+        diag=_char("U" if unit_diagonal else "N"),
+    )
 
 
 def _triangular_solve_rule(ctx, a, b, *, left_side, lower, transpose_a, conjugate_a, unit_diagonal, **params):
     """LAPACK for small real batches, XLA's op otherwise (conjugation applies to complex ``a`` only)."""
     if _uses_lapack(ctx.avals_in[0]) and _uses_lapack(ctx.avals_in[1]):
         solve = lambda a, b: _lapack_triangular_solve(  # noqa: E731
-            a, b, left_side=left_side, lower=lower, transpose_a=transpose_a, unit_diagonal=unit_diagonal)
+            a, b, left_side=left_side, lower=lower, transpose_a=transpose_a, unit_diagonal=unit_diagonal
+        )
         return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
     if conjugate_a and not transpose_a:  # only complex types: conjugate first, then solve plainly
         solve = lambda a, b: linalg.triangular_solve(  # noqa: E731
-            jnp.conj(a), b, left_side=left_side, lower=lower, unit_diagonal=unit_diagonal)
+            jnp.conj(a), b, left_side=left_side, lower=lower, unit_diagonal=unit_diagonal
+        )
         return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
     transpose = ("ADJOINT" if conjugate_a else "TRANSPOSE") if transpose_a else "NO_TRANSPOSE"
-    return [hlo.triangular_solve(a, b, ir.BoolAttr.get(left_side), ir.BoolAttr.get(lower),
-                                 ir.BoolAttr.get(unit_diagonal), hlo.TransposeAttr.get(transpose))]
+    return [
+        hlo.triangular_solve(
+            a,
+            b,
+            ir.BoolAttr.get(left_side),
+            ir.BoolAttr.get(lower),
+            ir.BoolAttr.get(unit_diagonal),
+            hlo.TransposeAttr.get(transpose),
+        )
+    ]
 
 
 def use_xla_linalg_on_cpu() -> bool:

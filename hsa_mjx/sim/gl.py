@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import ctypes.util
 import os
-from typing import MutableMapping
+from collections.abc import MutableMapping
 
 OFFSCREEN = (("egl", "EGL"), ("osmesa", "OSMesa"))  # (MUJOCO_GL value, library), in order of preference
 

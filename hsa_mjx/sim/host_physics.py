@@ -45,27 +45,31 @@ class HostPhysics:
         self.model, self.servos = copy.copy(mj_model), np.asarray(index.servo_ids)
         self.data = mujoco.MjData(self.model)
 
-    def __call__(self, data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array] | None = None
-                 ) -> tuple[mjx.Data, SubstepStats]:
+    def __call__(
+        self, data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array] | None = None
+    ) -> tuple[mjx.Data, SubstepStats]:
         """Run one substep per row of ``targets`` (frame_skip, 8) from ``data``; the new data and stats.
 
         ``fields``: model fields of this env (``hsa_mjx.task.randomization.model_fields``), written into
         the C model before its substeps."""
         fields = fields or {}
         inputs = [getattr(data, name) for name in STATE_IN] + [targets] + list(fields.values())
-        shapes = tuple(jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype)
-                       for name in STATE_OUT) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
+        shapes = tuple(
+            jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype) for name in STATE_OUT
+        ) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
         names = tuple(fields)
-        *out, stats = jax.pure_callback(lambda *a: self._run(shapes, names, *a), shapes, *inputs,
-                                        vmap_method="sequential")
+        *out, stats = jax.pure_callback(
+            lambda *a: self._run(shapes, names, *a), shapes, *inputs, vmap_method="sequential"
+        )
         new = data.replace(**dict(zip(STATE_OUT, out)))
-        return new, SubstepStats(max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0,
-                                 final_abs_qacc=stats[3])
+        return new, SubstepStats(
+            max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0, final_abs_qacc=stats[3]
+        )
 
     def _run(self, shapes: tuple, names: tuple[str, ...], *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
         """Host side: load the model fields and state, step, return the fields (the env's shapes and
         dtypes) and the stats."""
-        state, targets, values = arrays[:len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1:]
+        state, targets, values = arrays[: len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1 :]
         for name, value in zip(names, values):
             np.copyto(getattr(self.model, name), np.asarray(value, np.float64))
         d = self.data
@@ -84,6 +88,7 @@ class HostPhysics:
         bad = reset or not (np.isfinite(qvel).all() and np.isfinite(qacc).all() and np.isfinite(d.qpos).all())
         qvel, qacc = np.nan_to_num(qvel), np.nan_to_num(qacc)
         stats = np.array([qvel.max(), qacc.max(), float(bad), qacc[-1]], np.float32)
-        outs = tuple(np.asarray(getattr(d, name), shape.dtype).reshape(shape.shape)
-                     for name, shape in zip(STATE_OUT, shapes))
+        outs = tuple(
+            np.asarray(getattr(d, name), shape.dtype).reshape(shape.shape) for name, shape in zip(STATE_OUT, shapes)
+        )
         return outs + (stats,)

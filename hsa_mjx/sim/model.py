@@ -15,10 +15,10 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx.sim import backend
-from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.resources import scene_path
+from hsa_mjx.sim import backend
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.cpu_linalg import use_xla_linalg_on_cpu
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.grid import HFIELD_NAME, Grid
@@ -28,12 +28,24 @@ use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU 
 
 # Action / observation slot order of the original (1A, 2A, 3A, 4A, 1C, 2C, 3C, 4C).
 ACTUATED_JOINTS = (
-    "cw_cont_1a_top", "cw_cont_2a_top", "cw_cont_3a_btm", "cw_cont_4a_btm",
-    "cw_ext_1c_top", "cw_ext_2c_top", "cw_ext_3c_btm", "cw_ext_4c_btm",
+    "cw_cont_1a_top",
+    "cw_cont_2a_top",
+    "cw_cont_3a_btm",
+    "cw_cont_4a_btm",
+    "cw_ext_1c_top",
+    "cw_ext_2c_top",
+    "cw_ext_3c_btm",
+    "cw_ext_4c_btm",
 )
 SERVOS = (
-    "spring1a_motor", "spring2a_motor", "spring3a_motor", "spring4a_motor",
-    "spring1c_motor", "spring2c_motor", "spring3c_motor", "spring4c_motor",
+    "spring1a_motor",
+    "spring2a_motor",
+    "spring3a_motor",
+    "spring4a_motor",
+    "spring1c_motor",
+    "spring2c_motor",
+    "spring3c_motor",
+    "spring4c_motor",
 )
 DISC_JOINTS = ("disc1b_hinge", "disc2b_hinge", "disc3b_hinge", "disc4b_hinge")
 FREE_JOINT_Z = 2  # a free joint's qpos: x, y, z, then the orientation quaternion

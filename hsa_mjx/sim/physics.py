@@ -23,26 +23,32 @@ class SubstepStats:
 
 def substep_stats(data: mjx.Data) -> SubstepStats:
     """Stats of one substep's state."""
-    finite = (jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel))
-              & jnp.all(jnp.isfinite(data.qacc)))
+    finite = jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)) & jnp.all(jnp.isfinite(data.qacc))
     qacc = jnp.max(jnp.abs(jnp.nan_to_num(data.qacc)))
-    return SubstepStats(max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))), max_abs_qacc=qacc,
-                        non_finite=jnp.logical_not(finite), final_abs_qacc=qacc)
+    return SubstepStats(
+        max_abs_qvel=jnp.max(jnp.abs(jnp.nan_to_num(data.qvel))),
+        max_abs_qacc=qacc,
+        non_finite=jnp.logical_not(finite),
+        final_abs_qacc=qacc,
+    )
 
 
 def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
     """Worst of two substep stats (``b`` the later one: its final |qacc| is kept)."""
-    return SubstepStats(jnp.maximum(a.max_abs_qvel, b.max_abs_qvel),
-                        jnp.maximum(a.max_abs_qacc, b.max_abs_qacc), a.non_finite | b.non_finite,
-                        b.final_abs_qacc)
+    return SubstepStats(
+        jnp.maximum(a.max_abs_qvel, b.max_abs_qvel),
+        jnp.maximum(a.max_abs_qacc, b.max_abs_qacc),
+        a.non_finite | b.non_finite,
+        b.final_abs_qacc,
+    )
 
 
-def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array,
-             index: RobotIndex) -> tuple[mjx.Data, SubstepStats]:
+def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array, index: RobotIndex) -> tuple[mjx.Data, SubstepStats]:
     """Run one physics step per row of ``targets`` (frame_skip, 8) with ``lax.scan``.
 
     Returns the final data and the worst velocity/acceleration/finiteness seen on the way.
     """
+
     def substep(carry, servo_target):
         data, stats = carry
         data = mjx.step(model, data.replace(ctrl=data.ctrl.at[index.servo_ids].set(servo_target)))

@@ -5,29 +5,26 @@ Wiring only: control, physics, observation, reward, termination and goals live i
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
 from brax.envs.base import Env as BraxEnv  # noqa: I001
-
-from hsa_mjx.sim import backend, physics
-from hsa_mjx.sim.host_physics import HostPhysics
-
-from hsa_mjx.task import control, goals, observation, privileged, randomization, reward, termination
-
-from hsa_mjx.terrain import height_scan
 
 from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
+from hsa_mjx.sim import backend, physics
+from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
+from hsa_mjx.sim.host_physics import HostPhysics
 from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
-from hsa_mjx.terrain.placement import Footprint
-from hsa_mjx.terrain.world import TerrainWorld
+from hsa_mjx.task import control, goals, observation, privileged, randomization, reward, termination
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
+from hsa_mjx.terrain import height_scan
+from hsa_mjx.terrain.placement import Footprint
+from hsa_mjx.terrain.world import TerrainWorld
 
 GOAL_MARKER_Z = 0.1
 Simulate = Callable[[mjx.Data, jax.Array, dict], tuple[mjx.Data, physics.SubstepStats]]
@@ -61,8 +58,7 @@ class HSAEnv(BraxEnv):
             ``state.info["privileged_obs"]`` (the PPO learner's ``ppo.privileged_critic``).
     """
 
-    def __init__(self, config: EnvConfig, asset_dir: Path | None = None, num_envs: int = 1,
-                 privileged: bool = False):
+    def __init__(self, config: EnvConfig, asset_dir: Path | None = None, num_envs: int = 1, privileged: bool = False):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.config, self.num_envs, self.privileged = config, int(num_envs), bool(privileged)
@@ -77,18 +73,28 @@ class HSAEnv(BraxEnv):
     def _init_static_arrays(self) -> None:
         """Precompute the reset state and static addresses once."""
         cfg, model = self.config, self.robot.mjx_model
-        data = backend.make_data(self.robot.mj_model, self.robot.backend, local_device(), self.num_envs,
-                                 cfg.physics.contacts_per_env, cfg.physics.constraints_per_env)
+        data = backend.make_data(
+            self.robot.mj_model,
+            self.robot.backend,
+            local_device(),
+            self.num_envs,
+            cfg.physics.contacts_per_env,
+            cfg.physics.constraints_per_env,
+        )
         qpos = data.qpos.at[self.index.block_z].set(cfg.spawn_height)
         self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
         self._checkpoints = jnp.asarray(
-            goals.spiral_checkpoints(cfg.goal, cfg.terrain.spiral) if cfg.goal.mode == "spiral" else np.zeros((1, 2), np.float32))
+            goals.spiral_checkpoints(cfg.goal, cfg.terrain.spiral)
+            if cfg.goal.mode == "spiral"
+            else np.zeros((1, 2), np.float32)
+        )
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
         self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))
         self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index)
-        self._obs_noise = randomization.noise_scales(observation.observation_labels(cfg.observation),
-                                                     cfg.observation.noise)
+        self._obs_noise = randomization.noise_scales(
+            observation.observation_labels(cfg.observation), cfg.observation.noise
+        )
         # block-origin height above level ground with the robot resting on it: the scan's zero
         self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
 
@@ -179,18 +185,37 @@ class HSAEnv(BraxEnv):
         distance, _ = observation.goal_vector(position, goal_xy)
         window = self.config.reward.stagnation_window
         task = TaskState(
-            goal_xy=goal_xy, checkpoints=self._checkpoints, checkpoint_index=index,
-            prev_action=jnp.zeros(self.action_size), prev_joint_vel=jnp.zeros(self.action_size), prev_distance=distance,
-            com_history=jnp.zeros((window, 2)), history_count=jnp.zeros((), jnp.int32),
-            step_count=jnp.zeros((), jnp.int32), rng=rng, tile=tile, terrain_id=terrain_id, realism=realism)
+            goal_xy=goal_xy,
+            checkpoints=self._checkpoints,
+            checkpoint_index=index,
+            prev_action=jnp.zeros(self.action_size),
+            prev_joint_vel=jnp.zeros(self.action_size),
+            prev_distance=distance,
+            com_history=jnp.zeros((window, 2)),
+            history_count=jnp.zeros((), jnp.int32),
+            step_count=jnp.zeros((), jnp.int32),
+            rng=rng,
+            tile=tile,
+            terrain_id=terrain_id,
+            realism=realism,
+        )
         obs, critic, task = self._observe(data, task)
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
-            jnp.zeros((), bool), distance, task.checkpoint_index)
+            jnp.zeros((), bool),
+            distance,
+            task.checkpoint_index,
+        )
         info = {"truncation": jnp.zeros(()), **({} if critic is None else {"privileged_obs": critic})}
-        return EnvState(pipeline_state=SimState(data, task), obs=obs, reward=jnp.zeros(()),
-                        done=jnp.zeros(()), metrics=metrics, info=info)
+        return EnvState(
+            pipeline_state=SimState(data, task),
+            obs=obs,
+            reward=jnp.zeros(()),
+            done=jnp.zeros(()),
+            metrics=metrics,
+            info=info,
+        )
 
     def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
         """Replace the current goal (non-spiral modes); progress terms restart from it."""
@@ -218,13 +243,11 @@ class HSAEnv(BraxEnv):
         end = control.next_targets(start, applied, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
         before = (observation.robot_xy(data, idx), observation.heading(data, idx))
-        fields = randomization.model_fields(self._nominal, state.pipeline_state.task.realism.physics,
-                                            cfg.randomization)
+        fields = randomization.model_fields(self._nominal, state.pipeline_state.task.realism.physics, cfg.randomization)
         new_data, stats = simulate(data, targets, fields)
         return self._outcome(state, action, bad_action, before, new_data, stats)
 
-    def _simulate(self, data: mjx.Data, targets: jax.Array, fields: dict
-                  ) -> tuple[mjx.Data, physics.SubstepStats]:
+    def _simulate(self, data: mjx.Data, targets: jax.Array, fields: dict) -> tuple[mjx.Data, physics.SubstepStats]:
         """The substeps on this env's physics (MJX's JAX or Warp implementation, or C MuJoCo), with
         this episode's randomised model fields."""
         if self._host is not None:
@@ -240,13 +263,21 @@ class HSAEnv(BraxEnv):
             task = task.replace(realism=task.realism.replace(action_queue=queue))
         if cfg.pushes:
             rng, key = jax.random.split(task.rng)
-            qvel, realism = randomization.apply_push(key, task.realism, data.qvel, task.step_count, cfg,
-                                                     self.config.dt, self.index.block_qvel)
+            qvel, realism = randomization.apply_push(
+                key, task.realism, data.qvel, task.step_count, cfg, self.config.dt, self.index.block_qvel
+            )
             task, data = task.replace(rng=rng, realism=realism), data.replace(qvel=qvel)
         return state.replace(pipeline_state=SimState(data, task)), data, applied
 
-    def _outcome(self, state: EnvState, action: jax.Array, bad_action: jax.Array, before: tuple,
-                 new_data: mjx.Data, stats: physics.SubstepStats) -> EnvState:
+    def _outcome(
+        self,
+        state: EnvState,
+        action: jax.Array,
+        bad_action: jax.Array,
+        before: tuple,
+        new_data: mjx.Data,
+        stats: physics.SubstepStats,
+    ) -> EnvState:
         """Everything after the physics: goal, observation, termination, reward, metrics."""
         cfg, idx = self.config, self.index
         task, data = state.pipeline_state.task, state.pipeline_state.physics
@@ -258,8 +289,7 @@ class HSAEnv(BraxEnv):
         steps = task.step_count + 1
         obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
-        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground,
-                                              cfg.termination, idx)
+        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
         failed = termination.any_reason(reasons)
         success = completed if cfg.goal.mode == "spiral" else distance < cfg.goal.success_radius
@@ -267,33 +297,53 @@ class HSAEnv(BraxEnv):
         terminated = failed | success
         task, progress, full = self._record_position(task, after)
         inputs = reward.RewardInputs(
-            velocity=velocity, goal_direction=direction, action=action, prev_action=task.prev_action,
+            velocity=velocity,
+            goal_direction=direction,
+            action=action,
+            prev_action=task.prev_action,
             joint_pos=observation.joint_positions(new_data, idx),
-            joint_vel=observation.joint_velocities(new_data, idx), prev_joint_vel=task.prev_joint_vel,
+            joint_vel=observation.joint_velocities(new_data, idx),
+            prev_joint_vel=task.prev_joint_vel,
             foot_force=physics.foot_forces(new_data, idx.foot_sensors),
-            distance=distance, prev_distance=task.prev_distance, stagnation_progress=progress,
-            history_full=full, checkpoint_collected=collected,
-            spiral_complete=completed & success, goal_reached=success & (cfg.goal.mode != "spiral"),
-            failed=failed, terminated=terminated, heading_before=before[1],
-            heading_after=observation.heading(new_data, idx), dt=cfg.dt,
+            distance=distance,
+            prev_distance=task.prev_distance,
+            stagnation_progress=progress,
+            history_full=full,
+            checkpoint_collected=collected,
+            spiral_complete=completed & success,
+            goal_reached=success & (cfg.goal.mode != "spiral"),
+            failed=failed,
+            terminated=terminated,
+            heading_before=before[1],
+            heading_after=observation.heading(new_data, idx),
+            dt=cfg.dt,
             rectified_forward=cfg.reward.forward_rectified,
-            constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())))
+            constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())),
+        )
         components = reward.compute_rewards(inputs, self.weights)
         total = reward.total_reward(components)
         truncated = (steps >= cfg.termination.max_episode_steps) & jnp.logical_not(terminated)
-        task = task.replace(prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance,
-                            step_count=steps)
+        task = task.replace(
+            prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance, step_count=steps
+        )
         new_data, obs, total = self._sanitize(data, new_data, obs, total, reasons["non_finite"])
         metrics = self._metrics(components, reasons, bad_action, distance, task.checkpoint_index)
         info = dict(state.info, truncation=truncated.astype(jnp.float32))
         if critic is not None:
             info["privileged_obs"] = jnp.where(jnp.isfinite(critic), critic, 0.0)
-        return state.replace(pipeline_state=SimState(new_data, task), obs=obs, reward=total,
-                             done=(terminated | truncated).astype(jnp.float32), metrics=metrics, info=info)
+        return state.replace(
+            pipeline_state=SimState(new_data, task),
+            obs=obs,
+            reward=total,
+            done=(terminated | truncated).astype(jnp.float32),
+            metrics=metrics,
+            info=info,
+        )
 
     # ----- helpers ------------------------------------------------------------------------
-    def _observe(self, data: mjx.Data, task: TaskState, time_s: jax.Array | float = 0.0
-                 ) -> tuple[jax.Array, jax.Array | None, TaskState]:
+    def _observe(
+        self, data: mjx.Data, task: TaskState, time_s: jax.Array | float = 0.0
+    ) -> tuple[jax.Array, jax.Array | None, TaskState]:
         """The policy's observation, the privileged critic inputs (None unless ``privileged``) and the
         task state (its key advanced when the scan draws noise)."""
         cfg = self.config.observation
@@ -313,9 +363,14 @@ class HSAEnv(BraxEnv):
     def _height_scan(self, data: mjx.Data, task: TaskState) -> tuple[jax.Array, jax.Array, TaskState]:
         """(noise-free scan, the policy's noisy copy, task state) as the observation holds them."""
         cfg = self.config.observation.height_scan
-        heights = height_scan.read(lambda xy: self.world.ground(task.tile, xy), self._scan_points,
-                                   observation.robot_xy(data, self.index), observation.heading(data, self.index),
-                                   jnp.mean(data.xpos[self.index.block_body, 2]), self._rest_height)
+        heights = height_scan.read(
+            lambda xy: self.world.ground(task.tile, xy),
+            self._scan_points,
+            observation.robot_xy(data, self.index),
+            observation.heading(data, self.index),
+            jnp.mean(data.xpos[self.index.block_body, 2]),
+            self._rest_height,
+        )
         noisy = heights
         if cfg.noise > 0:  # static: without noise the key stream stays as it was
             rng, key = jax.random.split(task.rng)
@@ -328,8 +383,9 @@ class HSAEnv(BraxEnv):
 
     def _track_start(self, key: jax.Array, index: jax.Array | None) -> tuple[jax.Array, jax.Array, tuple]:
         """A spiral start along the track (drawn, or at ``index``): (index, goal, move for ``_spawn``)."""
-        index, target, yaw = goals.track_start(key, self._checkpoints, self.config.goal.track_starts,
-                                               self._origin, index)
+        index, target, yaw = goals.track_start(
+            key, self._checkpoints, self.config.goal.track_starts, self._origin, index
+        )
         return index, self._checkpoints[index], (self._origin, target, yaw)
 
     def _spawn(self, tile: jax.Array, move: tuple | None = None) -> mjx.Data:
@@ -359,7 +415,8 @@ class HSAEnv(BraxEnv):
         if self.config.goal.mode != "spiral":
             return task, jnp.zeros((), bool), jnp.zeros((), bool)
         collected, completed, index = goals.advance_checkpoint(
-            position, task.checkpoints, task.checkpoint_index, self.config.goal.checkpoint_radius)
+            position, task.checkpoints, task.checkpoint_index, self.config.goal.checkpoint_radius
+        )
         goal_xy = task.checkpoints[index]
         # Measure progress towards the new checkpoint from here: no distance reward on a switch.
         new_prev = jnp.where(collected, jnp.linalg.norm(goal_xy - position), task.prev_distance)
@@ -372,10 +429,15 @@ class HSAEnv(BraxEnv):
         history = task.com_history.at[task.history_count % window].set(position)
         count = task.history_count + 1
         oldest = history[count % window]
-        return task.replace(com_history=history, history_count=count), jnp.linalg.norm(position - oldest), count >= window
+        return (
+            task.replace(com_history=history, history_count=count),
+            jnp.linalg.norm(position - oldest),
+            count >= window,
+        )
 
-    def _sanitize(self, old: mjx.Data, new: mjx.Data, obs: jax.Array, total: jax.Array,
-                  non_finite: jax.Array) -> tuple[mjx.Data, jax.Array, jax.Array]:
+    def _sanitize(
+        self, old: mjx.Data, new: mjx.Data, obs: jax.Array, total: jax.Array, non_finite: jax.Array
+    ) -> tuple[mjx.Data, jax.Array, jax.Array]:
         """Keep non-finite values away from learners: last finite physics, zeroed obs, finite reward."""
         data = backend.select(non_finite, old, new)
         obs = jnp.where(jnp.isfinite(obs), obs, 0.0)
@@ -383,8 +445,9 @@ class HSAEnv(BraxEnv):
         return data, obs, total
 
     @staticmethod
-    def _metrics(components: dict, reasons: dict, bad_action: jax.Array, distance: jax.Array,
-                 checkpoint_index: jax.Array) -> dict[str, jax.Array]:
+    def _metrics(
+        components: dict, reasons: dict, bad_action: jax.Array, distance: jax.Array, checkpoint_index: jax.Array
+    ) -> dict[str, jax.Array]:
         metrics = {f"reward/{k}": v.astype(jnp.float32) for k, v in components.items()}
         metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in reasons.items()})
         metrics["nonfinite_action"] = bad_action.astype(jnp.float32)

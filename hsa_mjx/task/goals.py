@@ -54,8 +54,7 @@ def random_goal(rng: jax.Array, types: tuple[str, ...], terrain_id: jax.Array | 
     return jnp.where(terrain_id == FLAT_ID, original_random_goal(rng, "flat"), original_random_goal(rng, "other"))
 
 
-def radial_goal(rng: jax.Array, radius_range: jax.Array,
-                bearing_deg: tuple[float, float] = FULL_CIRCLE) -> jax.Array:
+def radial_goal(rng: jax.Array, radius_range: jax.Array, bearing_deg: tuple[float, float] = FULL_CIRCLE) -> jax.Array:
     """Distance uniform in ``radius_range`` (traced); direction uniform in [0, 2 pi), or, with a
     static ``bearing_deg`` = (lo, hi), at lo..hi degrees from world +x (the spawn heading) on
     either side, each side equally likely."""
@@ -68,8 +67,13 @@ def radial_goal(rng: jax.Array, radius_range: jax.Array,
     return radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
 
 
-def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
-                 checkpoints: jax.Array, terrain_id: jax.Array | None = None) -> jax.Array:
+def initial_goal(
+    rng: jax.Array,
+    config: EnvConfig,
+    radius_range: jax.Array,
+    checkpoints: jax.Array,
+    terrain_id: jax.Array | None = None,
+) -> jax.Array:
     """The goal of a new episode; the mode is static, the ranges, checkpoints and terrain id traced."""
     mode = config.goal.mode
     if mode == "fixed":
@@ -81,8 +85,9 @@ def initial_goal(rng: jax.Array, config: EnvConfig, radius_range: jax.Array,
     return checkpoints[0]
 
 
-def track_start(rng: jax.Array, checkpoints: jax.Array, max_index: int, origin: jax.Array,
-                index: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+def track_start(
+    rng: jax.Array, checkpoints: jax.Array, max_index: int, origin: jax.Array, index: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """A spiral episode's start along the track: (checkpoint index, robot xy, yaw).
 
     The index k is uniform in 0..``max_index`` (static), or ``index`` when given (``rng`` is then
@@ -99,8 +104,9 @@ def track_start(rng: jax.Array, checkpoints: jax.Array, max_index: int, origin: 
     return index, start, yaw
 
 
-def advance_checkpoint(position: jax.Array, checkpoints: jax.Array, index: jax.Array,
-                       radius: float) -> tuple[jax.Array, jax.Array, jax.Array]:
+def advance_checkpoint(
+    position: jax.Array, checkpoints: jax.Array, index: jax.Array, radius: float
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Collect the current checkpoint if within ``radius``.
 
     Returns (collected, completed, new index); the index stops at N - 1 after the last one.

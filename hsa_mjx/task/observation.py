@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from hsa_mjx.sim.backend import mjx
 
-from hsa_mjx.terrain import height_scan as scan_module
 from hsa_mjx.config import ObservationConfig
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.terrain import height_scan as scan_module
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
@@ -26,9 +26,11 @@ ORIGINAL = ObservationConfig()  # no optional entries: the original's 24 values
 # them in this order). The heading frame's goal direction is (x ahead, y left).
 HINGE_ANGLE_LABELS = tuple(f"hinge_angle_{i}" for i in range(8))  # raw or wrapped
 SINCOS_LABELS = tuple(f"hinge_sin_{i}" for i in range(8)) + tuple(f"hinge_cos_{i}" for i in range(8))
-ORIGINAL_LABELS = (HINGE_ANGLE_LABELS + tuple(f"hinge_velocity_{i}" for i in range(8))
-                   + ("robot_x", "robot_y", "block_vx", "block_vy", "block_vz", "goal_distance", "goal_dir_x",
-                      "goal_dir_y"))
+ORIGINAL_LABELS = (
+    HINGE_ANGLE_LABELS
+    + tuple(f"hinge_velocity_{i}" for i in range(8))
+    + ("robot_x", "robot_y", "block_vx", "block_vy", "block_vz", "goal_distance", "goal_dir_x", "goal_dir_y")
+)
 HEADING_LABELS = ("heading_cos", "heading_sin", "goal_dir_ahead", "goal_dir_left")
 SERVO_TARGET_LABELS = tuple(f"servo_target_{i}" for i in range(8))  # action-slot order
 CLOCK_LABELS = ("clock_sin", "clock_cos")
@@ -37,9 +39,13 @@ CLOCK_LABELS = ("clock_sin", "clock_cos")
 def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
     """A short name per observation slot for this observation config, in ``observe``'s order."""
     base = ORIGINAL_LABELS if config.hinge_angles != "sincos" else SINCOS_LABELS + ORIGINAL_LABELS[8:]
-    return (base + (HEADING_LABELS if config.heading else ())
-            + (SERVO_TARGET_LABELS if config.servo_targets else ()) + (CLOCK_LABELS if config.clock_period_s > 0 else ())
-            + scan_module.labels(config.height_scan))
+    return (
+        base
+        + (HEADING_LABELS if config.heading else ())
+        + (SERVO_TARGET_LABELS if config.servo_targets else ())
+        + (CLOCK_LABELS if config.clock_period_s > 0 else ())
+        + scan_module.labels(config.height_scan)
+    )
 
 
 def observation_size(config: ObservationConfig) -> int:
@@ -110,9 +116,14 @@ def gait_clock(time_s: jax.Array, period_s: float) -> jax.Array:
     return jnp.stack([jnp.sin(phase), jnp.cos(phase)])
 
 
-def observe(data: mjx.Data, goal_xy: jax.Array, index: RobotIndex,
-            config: ObservationConfig = ORIGINAL, time_s: jax.Array | float = 0.0,
-            height_scan: jax.Array | None = None) -> jax.Array:
+def observe(
+    data: mjx.Data,
+    goal_xy: jax.Array,
+    index: RobotIndex,
+    config: ObservationConfig = ORIGINAL,
+    time_s: jax.Array | float = 0.0,
+    height_scan: jax.Array | None = None,
+) -> jax.Array:
     """Build the observation (float32): the original's 24 values, then the enabled optional entries.
 
     ``time_s`` is the episode time (env steps x dt), read only by the gait clock; ``height_scan`` the

@@ -22,11 +22,12 @@ class EnvParams:
     terrain_cell: jax.Array  # (2,) int32: (type row in terrain.types, level), or FREE_CELL
 
     @staticmethod
-    def make(goal_range, terrain_cell=FREE_CELL) -> "EnvParams":
+    def make(goal_range, terrain_cell=FREE_CELL) -> EnvParams:
         """Parameters from plain values (arrays of the right dtypes)."""
-        return EnvParams(goal_range=jnp.asarray(goal_range, jnp.float32),
-                         terrain_cell=jnp.asarray(terrain_cell, jnp.int32))
+        return EnvParams(
+            goal_range=jnp.asarray(goal_range, jnp.float32), terrain_cell=jnp.asarray(terrain_cell, jnp.int32)
+        )
 
-    def repeat(self, batch: int) -> "EnvParams":
+    def repeat(self, batch: int) -> EnvParams:
         """The same parameters for every env of a batch (leading axis ``batch``)."""
         return jax.tree.map(lambda x: jnp.broadcast_to(x, (batch,) + x.shape), self)

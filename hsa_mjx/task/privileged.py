@@ -13,11 +13,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx.terrain import height_scan
-from hsa_mjx.sim.backend import mjx
 from hsa_mjx.config import ObservationConfig
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.sim.physics import foot_forces
+from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
 FORCE_UNIT = 100.0  # N: contact forces are given in hundreds of newtons (resting feet carry ~12 N each)
@@ -29,8 +29,13 @@ def labels(config: ObservationConfig) -> tuple[str, ...]:
     """A name per privileged value, in :func:`inputs`' order."""
     scan = tuple(f"clean_{name}" for name in height_scan.labels(config.height_scan))
     velocity = tuple(f"block_{b}_{kind}{axis}" for b in "ab" for kind in ("v", "w") for axis in "xyz")
-    return (scan + velocity + tuple(f"foot_force_{i}" for i in range(FEET))
-            + tuple(f"terrain_is_{name}" for name in TERRAIN_TYPES) + ("terrain_level",))
+    return (
+        scan
+        + velocity
+        + tuple(f"foot_force_{i}" for i in range(FEET))
+        + tuple(f"terrain_is_{name}" for name in TERRAIN_TYPES)
+        + ("terrain_level",)
+    )
 
 
 def size(config: ObservationConfig) -> int:
@@ -38,11 +43,17 @@ def size(config: ObservationConfig) -> int:
     return len(labels(config))
 
 
-def inputs(data: mjx.Data, index: RobotIndex, clean_scan: jax.Array, terrain_id: jax.Array,
-           level_fraction: jax.Array) -> jax.Array:
+def inputs(
+    data: mjx.Data, index: RobotIndex, clean_scan: jax.Array, terrain_id: jax.Array, level_fraction: jax.Array
+) -> jax.Array:
     """The privileged values (float32); ``clean_scan``: the noise-free scan as the observation shapes it
     ((0,) when off)."""
     block_velocity = data.qvel[index.block_qvel[:, None] + jnp.arange(BLOCK_DOFS)[None, :]].reshape(-1)
-    parts = [clean_scan, block_velocity, foot_forces(data, index.foot_sensors) / FORCE_UNIT,
-             jax.nn.one_hot(terrain_id, len(TERRAIN_TYPES)), jnp.reshape(level_fraction, (1,))]
+    parts = [
+        clean_scan,
+        block_velocity,
+        foot_forces(data, index.foot_sensors) / FORCE_UNIT,
+        jax.nn.one_hot(terrain_id, len(TERRAIN_TYPES)),
+        jnp.reshape(level_fraction, (1,)),
+    ]
     return jnp.concatenate([jnp.asarray(p, jnp.float32) for p in parts])

@@ -32,8 +32,17 @@ from flax import struct
 from hsa_mjx.randomization_config import NOISE_GROUPS, NOMINAL, ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.sim.model import RobotIndex
 
-FIELDS = ("geom_friction", "pair_friction", "body_mass", "body_inertia", "tendon_stiffness", "tendon_damping",
-          "actuator_gainprm", "actuator_biasprm", "actuator_forcerange")
+FIELDS = (
+    "geom_friction",
+    "pair_friction",
+    "body_mass",
+    "body_inertia",
+    "tendon_stiffness",
+    "tendon_damping",
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "actuator_forcerange",
+)
 # observation slot label prefixes of each noise group (hsa_mjx.task.observation.observation_labels)
 NOISE_LABELS = {
     "hinge_angles": ("hinge_angle_", "hinge_sin_", "hinge_cos_"),
@@ -57,11 +66,17 @@ class PhysicsScales:
     servo_force_limit: jax.Array  # () N m (inf: no limit)
 
     @staticmethod
-    def nominal() -> "PhysicsScales":
+    def nominal() -> PhysicsScales:
         """The asset's own values (all scales 1, no torque limit)."""
         one = jnp.ones((), jnp.float32)
-        return PhysicsScales(friction=one, block_mass=jnp.ones((2,), jnp.float32), hsa_stiffness=one,
-                             hsa_damping=one, servo_gain=one, servo_force_limit=jnp.full((), jnp.inf, jnp.float32))
+        return PhysicsScales(
+            friction=one,
+            block_mass=jnp.ones((2,), jnp.float32),
+            hsa_stiffness=one,
+            hsa_damping=one,
+            servo_gain=one,
+            servo_force_limit=jnp.full((), jnp.inf, jnp.float32),
+        )
 
 
 def _uniform(key: jax.Array, bounds: tuple[float, float], shape: tuple = ()) -> jax.Array:
@@ -74,11 +89,14 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
     """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
     keys = jax.random.split(key, 6)
     limit = _uniform(keys[5], config.servo_force_limit) if config.limits_force else jnp.full((), jnp.inf)
-    return PhysicsScales(friction=_uniform(keys[0], config.friction),
-                         block_mass=_uniform(keys[1], config.block_mass, (2,)),
-                         hsa_stiffness=_uniform(keys[2], config.hsa_stiffness),
-                         hsa_damping=_uniform(keys[3], config.hsa_damping),
-                         servo_gain=_uniform(keys[4], config.servo_gain), servo_force_limit=limit.astype(jnp.float32))
+    return PhysicsScales(
+        friction=_uniform(keys[0], config.friction),
+        block_mass=_uniform(keys[1], config.block_mass, (2,)),
+        hsa_stiffness=_uniform(keys[2], config.hsa_stiffness),
+        hsa_damping=_uniform(keys[3], config.hsa_damping),
+        servo_gain=_uniform(keys[4], config.servo_gain),
+        servo_force_limit=limit.astype(jnp.float32),
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,11 +109,12 @@ class NominalModel:
     tendons: np.ndarray
 
     @staticmethod
-    def from_model(mj_model: mujoco.MjModel, index: RobotIndex) -> "NominalModel":
+    def from_model(mj_model: mujoco.MjModel, index: RobotIndex) -> NominalModel:
         """Read the fields once from the compiled C model."""
         values = {name: np.array(getattr(mj_model, name), np.float32) for name in FIELDS}
-        return NominalModel(values, np.asarray(index.block_body), np.asarray(index.servo_ids),
-                            np.arange(mj_model.ntendon))
+        return NominalModel(
+            values, np.asarray(index.block_body), np.asarray(index.servo_ids), np.arange(mj_model.ntendon)
+        )
 
 
 def model_fields(nominal: NominalModel, scales: PhysicsScales, config: RandomizationConfig) -> dict[str, jax.Array]:
@@ -138,9 +157,12 @@ NEVER = np.iinfo(np.int32).max  # next_push without pushes
 
 def nominal_state(config: RandomizationConfig, action_size: int) -> RealismState:
     """An episode without draws: the asset's model, no latency, no pushes (the queue sized for the config)."""
-    return RealismState(physics=PhysicsScales.nominal(),
-                        action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
-                        latency=jnp.zeros((), jnp.int32), next_push=jnp.asarray(NEVER, jnp.int32))
+    return RealismState(
+        physics=PhysicsScales.nominal(),
+        action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
+        latency=jnp.zeros((), jnp.int32),
+        next_push=jnp.asarray(NEVER, jnp.int32),
+    )
 
 
 def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, dt: float) -> RealismState:
@@ -150,12 +172,23 @@ def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, d
     lo, hi = config.latency_steps
     latency = jax.random.randint(k_latency, (), lo, hi + 1, jnp.int32)
     next_push = push_interval_steps(k_push, config, dt) if config.pushes else jnp.asarray(NEVER, jnp.int32)
-    return RealismState(physics=physics, action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
-                        latency=latency, next_push=next_push)
+    return RealismState(
+        physics=physics,
+        action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
+        latency=latency,
+        next_push=next_push,
+    )
 
 
-def apply_push(key: jax.Array, realism: RealismState, qvel: jax.Array, step_count: jax.Array,
-               config: RandomizationConfig, dt: float, block_qvel: np.ndarray) -> tuple[jax.Array, RealismState]:
+def apply_push(
+    key: jax.Array,
+    realism: RealismState,
+    qvel: jax.Array,
+    step_count: jax.Array,
+    config: RandomizationConfig,
+    dt: float,
+    block_qvel: np.ndarray,
+) -> tuple[jax.Array, RealismState]:
     """Push both blocks when this step is the push's (and draw the next one); qvel and the new state."""
     k_velocity, k_next = jax.random.split(key)
     due = step_count >= realism.next_push

@@ -48,7 +48,7 @@ class RewardWeights:
     heading_alignment: jax.Array
 
     @classmethod
-    def from_config(cls, config: RewardConfig) -> "RewardWeights":
+    def from_config(cls, config: RewardConfig) -> RewardWeights:
         """Take every numeric field of ``config`` that is a weight or term parameter."""
         names = [f for f in cls.__dataclass_fields__]
         return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
@@ -185,9 +185,22 @@ def heading_alignment(x: RewardInputs, w: RewardWeights) -> jax.Array:
 
 
 TERMS = (
-    forward, lateral_cost, ctrl_cost, contact_cost, constraint_cost, constraint_bonus,
-    acceleration_cost, joint_velocity_cost, distance, stagnation_cost, checkpoint,
-    spiral_completion, goal_bonus, alive, termination, heading_alignment,
+    forward,
+    lateral_cost,
+    ctrl_cost,
+    contact_cost,
+    constraint_cost,
+    constraint_bonus,
+    acceleration_cost,
+    joint_velocity_cost,
+    distance,
+    stagnation_cost,
+    checkpoint,
+    spiral_completion,
+    goal_bonus,
+    alive,
+    termination,
+    heading_alignment,
 )
 TERM_NAMES = tuple(term.__name__ for term in TERMS)
 

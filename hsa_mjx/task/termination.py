@@ -4,22 +4,33 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from hsa_mjx.sim.backend import mjx
 
 from hsa_mjx.config import TerminationConfig
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.sim.physics import SubstepStats
 
 FAILURE_REASONS = (
-    "non_finite", "block_a_too_high", "block_a_too_low", "block_b_too_high", "block_b_too_low",
-    "qvel_limit", "qacc_limit", "out_of_bounds",
+    "non_finite",
+    "block_a_too_high",
+    "block_a_too_low",
+    "block_b_too_high",
+    "block_b_too_low",
+    "qvel_limit",
+    "qacc_limit",
+    "out_of_bounds",
 )
 REASONS = FAILURE_REASONS + ("goal_reached",)
 
 
-def failure_reasons(data: mjx.Data, stats: SubstepStats, obs_finite: jax.Array,
-                    ground_height: jax.Array, config: TerminationConfig,
-                    index: RobotIndex) -> dict[str, jax.Array]:
+def failure_reasons(
+    data: mjx.Data,
+    stats: SubstepStats,
+    obs_finite: jax.Array,
+    ground_height: jax.Array,
+    config: TerminationConfig,
+    index: RobotIndex,
+) -> dict[str, jax.Array]:
     """Each failure reason but ``out_of_bounds`` (the env adds it) as a bool.
 
     Block heights are measured from ``ground_height``: the surface under each block, shape (2,),

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import jax
-from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
 from brax.envs.base import State as BraxState  # noqa: I001
 from flax import struct
 
+from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
 from hsa_mjx.task.randomization import RealismState
 
 

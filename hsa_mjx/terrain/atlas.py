@@ -43,7 +43,7 @@ class AtlasLayout:
     difficulties: tuple[float, ...] = (1.0,)
 
     @classmethod
-    def from_config(cls, config: TerrainConfig, tile: Grid) -> "AtlasLayout":
+    def from_config(cls, config: TerrainConfig, tile: Grid) -> AtlasLayout:
         """One row per type: per level ``tiles_per_type`` tiles of a random type, one of a deterministic
         type; a single tile when the terrain is shared (``per_env: false``)."""
         if not config.per_env:
@@ -67,8 +67,14 @@ class AtlasLayout:
     def grid(self) -> Grid:
         """The atlas heightfield: ``rows x cols`` tiles at the tile's vertex spacing."""
         nrow, ncol = self.rows * self.tile.nrow, self.cols * self.tile.ncol
-        return Grid(nrow, ncol, 0.5 * (ncol - 1) * self.tile.spacing_x, 0.5 * (nrow - 1) * self.tile.spacing_y,
-                    self.tile.z_scale, self.tile.base)
+        return Grid(
+            nrow,
+            ncol,
+            0.5 * (ncol - 1) * self.tile.spacing_x,
+            0.5 * (nrow - 1) * self.tile.spacing_y,
+            self.tile.z_scale,
+            self.tile.base,
+        )
 
     def slots(self) -> list[tuple[int, int]]:
         """(row, col) of every drawable tile, in tile-index order (row by row, level by level)."""
@@ -81,8 +87,13 @@ class AtlasLayout:
     def centres(self) -> np.ndarray:
         """Each tile's centre in the atlas frame, (tiles, 2): where the floor moves to put it at the origin."""
         atlas, tile = self.grid, self.tile
-        out = [(-atlas.half_x + (c * tile.ncol + 0.5 * (tile.ncol - 1)) * tile.spacing_x,
-                -atlas.half_y + (r * tile.nrow + 0.5 * (tile.nrow - 1)) * tile.spacing_y) for r, c in self.slots()]
+        out = [
+            (
+                -atlas.half_x + (c * tile.ncol + 0.5 * (tile.ncol - 1)) * tile.spacing_x,
+                -atlas.half_y + (r * tile.nrow + 0.5 * (tile.nrow - 1)) * tile.spacing_y,
+            )
+            for r, c in self.slots()
+        ]
         return np.asarray(out, np.float32)
 
     def assemble(self, tiles: np.ndarray) -> np.ndarray:
@@ -90,7 +101,9 @@ class AtlasLayout:
         t = self.tile
         atlas = np.zeros((self.rows * t.nrow, self.cols * t.ncol), np.float32)
         for (r, c), data in zip(self.slots(), tiles):
-            atlas[r * t.nrow:(r + 1) * t.nrow, c * t.ncol:(c + 1) * t.ncol] = np.asarray(data).reshape(t.nrow, t.ncol)
+            atlas[r * t.nrow : (r + 1) * t.nrow, c * t.ncol : (c + 1) * t.ncol] = np.asarray(data).reshape(
+                t.nrow, t.ncol
+            )
         return atlas.reshape(-1)
 
 
@@ -102,16 +115,23 @@ class TerrainPool:
     uniformly; then one of that cell's tiles uniformly. With a shared terrain: always tile 0.
     """
 
-    def __init__(self, config: TerrainConfig, layout: AtlasLayout, tiles: np.ndarray | None = None,
-                 tile_type: np.ndarray | None = None):
+    def __init__(
+        self,
+        config: TerrainConfig,
+        layout: AtlasLayout,
+        tiles: np.ndarray | None = None,
+        tile_type: np.ndarray | None = None,
+    ):
         """Draw the pool's tiles from ``config.seed``, or take given ``tiles`` (tiles, tile size) and their
         ``tile_type`` ids (e.g. hand-made terrain in tests)."""
         self.config, self.layout = config, layout
         if tiles is None:
             tiles, tile_type = _draw_tiles(config, layout)
         if len(tiles) != len(layout.slots()) or len(tile_type) != len(tiles):
-            raise ValueError(f"a pool of this layout holds {len(layout.slots())} tiles, got {len(tiles)} "
-                             f"(and {len(tile_type)} type ids)")
+            raise ValueError(
+                f"a pool of this layout holds {len(layout.slots())} tiles, got {len(tiles)} "
+                f"(and {len(tile_type)} type ids)"
+            )
         self.tiles = np.asarray(tiles, np.float32)  # (tiles, tile nrow * ncol) in [0, 1]
         self.tile_type = np.asarray(tile_type, np.int32)  # (tiles,) index into TERRAIN_TYPES
         self.centres = layout.centres()
@@ -128,10 +148,16 @@ class TerrainPool:
         if not self.config.per_env:
             return jnp.zeros((), jnp.int32), jnp.asarray(self.tile_type[0], jnp.int32)
         k_type, k_tile = jax.random.split(key)
-        row = jax.random.categorical(k_type, self._log_p).astype(jnp.int32) if len(self._log_p) > 1 \
+        row = (
+            jax.random.categorical(k_type, self._log_p).astype(jnp.int32)
+            if len(self._log_p) > 1
             else jnp.zeros((), jnp.int32)
-        level = jax.random.randint(jax.random.fold_in(k_type, 1), (), 0, self.layout.levels) \
-            if self.layout.levels > 1 else jnp.zeros((), jnp.int32)
+        )
+        level = (
+            jax.random.randint(jax.random.fold_in(k_type, 1), (), 0, self.layout.levels)
+            if self.layout.levels > 1
+            else jnp.zeros((), jnp.int32)
+        )
         if cell is None:
             return self._tile(k_tile, row, level)
         free = cell[0] < 0

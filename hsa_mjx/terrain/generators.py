@@ -22,7 +22,8 @@ whatever the grid alignment (the original snapped them to the 0.2 m cell it assu
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -31,8 +32,16 @@ import numpy as np
 from hsa_mjx.terrain import noise
 from hsa_mjx.terrain.grid import Grid
 from hsa_mjx.terrain.params import (
-    CorridorParams, CratersParams, FlatWithInclineParams, FlatWithRampParams, InclineParams,
-    PerlinParams, PolesParams, SpiralParams, StairsParams, WavyParams,
+    CorridorParams,
+    CratersParams,
+    FlatWithInclineParams,
+    FlatWithRampParams,
+    InclineParams,
+    PerlinParams,
+    PolesParams,
+    SpiralParams,
+    StairsParams,
+    WavyParams,
 )
 
 Generator = Callable[..., jax.Array]  # (key, params, grid, x, y, difficulty=1.0) -> heights
@@ -73,22 +82,25 @@ def _pairwise_distance(x: jax.Array, y: jax.Array, cx: jax.Array, cy: jax.Array)
     return jnp.hypot(x[..., None] - cx, y[..., None] - cy)
 
 
-def wavy(key: jax.Array, p: WavyParams, grid: Grid, x: jax.Array, y: jax.Array,
-         difficulty: Difficulty = 1.0) -> jax.Array:
+def wavy(
+    key: jax.Array, p: WavyParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """amplitude * sin(scale x) * cos(scale y): 0 at the spawn point."""
     return difficulty * p.amplitude * jnp.sin(p.scale * x) * jnp.cos(p.scale * y)
 
 
-def perlin(key: jax.Array, p: PerlinParams, grid: Grid, x: jax.Array, y: jax.Array,
-           difficulty: Difficulty = 1.0) -> jax.Array:
+def perlin(
+    key: jax.Array, p: PerlinParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Fractal Perlin noise scaled by ``amplitude``; a new field for every key, 0 at the origin."""
     extent = max(grid.half_x, grid.half_y)
     field = noise.fractal_noise(key, x, y, p.scale, p.octaves, p.persistence, p.lacunarity, extent)
     return difficulty * p.amplitude * field
 
 
-def stairs(key: jax.Array, p: StairsParams, grid: Grid, x: jax.Array, y: jax.Array,
-           difficulty: Difficulty = 1.0) -> jax.Array:
+def stairs(
+    key: jax.Array, p: StairsParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Steps of ``step_height`` every ``step_length`` along +x; step 0 covers |x| < step_length / 2."""
     s = x / p.step_length + 0.5  # step boundaries at integer s
     ramp = min(grid.spacing_x / p.step_length, 1.0)
@@ -101,14 +113,16 @@ def flat(key: jax.Array, p: Any, grid: Grid, x: jax.Array, y: jax.Array, difficu
     return jnp.zeros(jnp.broadcast_shapes(jnp.shape(x), jnp.shape(y)), jnp.float32)
 
 
-def incline(key: jax.Array, p: InclineParams, grid: Grid, x: jax.Array, y: jax.Array,
-            difficulty: Difficulty = 1.0) -> jax.Array:
+def incline(
+    key: jax.Array, p: InclineParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """A plane through the spawn point rising at ``difficulty x angle`` degrees along ``direction``."""
     return _slope(p.angle, difficulty) * _slope_coordinate(x, y, p.direction)
 
 
-def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.Array,
-            difficulty: Difficulty = 1.0) -> jax.Array:
+def craters(
+    key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """``num`` Gaussian dips at random vertices, each cut off at its radius; overlaps add up."""
     if p.num == 0:
         return flat(key, p, grid, x, y)
@@ -117,15 +131,19 @@ def craters(key: jax.Array, p: CratersParams, grid: Grid, x: jax.Array, y: jax.A
     radius = jax.random.uniform(k_radius, (p.num,), minval=p.radius[0], maxval=p.radius[1])
     depth = jax.random.uniform(k_depth, (p.num,), minval=p.depth[0], maxval=p.depth[1])
     d = _pairwise_distance(x, y, cx, cy)
-    dip = depth * jnp.exp(-(d ** 2) / (2.0 * (radius / 3.0) ** 2))
+    dip = depth * jnp.exp(-(d**2) / (2.0 * (radius / 3.0) ** 2))
     return -difficulty * jnp.sum(jnp.where(d < radius, dip, 0.0), axis=-1)
 
 
 def _spacing_offsets(grid: Grid, spacing: float) -> list[tuple[int, int]]:
     """Static (row, col) offsets of the vertices closer than ``spacing`` to a vertex (itself excluded)."""
     reach_r, reach_c = int(spacing / grid.spacing_y) + 1, int(spacing / grid.spacing_x) + 1
-    return [(dr, dc) for dr in range(-reach_r, reach_r + 1) for dc in range(-reach_c, reach_c + 1)
-            if (dr, dc) != (0, 0) and math.hypot(dr * grid.spacing_y, dc * grid.spacing_x) < spacing]
+    return [
+        (dr, dc)
+        for dr in range(-reach_r, reach_r + 1)
+        for dc in range(-reach_c, reach_c + 1)
+        if (dr, dc) != (0, 0) and math.hypot(dr * grid.spacing_y, dc * grid.spacing_x) < spacing
+    ]
 
 
 def pole_centres(key: jax.Array, p: PolesParams, grid: Grid) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -145,14 +163,15 @@ def pole_centres(key: jax.Array, p: PolesParams, grid: Grid) -> tuple[jax.Array,
     padded = jnp.pad(priority, ((pad_r, pad_r), (pad_c, pad_c)), constant_values=-1.0)
     rival = jnp.full_like(priority, -1.0)
     for dr, dc in offsets:  # static neighbourhood, unrolled at trace time
-        rival = jnp.maximum(rival, padded[pad_r + dr:pad_r + dr + grid.nrow, pad_c + dc:pad_c + dc + grid.ncol])
+        rival = jnp.maximum(rival, padded[pad_r + dr : pad_r + dr + grid.nrow, pad_c + dc : pad_c + dc + grid.ncol])
     score = jnp.where(valid & (priority > rival), priority, -1.0).reshape(-1)
     top, index = jax.lax.top_k(score, min(p.num, grid.size))
     return x.reshape(-1)[index], y.reshape(-1)[index], top >= 0.0
 
 
-def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array,
-          difficulty: Difficulty = 1.0) -> jax.Array:
+def poles(
+    key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Poles of random radius and height: full height up to ``radius - edge``, linear to 0 at ``radius``.
 
     ``edge`` is one vertex spacing (or the radius if smaller), so the default 0.2 m poles are the
@@ -172,8 +191,9 @@ def poles(key: jax.Array, p: PolesParams, grid: Grid, x: jax.Array, y: jax.Array
     return difficulty * jnp.max(profile, axis=-1)
 
 
-def flat_with_incline(key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: jax.Array,
-                      y: jax.Array, difficulty: Difficulty = 1.0) -> jax.Array:
+def flat_with_incline(
+    key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Flat ground; inside the rectangle a slope (``difficulty x angle``) rising from 0 at its start edge, then a drop."""
     x0, x1 = (grid.fraction_to_x(f) for f in p.x_range)
     y0, y1 = (grid.fraction_to_y(f) for f in p.y_range)
@@ -182,8 +202,9 @@ def flat_with_incline(key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: j
     return jnp.where(inside, rise, 0.0)
 
 
-def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Array, y: jax.Array,
-                   difficulty: Difficulty = 1.0) -> jax.Array:
+def flat_with_ramp(
+    key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Flat ground with a ramp from 0 to ``difficulty x height`` over ``length``, optionally faded at its sides."""
     dx, dy = x - grid.fraction_to_x(p.center[0]), y - grid.fraction_to_y(p.center[1])
     along_x = p.direction.endswith("x")
@@ -200,8 +221,9 @@ def flat_with_ramp(key: jax.Array, p: FlatWithRampParams, grid: Grid, x: jax.Arr
     return jnp.where(inside, rise, 0.0)
 
 
-def corridor(key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array,
-             difficulty: Difficulty = 1.0) -> jax.Array:
+def corridor(
+    key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Walls of ``wall_height`` on both sides of a floor running along ``axis``."""
     if p.axis == "x":
         lateral, ramp = y - grid.fraction_to_y(p.center), grid.spacing_y
@@ -232,8 +254,9 @@ def spiral_extension(p: SpiralParams) -> float:
     return p.track_width / max(p.end_radius, p.track_width)
 
 
-def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array,
-           difficulty: Difficulty = 1.0) -> jax.Array:
+def spiral(
+    key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
+) -> jax.Array:
     """Walls everywhere except the spiral track (the checkpoint path) and a start disc of radius r0."""
     ramp = max(grid.spacing_x, grid.spacing_y)
     track = soft_edge(spiral_track_distance(p, x, y, spiral_extension(p)), 0.5 * p.track_width, ramp)
@@ -243,15 +266,31 @@ def spiral(key: jax.Array, p: SpiralParams, grid: Grid, x: jax.Array, y: jax.Arr
 
 # What difficulty scales in each type (its value at difficulty 1 is the configured one).
 DIFFICULTY_PARAMETER: dict[str, str] = {
-    "wavy": "amplitude", "perlin": "amplitude", "stairs": "step_height", "flat": "(none: always level)",
-    "incline": "angle", "craters": "depth", "poles": "height", "flat_with_incline": "angle",
-    "flat_with_ramp": "height", "corridor": "wall_height", "spiral": "wall_height",
+    "wavy": "amplitude",
+    "perlin": "amplitude",
+    "stairs": "step_height",
+    "flat": "(none: always level)",
+    "incline": "angle",
+    "craters": "depth",
+    "poles": "height",
+    "flat_with_incline": "angle",
+    "flat_with_ramp": "height",
+    "corridor": "wall_height",
+    "spiral": "wall_height",
 }
 
 GENERATORS: dict[str, Generator] = {
-    "wavy": wavy, "perlin": perlin, "stairs": stairs, "flat": flat, "incline": incline,
-    "craters": craters, "poles": poles, "flat_with_incline": flat_with_incline,
-    "flat_with_ramp": flat_with_ramp, "corridor": corridor, "spiral": spiral,
+    "wavy": wavy,
+    "perlin": perlin,
+    "stairs": stairs,
+    "flat": flat,
+    "incline": incline,
+    "craters": craters,
+    "poles": poles,
+    "flat_with_incline": flat_with_incline,
+    "flat_with_ramp": flat_with_ramp,
+    "corridor": corridor,
+    "spiral": spiral,
 }
 
 
@@ -261,9 +300,9 @@ def vertex_mesh(grid: Grid) -> tuple[jax.Array, jax.Array]:
     return jnp.asarray(x, jnp.float32), jnp.asarray(y, jnp.float32)
 
 
-def point_height(fn: Generator, params: Any, grid: Grid, x: float, y: float, difficulty: Difficulty = 1.0
-                 ) -> jax.Array:
+def point_height(fn: Generator, params: Any, grid: Grid, x: float, y: float, difficulty: Difficulty = 1.0) -> jax.Array:
     """Height of a deterministic generator at one world point, shape () (traced with a traced difficulty)."""
-    value = fn(jax.random.PRNGKey(0), params, grid, np.full((1,), x, np.float32), np.full((1,), y, np.float32),
-               difficulty)
+    value = fn(
+        jax.random.PRNGKey(0), params, grid, np.full((1,), x, np.float32), np.full((1,), y, np.float32), difficulty
+    )
     return jnp.asarray(value, jnp.float32)[0]

@@ -52,7 +52,7 @@ class Grid:
                 raise ValueError(f"terrain grid '{name}' must be > 0, got {getattr(self, name)!r}")
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel, name: str = HFIELD_NAME) -> "Grid":
+    def from_model(cls, model: mujoco.MjModel, name: str = HFIELD_NAME) -> Grid:
         """The grid of the heightfield asset ``name`` in a compiled MuJoCo model."""
         hid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_HFIELD, name)
         if hid < 0:

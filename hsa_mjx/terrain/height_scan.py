@@ -19,7 +19,7 @@ interpolates between the same samples, a coarser one can miss a 0.4 m pole.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -45,16 +45,19 @@ def validate(config: HeightScanConfig) -> HeightScanConfig:
     """Raise ValueError naming the key and its valid range; return the config."""
     for name in ("length", "width"):
         if not getattr(config, name) >= 0:
-            raise ValueError(f"config key 'observation.height_scan.{name}' must be >= 0 (metres), "
-                             f"got {getattr(config, name)!r}")
+            raise ValueError(
+                f"config key 'observation.height_scan.{name}' must be >= 0 (metres), got {getattr(config, name)!r}"
+            )
     for name in ("spacing", "clip", "scale"):
         if not getattr(config, name) > 0:
             raise ValueError(f"config key 'observation.height_scan.{name}' must be > 0, got {getattr(config, name)!r}")
     if not config.noise >= 0:
         raise ValueError(f"config key 'observation.height_scan.noise' must be >= 0 (metres), got {config.noise!r}")
     if config.enabled and num_points(config) > MAX_POINTS:
-        raise ValueError(f"observation.height_scan: {num_points(config)} points (length {config.length}, width "
-                         f"{config.width}, spacing {config.spacing}) is over {MAX_POINTS}; widen the spacing")
+        raise ValueError(
+            f"observation.height_scan: {num_points(config)} points (length {config.length}, width "
+            f"{config.width}, spacing {config.spacing}) is over {MAX_POINTS}; widen the spacing"
+        )
     return config
 
 
@@ -89,8 +92,14 @@ def world_points(points: jax.Array, position: jax.Array, unit_heading: jax.Array
     return position + jnp.stack([cos * x - sin * y, sin * x + cos * y], axis=-1)
 
 
-def read(ground: Callable[[jax.Array], jax.Array], points: jax.Array, position: jax.Array,
-         unit_heading: jax.Array, robot_z: jax.Array, rest_height: float) -> jax.Array:
+def read(
+    ground: Callable[[jax.Array], jax.Array],
+    points: jax.Array,
+    position: jax.Array,
+    unit_heading: jax.Array,
+    robot_z: jax.Array,
+    rest_height: float,
+) -> jax.Array:
     """Ground heights (m, unclipped) at the scan points relative to the robot, (P,)."""
     return ground(world_points(points, position, unit_heading)) - (robot_z - rest_height)
 

@@ -48,15 +48,23 @@ def gradient_noise(key: jax.Array, x: jax.Array, y: jax.Array, frequency: float,
     return bottom + sy * (top - bottom)
 
 
-def fractal_noise(key: jax.Array, x: jax.Array, y: jax.Array, frequency: float, octaves: int,
-                  persistence: float, lacunarity: float, extent: float) -> jax.Array:
+def fractal_noise(
+    key: jax.Array,
+    x: jax.Array,
+    y: jax.Array,
+    frequency: float,
+    octaves: int,
+    persistence: float,
+    lacunarity: float,
+    extent: float,
+) -> jax.Array:
     """Sum of ``octaves`` Perlin octaves (frequency x lacunarity^k, weight persistence^k), divided
     by the sum of the weights (the normalisation of the ``noise`` package's ``pnoise2``)."""
     keys = jax.random.split(key, octaves)
     total = jnp.zeros(jnp.broadcast_shapes(jnp.shape(x), jnp.shape(y)), jnp.float32)
     weight_sum = 0.0
     for k in range(octaves):  # static octave count: unrolled at trace time
-        weight = persistence ** k
-        total = total + weight * gradient_noise(keys[k], x, y, frequency * lacunarity ** k, extent)
+        weight = persistence**k
+        total = total + weight * gradient_noise(keys[k], x, y, frequency * lacunarity**k, extent)
         weight_sum += weight
     return total / weight_sum

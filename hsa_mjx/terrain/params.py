@@ -10,11 +10,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 TERRAIN_TYPES = (
-    "wavy", "perlin", "stairs", "flat", "incline", "craters", "poles", "flat_with_incline",
-    "flat_with_ramp", "corridor", "spiral",
+    "wavy",
+    "perlin",
+    "stairs",
+    "flat",
+    "incline",
+    "craters",
+    "poles",
+    "flat_with_incline",
+    "flat_with_ramp",
+    "corridor",
+    "spiral",
 )
 RANDOM_TYPES = ("perlin", "craters", "poles")  # the others ignore the key
 AXES = ("x", "y")
@@ -192,8 +202,14 @@ def _fail(key: str, message: str, value: Any) -> None:
     raise ValueError(f"config key 'terrain.{key}' {message}, got {value!r}")
 
 
-def _check_range(key: str, pair: tuple[float, float], low: float, strict_low: bool = False,
-                 high: float = math.inf, strict: bool = False) -> None:
+def _check_range(
+    key: str,
+    pair: tuple[float, float],
+    low: float,
+    strict_low: bool = False,
+    high: float = math.inf,
+    strict: bool = False,
+) -> None:
     """``pair`` = (lo, hi) with low <= lo <= hi <= high (lo > low if strict_low; lo < hi if strict)."""
     lo, hi = pair
     if lo < low or (strict_low and lo == low) or hi > high or hi < lo or (strict and hi == lo):
@@ -230,8 +246,9 @@ def _check_mixture(config: TerrainConfig) -> None:
         _fail("types", "must list at least one terrain type", config.types)
     for name in config.types:
         if name not in TERRAIN_TYPES:
-            raise ValueError(f"config key 'terrain.types' has unknown terrain type {name!r}; "
-                             f"valid types: {list(TERRAIN_TYPES)}")
+            raise ValueError(
+                f"config key 'terrain.types' has unknown terrain type {name!r}; valid types: {list(TERRAIN_TYPES)}"
+            )
     if len(set(config.types)) != len(config.types):
         _fail("types", "must not repeat a type", config.types)
     if len(config.proportions) != len(config.types):
@@ -270,8 +287,7 @@ def _check_generators(c: TerrainConfig) -> None:
     _check_choice("corridor.axis", c.corridor.axis, AXES)
     if not 0.0 <= c.corridor.center <= 1.0:
         _fail("corridor.center", "must be a fraction of the field in [0, 1]", c.corridor.center)
-    _check_sign(c.spiral, "spiral", positive=("turns", "track_width"),
-                non_negative=("start_radius", "wall_height"))
+    _check_sign(c.spiral, "spiral", positive=("turns", "track_width"), non_negative=("start_radius", "wall_height"))
     if c.spiral.end_radius < c.spiral.start_radius:
         _fail("spiral.end_radius", "must be >= spiral.start_radius", c.spiral.end_radius)
 
@@ -297,8 +313,11 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     return config
 
 
-SPIRAL_GOAL_KEYS = {"spiral_start_radius": "start_radius", "spiral_end_radius": "end_radius",
-                    "spiral_turns": "turns"}  # goal keys of older configs -> terrain.spiral keys
+SPIRAL_GOAL_KEYS = {
+    "spiral_start_radius": "start_radius",
+    "spiral_end_radius": "end_radius",
+    "spiral_turns": "turns",
+}  # goal keys of older configs -> terrain.spiral keys
 
 
 def upgrade_keys(data: dict, mixed: str) -> dict:
@@ -321,8 +340,10 @@ def upgrade_keys(data: dict, mixed: str) -> dict:
             if old in goal:
                 value = goal.pop(old)
                 if new in spiral and spiral[new] != value:
-                    raise ValueError(f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
-                                     f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)")
+                    raise ValueError(
+                        f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
+                        f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)"
+                    )
                 spiral[new] = value
         data["goal"], section["spiral"] = goal, spiral
     if isinstance(section, dict) and isinstance(section.get("types"), (list, tuple)) and section["types"]:
@@ -335,13 +356,17 @@ def upgrade_keys(data: dict, mixed: str) -> dict:
 def _terrain_type_into(kind: Any, section: dict, mixed: str) -> None:
     """Put the ``terrain_type`` shorthand into the terrain section (checked against its types)."""
     if kind != mixed and kind not in TERRAIN_TYPES:
-        raise ValueError(f"config key 'terrain_type' = {kind!r} is not valid; choose one of "
-                         f"{list(TERRAIN_TYPES) + [mixed]} (a shorthand for terrain.types: [TYPE])")
+        raise ValueError(
+            f"config key 'terrain_type' = {kind!r} is not valid; choose one of "
+            f"{list(TERRAIN_TYPES) + [mixed]} (a shorthand for terrain.types: [TYPE])"
+        )
     types = section.get("types") if isinstance(section, dict) else None
     if types is None:
         if kind == mixed:
             raise ValueError(f"terrain_type '{mixed}' needs 'terrain.types' (the types to draw from)")
         section.update(types=[kind], proportions=[1.0])
     elif (list(types) != [kind]) if kind != mixed else len(types) < 2:
-        raise ValueError(f"config key 'terrain_type' = {kind!r} does not match 'terrain.types' = {list(types)}; "
-                         f"set 'terrain.types' alone")
+        raise ValueError(
+            f"config key 'terrain_type' = {kind!r} does not match 'terrain.types' = {list(types)}; "
+            f"set 'terrain.types' alone"
+        )

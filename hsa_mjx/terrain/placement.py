@@ -4,7 +4,7 @@ and goals kept on a corridor's centre line."""
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +26,8 @@ def _touching_geoms(model: mujoco.MjModel, floor: int) -> list[int]:
         if g == floor or model.geom_bodyid[g] == 0:
             continue
         dynamic = (model.geom_contype[g] & model.geom_conaffinity[floor]) or (
-            model.geom_contype[floor] & model.geom_conaffinity[g])
+            model.geom_contype[floor] & model.geom_conaffinity[g]
+        )
         if dynamic or g in paired:
             touching.append(g)
     return touching
@@ -44,7 +45,7 @@ class Footprint:
     drop: np.ndarray
 
     @classmethod
-    def from_model(cls, model: mujoco.MjModel, block_body: np.ndarray, floor: str = "floor") -> "Footprint":
+    def from_model(cls, model: mujoco.MjModel, block_body: np.ndarray, floor: str = "floor") -> Footprint:
         """Sample each touching geom's world bounding box at qpos0 (blocks level, robot along x)."""
         data = mujoco.MjData(model)
         mujoco.mj_forward(model, data)
@@ -64,8 +65,12 @@ class Footprint:
                     drops.append(block_z[0] - lo[2])
         return cls(np.asarray(points, np.float32), np.asarray(drops, np.float32))
 
-    def spawn_height(self, ground: Callable[[jax.Array], jax.Array], clearance: float,
-                     move: tuple[jax.Array, jax.Array, jax.Array] | None = None) -> jax.Array:
+    def spawn_height(
+        self,
+        ground: Callable[[jax.Array], jax.Array],
+        clearance: float,
+        move: tuple[jax.Array, jax.Array, jax.Array] | None = None,
+    ) -> jax.Array:
         """Block-origin z that leaves ``clearance`` under the robot's lowest point, robot level, on the
         surface ``ground(xy) -> z``; ``move`` = (centre, target, yaw) for a robot moved as by
         ``pose.move_points``."""
@@ -86,7 +91,13 @@ def corridor_line(params: CorridorParams, grid: Grid, edge_margin: float) -> tup
     """The corridor's centre line: a point on it nearest the origin, its unit direction, and the
     largest distance from the origin a goal may have along it (inside the field's edge margin)."""
     if params.axis == "x":
-        return (np.array([0.0, grid.fraction_to_y(params.center)], np.float32), np.array([1.0, 0.0], np.float32),
-                grid.half_x - edge_margin)
-    return (np.array([grid.fraction_to_x(params.center), 0.0], np.float32), np.array([0.0, 1.0], np.float32),
-            grid.half_y - edge_margin)
+        return (
+            np.array([0.0, grid.fraction_to_y(params.center)], np.float32),
+            np.array([1.0, 0.0], np.float32),
+            grid.half_x - edge_margin,
+        )
+    return (
+        np.array([grid.fraction_to_x(params.center), 0.0], np.float32),
+        np.array([0.0, 1.0], np.float32),
+        grid.half_y - edge_margin,
+    )

@@ -11,14 +11,19 @@ import numpy as np
 from hsa_mjx.terrain.generators import GENERATORS, point_height, vertex_mesh
 from hsa_mjx.terrain.grid import Grid, to_hfield_data
 from hsa_mjx.terrain.params import (
-    RANDOM_TYPES, TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig, check_type,
+    RANDOM_TYPES,
+    TERRAIN_TYPES,
+    FlatSpawnConfig,
+    TerrainConfig,
+    check_type,
 )
 
 SPAWN_BLEND = 1.2  # the zone blends back into the terrain between radius and 1.2 x radius
 
 
-def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid = Grid(),
-             difficulty: float | jax.Array = 1.0) -> jax.Array:
+def generate(
+    terrain_type: str, key: jax.Array, params: Any = None, grid: Grid = Grid(), difficulty: float | jax.Array = 1.0
+) -> jax.Array:
     """World heights (nrow, ncol) of one terrain of ``terrain_type``, relative to its level 0.
 
     Args:
@@ -38,8 +43,9 @@ def generate(terrain_type: str, key: jax.Array, params: Any = None, grid: Grid =
     return GENERATORS[terrain_type](key, params, grid, x, y, difficulty).astype(jnp.float32)
 
 
-def spawn_level(terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig,
-                difficulty: float | jax.Array = 1.0) -> jax.Array:
+def spawn_level(
+    terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig, difficulty: float | jax.Array = 1.0
+) -> jax.Array:
     """Height the spawn zone is levelled to: the terrain's own height at the zone centre for the
     deterministic types (an incline or ramp under the spawn becomes a landing, not a pit), the
     base level 0 for the random ones (their obstacles are removed, as the original did)."""
@@ -85,6 +91,7 @@ class TerrainSampler:
         def branch(key: jax.Array, difficulty: jax.Array) -> jax.Array:
             heights = generate(terrain_type, key, params, grid, difficulty)
             return apply_flat_spawn(heights, grid, spawn, spawn_level(terrain_type, params, grid, spawn, difficulty))
+
         return branch
 
     def heights(self, key: jax.Array, difficulty: float | jax.Array | None = None) -> tuple[jax.Array, jax.Array]:

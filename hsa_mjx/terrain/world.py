@@ -33,8 +33,9 @@ class TerrainWorld:
         block_body: body ids of the two blocks.
     """
 
-    def __init__(self, config: TerrainConfig, pool: TerrainPool | None, mj_model: mujoco.MjModel,
-                 block_body: np.ndarray):
+    def __init__(
+        self, config: TerrainConfig, pool: TerrainPool | None, mj_model: mujoco.MjModel, block_body: np.ndarray
+    ):
         self.config, self.pool = config, pool
         self.enabled = pool is not None
         if not self.enabled:
@@ -46,7 +47,8 @@ class TerrainWorld:
         self.footprint = Footprint.from_model(mj_model, block_body)
         self._corridor = "corridor" in config.types
         self.corridor_point, self.corridor_direction, self.corridor_limit = corridor_line(
-            config.corridor, self.grid, config.edge_margin)
+            config.corridor, self.grid, config.edge_margin
+        )
 
     @property
     def per_env(self) -> bool:
@@ -93,6 +95,7 @@ class TerrainWorld:
         """Keep goals on the floor: on a corridor env the goal moves onto the corridor's centre line."""
         if not (self.enabled and self._corridor):
             return goal_xy
-        on_line = onto_line(goal_xy, jnp.asarray(self.corridor_point), jnp.asarray(self.corridor_direction),
-                            self.corridor_limit)
+        on_line = onto_line(
+            goal_xy, jnp.asarray(self.corridor_point), jnp.asarray(self.corridor_direction), self.corridor_limit
+        )
         return jnp.where(terrain_id == CORRIDOR_ID, on_line, goal_xy)
