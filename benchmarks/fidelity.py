@@ -36,8 +36,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+import benchmarks.gaits
 import hsa_mjx
-from benchmarks import gaits as gait_lib
 from benchmarks.run_info import run_info
 from hsa_mjx.config import EnvConfig, TerminationConfig, get_preset, with_overrides
 from hsa_mjx.sim.model import RobotIndex, load_mj_model, load_robot
@@ -292,9 +292,9 @@ def compare(reference: Run, candidate: Run) -> dict[str, Any]:
 
 def gait_matrix(gait_names: Sequence[str], duration_s: float) -> np.ndarray:
     """Actions of every gait, shape (gaits, steps, 8), with the layout read from the asset."""
-    layout = gait_lib.gait_layout(load_mj_model(fidelity_config()))
+    layout = benchmarks.gaits.gait_layout(load_mj_model(fidelity_config()))
     steps = int(round(duration_s / CONTROL_DT))
-    return np.stack([gait_lib.gait_actions(name, layout, steps, CONTROL_DT) for name in gait_names])
+    return np.stack([benchmarks.gaits.gait_actions(name, layout, steps, CONTROL_DT) for name in gait_names])
 
 
 def references(actions: np.ndarray, scene: str, **kwargs: Any) -> tuple[list[Run], float]:
@@ -399,7 +399,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         metavar="NAME",
         help=f"MJX settings to test (default all): {', '.join(SETTINGS)}",
     )
-    parser.add_argument("--gaits", nargs="+", default=list(GUARD_GAITS), choices=sorted(gait_lib.GAITS))
+    parser.add_argument("--gaits", nargs="+", default=list(GUARD_GAITS), choices=sorted(benchmarks.gaits.GAITS))
     parser.add_argument("--duration", type=float, default=10.0, help="seconds of simulated time per gait")
     parser.add_argument("--no-contact-check", action="store_true", help="skip the all-contacts C reference")
     parser.add_argument(

@@ -30,13 +30,14 @@ import numpy as np
 
 from benchmarks.run_info import run_info
 from hsa_mjx.config import BACKENDS
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import policy_file
 from hsa_mjx.deploy.loop import latency_steps
 from hsa_mjx.randomization_config import RandomizationConfig
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.randomization import PhysicsScales
-from train import config as tcfg
-from train import evaluate
+from hsa_mjx_train.config import from_dict
+from hsa_mjx_train.policy_sources import default_goal_range, load_shipped_policy
+from hsa_mjx_train.rollout import rollout, summarize
 
 GRID = {
     "friction": (0.5, 1.0, 1.5),
@@ -81,7 +82,7 @@ def env_overrides(noise: bool, max_latency_steps: int) -> tuple[str, ...]:
     return tuple(out)
 
 
-def cell_realism(group: list[dict], episodes: int, dt: float) -> dict[str, Any]:
+def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str, Any]:
     """Each episode's physical scales and latency, (cells x episodes,) leading axis."""
 
     def per_episode(name: str) -> jnp.ndarray:
@@ -105,19 +106,19 @@ def run_group(
     directory: Path, group: list[dict], episodes: int, steps: int | None, backend: str, seed: int
 ) -> list[dict[str, Any]]:
     """The cells of one noise setting in one rollout: a result row per cell."""
-    dt = tcfg.from_dict(pol.load_policy(directory).meta["config"]).env.dt
+    dt = from_dict(policy_file.load_policy(directory).meta["config"]).env.dt
     overrides = env_overrides(group[0]["noise"], max(latency_steps(c["latency_ms"], dt) for c in group))
-    config, env, policy, _ = evaluate.load_shipped_policy(directory, backend, len(group) * episodes, overrides)
+    config, env, policy, _ = load_shipped_policy(directory, backend, len(group) * episodes, overrides)
     steps = steps or config.env.termination.max_episode_steps
     keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(group), 1))  # same episodes per cell
-    goal_range = jnp.asarray(evaluate.default_goal_range(config), jnp.float32)
+    goal_range = jnp.asarray(default_goal_range(config), jnp.float32)
     traces = jax.device_get(
-        evaluate.rollout(env, policy, keys, goal_range, steps, realism=cell_realism(group, episodes, env.dt))
+        rollout(env, policy, keys, goal_range, steps, randomization=cell_randomization(group, episodes, env.dt))
     )
     rows = []
     for i, cell in enumerate(group):
         part = {k: np.asarray(v)[i * episodes : (i + 1) * episodes] for k, v in traces.items()}
-        summary = evaluate.summarize(part, env.dt)
+        summary = summarize(part, env.dt)
         rows.append(
             {
                 **cell,
@@ -183,10 +184,7 @@ def table(rows: list[dict]) -> str:
 
 def heat_map(rows: list[dict], path: Path, title: str) -> None:
     """Success rate as a heat map: model (friction, mass, stiffness) down, sensing (latency, noise) across."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     models = list(dict.fromkeys((r["friction"], r["block_mass"], r["hsa_stiffness"]) for r in rows))
     sensing = list(dict.fromkeys((r["latency_ms"], r["noise"]) for r in rows))
@@ -196,7 +194,8 @@ def heat_map(rows: list[dict], path: Path, title: str) -> None:
             models.index((r["friction"], r["block_mass"], r["hsa_stiffness"])),
             sensing.index((r["latency_ms"], r["noise"])),
         ] = r["success_rate"]
-    fig, ax = plt.subplots(figsize=(1.2 * len(sensing) + 3, 0.45 * len(models) + 1.5))
+    fig = Figure(figsize=(1.2 * len(sensing) + 3, 0.45 * len(models) + 1.5))
+    ax = fig.subplots()
     image = ax.imshow(grid, vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
     for (i, j), value in np.ndenumerate(grid):
         ax.text(j, i, f"{value:.0%}", ha="center", va="center", fontsize=8)
@@ -208,7 +207,6 @@ def heat_map(rows: list[dict], path: Path, title: str) -> None:
     fig.colorbar(image, ax=ax, label="success rate")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -246,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1 or (args.steps is not None and args.steps < 1):
             raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
-        directory = pol.locate(args.policy)
+        directory = policy_file.locate(args.policy)
         backend = for_one_env(args.backend)
         chosen = select(args.where)
         rows = []

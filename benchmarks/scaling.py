@@ -4,17 +4,18 @@ For every device count k (powers of two up to ``jax.local_device_count()``, plus
 fixed batch per device (weak scaling: k times the envs, the PPO minibatch and the epoch scaled with
 them, so every device does the same work at every k), in one process:
 
-The devices share the work as the trainer's learner does (``run.multi_device``, default ``auto``:
-one ``pmap`` on one device or on CPUs, ``per_device`` on 2+ GPUs, see ``train/per_device.py``;
-``--set run.multi_device=per_device`` measures that path at k = 1 too). Each row names it.
+The devices share the work as the trainer's collection strategy does (``run.collection``, default
+``auto``: ``one_device`` on one device, ``thread_per_device`` on 2+ GPUs, ``pmap`` on several CPUs;
+``hsa_mjx_train.strategies``; ``--set run.collection=thread_per_device`` measures that path at k = 1
+too). Each row names it (``collection``).
 
 - **ppo** (first: the training figure): the learner's epoch (collection, observation statistics,
   curriculum, SGD with gradients averaged over the devices), one PPO iteration of the config per
   epoch by default.
 - **env**: the full training env step (``AutoResetEnv``: physics, observation, reward,
   termination, auto-reset, curriculum), random actions, ``--steps`` steps per call under
-  ``lax.scan``, on every device at once: ``pmap``-ed (outcomes gathered over the devices every
-  step) or jitted once per device (each device's curriculum alone, one host thread per device);
+  ``lax.scan``, on every device at once: jitted for one device, ``pmap``-ed (outcomes gathered over
+  the devices every step) or jitted once per device (one host thread per device);
   the loop of ``benchmarks.throughput``.
 - **collect** (the split, best effort after the rest): the epoch's collections alone (policy plus
   env steps), so the update's share is the epoch time minus it.
@@ -44,18 +45,17 @@ from typing import Any
 import jax
 import numpy as np
 
-from benchmarks import scaling_report as report
+import benchmarks.scaling_report
 from benchmarks import throughput
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx.batch.auto_reset import AutoResetEnv
-from hsa_mjx.curricula import goal as cur
-from train import config as tcfg
-from train import distributed
-from train.cli import default_config
-from train.per_device import PerDeviceLearner, make_learner
-from train.ppo import AXIS, init_training_state
-from train.trainer import replicate_for_pmap
+from hsa_mjx.curricula import goal_curriculum
+from hsa_mjx_train import distributed, strategies
+from hsa_mjx_train.cli import default_config
+from hsa_mjx_train.config import TrainConfig, load, validate_devices
+from hsa_mjx_train.learner import AXIS
+from hsa_mjx_train.networks import init_training_state
 
 GPU_DEFAULTS = {"envs_per_device": 8192, "steps": 16, "repeats": 3, "epochs": 2}
 CPU_DEFAULTS = {"envs_per_device": 4, "steps": 2, "repeats": 1, "epochs": 1}  # a pipeline check, not a result
@@ -69,7 +69,7 @@ def device_counts(available: int) -> list[int]:
     return counts + ([available] if counts[-1] != available else [])
 
 
-def scaled_config(base: tcfg.TrainConfig, envs_per_device: int, devices: int, iterations: int) -> tcfg.TrainConfig:
+def scaled_config(base: TrainConfig, envs_per_device: int, devices: int, iterations: int) -> TrainConfig:
     """``base`` at ``envs_per_device x devices`` envs with its minibatch and epoch scaled to match."""
     if envs_per_device < 1 or devices < 1 or iterations < 1:
         raise ValueError(
@@ -85,7 +85,7 @@ def scaled_config(base: tcfg.TrainConfig, envs_per_device: int, devices: int, it
     ppo = dataclasses.replace(base.ppo, batch_size=int(batch))
     steps = iterations * ppo.batch_size * ppo.num_minibatches * ppo.unroll_length
     run = dataclasses.replace(base.run, num_envs=num_envs, num_devices=devices, steps_per_epoch=steps)
-    return tcfg.validate(dataclasses.replace(base, ppo=ppo, run=run), device_count=devices)
+    return validate_devices(dataclasses.replace(base, ppo=ppo, run=run), devices)
 
 
 @dataclasses.dataclass
@@ -118,20 +118,19 @@ def time_calls(call: Callable[[tuple], tuple], carry: tuple, calls: int) -> Time
 
 
 class Bench:
-    """The pieces measured at one device count, built from the scaled config with the trainer's learner."""
+    """The pieces measured at one device count, built from the scaled config with the trainer's strategy."""
 
-    def __init__(self, config: tcfg.TrainConfig, devices: list, seed: int = 0):
+    def __init__(self, config: TrainConfig, devices: list, seed: int = 0):
         self.config, self.devices = config, devices
-        self.learner = make_learner(config, devices)
-        self.env = self.learner.env
-        self.per_device = isinstance(self.learner, PerDeviceLearner)
+        self.strategy = strategies.build(config, devices)
+        self.learner, self.env = self.strategy.learner, self.strategy.learner.env
         self.key = jax.random.PRNGKey(seed)
-        self.donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)
+        self.donate = jax.default_backend() != "cpu"  # the CPU client cannot reuse donated buffers (JAX warns)
 
     @property
-    def strategy(self) -> str:
-        """How the devices share the work: ``pmap`` or ``per_device`` (``run.multi_device``)."""
-        return "per_device" if self.per_device else "pmap"
+    def collection(self) -> str:
+        """How the devices share the work (``run.collection``, ``auto`` resolved)."""
+        return self.strategy.name
 
     def keys(self) -> jax.Array:
         """A fresh key per device."""
@@ -139,48 +138,53 @@ class Bench:
         return distributed.epoch_keys(key, self.devices)
 
     def reset(self) -> Any:
-        """Fresh envs on every device with the initial curriculum."""
+        """Fresh envs on every device with the initial goal curriculum."""
         env_keys = distributed.env_keys(self.keys()[0], self.config.run.num_envs, self.devices)
-        return self.learner.reset(env_keys, cur.init(self.config.curriculum))
+        start = tuple(self.config.env.goal.radial_range)
+        return self.strategy.reset(env_keys, goal_curriculum.init(self.config.goal_curriculum, start))
 
     def training_state(self) -> Any:
-        """Fresh learner state, one copy per device."""
+        """Fresh learner state, placed as the strategy's epoch takes it."""
         ts = init_training_state(self.config, self.learner.networks, self.keys()[0], self.learner.network_input_size)
-        return replicate_for_pmap(ts, self.devices)
+        return self.strategy.place(ts)
 
     def env_loop(self, steps: int, repeats: int) -> Timed:
         """(i) ``steps`` random-action steps of the training batch env per call on every device."""
-        if self.per_device:
+        if self.strategy.name == "thread_per_device":
             return self._env_loop_per_device(steps, repeats)
         _, run = throughput.env_loop(self.env, AutoResetEnv(self.env), steps)
-        pmapped = jax.pmap(run, axis_name=AXIS, donate_argnums=(0,) if self.donate else ())
+        donate = (0,) if self.donate else ()
+        if self.strategy.name == "one_device":
+            jitted = jax.jit(run, donate_argnums=donate)
+            return time_calls(lambda carry: (jitted(carry[0], self.keys()[0])[0],), (self.reset().envs,), repeats)
+        pmapped = jax.pmap(run, axis_name=AXIS, donate_argnums=donate)
         return time_calls(lambda carry: (pmapped(carry[0], self.keys())[0],), (self.reset().envs,), repeats)
 
     def _env_loop_per_device(self, steps: int, repeats: int) -> Timed:
         """The env loop jitted once per device (each with its own env), one thread each."""
-        learner, runs = self.learner, []
-        for env in learner.batch_envs:
-            batch_env = AutoResetEnv(env.env)
-            runs.append(
-                jax.jit(throughput.env_loop(env.env, batch_env, steps)[1], donate_argnums=(0,) if self.donate else ())
-            )
+        strategy, runs = self.strategy, []
+        for batch_env in strategy.batch_envs:
+            loop = throughput.env_loop(batch_env.env, AutoResetEnv(batch_env.env), steps)[1]
+            runs.append(jax.jit(loop, donate_argnums=(0,) if self.donate else ()))
 
         def call(carry: tuple) -> tuple:
             keys = [jax.device_put(np.asarray(k), d) for k, d in zip(np.asarray(self.keys()), self.devices)]
-            return tuple(learner._on_each(lambda i, s, k: runs[i](s, k)[0], carry, keys))
+            return tuple(strategy.on_each(lambda i, s, k: runs[i](s, k)[0], carry, keys))
 
         return time_calls(call, tuple(piece.envs for piece in self.reset().pieces), repeats)
 
     def ppo_epochs(self, epochs: int) -> Timed:
         """(ii) PPO epochs with updates, as the trainer runs them."""
         return time_calls(
-            lambda c: self.learner.epoch(c[0], c[1], self.keys())[:2], (self.training_state(), self.reset()), epochs
+            lambda c: self.strategy.epoch(c[0], c[1], self.keys())[:2], (self.training_state(), self.reset()), epochs
         )
 
-    def collection(self, epochs: int) -> Timed:
+    def collection_epochs(self, epochs: int) -> Timed:
         """The epoch's collections alone (no learning)."""
         return time_calls(
-            lambda c: self.learner.collect_epoch(c[0], c[1], self.keys()), (self.training_state(), self.reset()), epochs
+            lambda c: self.strategy.collect_epoch(c[0], c[1], self.keys()),
+            (self.training_state(), self.reset()),
+            epochs,
         )
 
 
@@ -218,20 +222,20 @@ def _split_fields(timed: Timed, row: dict[str, Any]) -> dict[str, Any]:
 
 
 def measure_count(
-    args: argparse.Namespace, base: tcfg.TrainConfig, k: int, over_budget: Callable[[], bool], info: dict[str, Any]
+    args: argparse.Namespace, base: TrainConfig, k: int, over_budget: Callable[[], bool], info: dict[str, Any]
 ) -> tuple[dict[str, Any], Bench]:
     """Env loop and PPO epochs at ``k`` devices (each skipped once past the budget); the row and its bench."""
     config = scaled_config(base, args.envs_per_device, k, args.iterations_per_epoch)
     bench = Bench(config, jax.local_devices()[:k], args.seed)
     row = {
         "devices": k,
-        "multi_device": bench.strategy,
+        "collection": bench.collection,
         "physics_backend": bench.env.physics_backend,
         "envs_per_device": args.envs_per_device,
         "num_envs": config.run.num_envs,
         "batch_size": config.ppo.batch_size,
         "iterations_per_epoch": args.iterations_per_epoch,
-        **report.provenance(info),
+        **benchmarks.scaling_report.provenance(info),
     }
     # PPO first: traced before anything else in the process, its epoch lowers to the trainer's program
     # text, so a persistent compilation cache filled by a training run serves it
@@ -249,7 +253,7 @@ def measure_count(
 def measure_split(args: argparse.Namespace, row: dict[str, Any], bench: Bench) -> dict[str, Any]:
     """The row with the collection/update split added."""
     print(f"{row['devices']} device(s): collection alone ...", flush=True)
-    row = {**row, **_split_fields(bench.collection(args.epochs), row)}
+    row = {**row, **_split_fields(bench.collection_epochs(args.epochs), row)}
     print(
         f"  collect {row['collect_env_steps_per_s']:,.0f} env-steps/s, update {100 * row['update_fraction']:.0f} % "
         f"of an epoch",
@@ -260,22 +264,25 @@ def measure_split(args: argparse.Namespace, row: dict[str, Any], bench: Bench) -
 
 def run_all(args: argparse.Namespace, info: dict[str, Any], write: Callable[[list], None]) -> list[dict[str, Any]]:
     """Env and PPO at every device count, then the split while the budget lasts; write after each."""
-    base = tcfg.load(args.config, args.overrides)
+    base = load(args.config, args.overrides)
     start = time.perf_counter()
-    over_budget = lambda: time.perf_counter() - start > args.budget_s  # noqa: E731
+
+    def over_budget():
+        return time.perf_counter() - start > args.budget_s
+
     rows, benches = [], []
     for k in args.devices:
         row, bench = measure_count(args, base, k, over_budget, info)
         rows, benches = rows + [row], benches + [bench]
-        write(report.with_speedups(rows))
+        write(benchmarks.scaling_report.with_speedups(rows))
     for i, (row, bench) in enumerate(zip(rows, benches)):
         if args.split and "ppo_epoch_s" in row and not over_budget():
             rows[i] = measure_split(args, row, bench)
-            write(report.with_speedups(rows))
+            write(benchmarks.scaling_report.with_speedups(rows))
     skipped = [r["devices"] for r in rows if "ppo_env_steps_per_s" not in r or "env_steps_per_s" not in r]
     if skipped:
         print(f"past --budget-s {args.budget_s}: measurements missing at {skipped} device(s)", flush=True)
-    return report.with_speedups(rows)
+    return benchmarks.scaling_report.with_speedups(rows)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -341,7 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = resolve_defaults(args)
         for k in args.devices:  # every device count's config checked before anything compiles
-            scaled_config(tcfg.load(args.config, args.overrides), args.envs_per_device, k, args.iterations_per_epoch)
+            scaled_config(load(args.config, args.overrides), args.envs_per_device, k, args.iterations_per_epoch)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -363,9 +370,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{args.envs_per_device:,} envs per device, config {args.config}",
         flush=True,
     )
-    rows = run_all(args, info, lambda rows: report.write_all(args.out_dir, stem, rows, meta))
-    paths = report.write_all(args.out_dir, stem, rows, meta)
-    print(report.markdown(rows, meta))
+    rows = run_all(args, info, lambda rows: benchmarks.scaling_report.write_all(args.out_dir, stem, rows, meta))
+    paths = benchmarks.scaling_report.write_all(args.out_dir, stem, rows, meta)
+    print(benchmarks.scaling_report.markdown(rows, meta))
     print("wrote " + ", ".join(str(p) for p in paths), flush=True)
     return 0
 

@@ -89,12 +89,10 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
 
 def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     """Env-steps/s against devices (log-log) with the ideal linear line from the fewest devices; efficiency."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (speed, eff) = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig = Figure(figsize=(11, 4.5))
+    speed, eff = fig.subplots(1, 2)
     counts = sorted({r["devices"] for r in rows})
     for i, (key, label) in enumerate(RATES):
         pts = sorted((r["devices"], r[key]) for r in rows if r.get(key))
@@ -130,7 +128,6 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def write_all(out_dir: Path, stem: str, rows: list[dict[str, Any]], meta: dict[str, Any]) -> list[Path]:

@@ -28,7 +28,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-import hsa_mjx  # noqa: F401  (registers hsa_mjx/HSA-v0)
+import hsa_mjx
 from benchmarks.fidelity import SETTINGS
 from benchmarks.throughput import cpu_baseline
 from benchmarks.vector_env import write_results

@@ -25,7 +25,8 @@ but the spiral (``HEIGHTFIELD_TYPES``). ``--backends jax,warp`` measures MJX's J
 implementations side by side (each row records its backend).
 
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
-        [--terrains flat,heightfield] [--settings NAME ...] [--observations original,heading,heading+scan,heading+randomized]
+        [--terrains flat,heightfield] [--settings NAME ...]
+        [--observations original,heading,heading+scan,heading+randomized]
         [--steps K] [--repeats R]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
@@ -46,12 +47,12 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+import benchmarks.throughput_report
 import hsa_mjx
-from benchmarks import throughput_report as report
+import hsa_mjx.sim.backend
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
 from hsa_mjx.resources import config_path, read_yaml
-from hsa_mjx.sim import backend as backends
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.task import control
 from hsa_mjx.terrain import TERRAIN_TYPES
@@ -75,16 +76,16 @@ def _randomized() -> dict[str, Any]:
 
 
 # "heading+randomized": "heading" with the randomised flat task's per-env model, latency, pushes and
-# noise (docs/robustness.md; its cost is measured against "heading")
-OBSERVATIONS: dict[str, dict[str, Any]] = {
-    "original": {},
-    "heading": {"observation.heading": True},
-    "heading+scan": {
+# noise (docs/robustness.md; its cost is measured against "heading"), read from its config when used
+OBSERVATIONS: dict[str, Callable[[], dict[str, Any]]] = {
+    "original": dict,
+    "heading": lambda: {"observation.heading": True},
+    "heading+scan": lambda: {
         "observation.heading": True,
         "observation.height_scan.enabled": True,
         "observation.height_scan.noise": 0.02,
     },
-    "heading+randomized": {"observation.heading": True, **_randomized()},
+    "heading+randomized": lambda: {"observation.heading": True, **_randomized()},
 }
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
 ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200
@@ -116,7 +117,7 @@ def bench_env(
             "physics.backend": backend,
             **TERRAINS[terrain],
             **SETTINGS[setting],
-            **OBSERVATIONS[observation],
+            **OBSERVATIONS[observation](),
         },
     )
 
@@ -281,7 +282,10 @@ def measure(
     del start
     env_s, ceil_s = statistics.median(env_t.seconds), statistics.median(ceil_t.seconds)
     measured = batch * steps * repeats
-    per_env = lambda b: None if b is None else round(b / batch)  # noqa: E731
+
+    def per_env(b):
+        return None if b is None else round(b / batch)
+
     return {
         "batch": batch,
         "steps_per_call": steps,
@@ -321,15 +325,20 @@ def measure(
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     """Command-line options; ``--quick`` shrinks everything for a CPU pipeline check."""
-    ints = lambda s: tuple(int(v) for v in s.split(","))  # noqa: E731
-    names = lambda s: tuple(v for v in s.split(",") if v)  # noqa: E731
+
+    def ints(s):
+        return tuple(int(v) for v in s.split(","))
+
+    def names(s):
+        return tuple(v for v in s.split(",") if v)
+
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--batches", type=ints, default=None, help=f"comma list (default {DEFAULT_BATCHES})")
     p.add_argument(
         "--backends",
         type=names,
         default=("auto",),
-        help=f"comma list of physics backends {list(backends.BACKENDS)} (default auto)",
+        help=f"comma list of physics backends {list(hsa_mjx.sim.backend.BACKENDS)} (default auto)",
     )
     p.add_argument("--terrains", type=names, default=tuple(TERRAINS), help=f"comma list of {sorted(TERRAINS)}")
     p.add_argument(
@@ -377,7 +386,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             f"observations {sorted(OBSERVATIONS)}"
         )
     try:
-        args.backends = tuple(dict.fromkeys(backends.resolve(b) for b in args.backends))
+        args.backends = tuple(dict.fromkeys(hsa_mjx.sim.backend.resolve(b) for b in args.backends))
     except ValueError as err:
         p.error(str(err))
     return args
@@ -409,7 +418,7 @@ def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
 
 def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
     """Measure every (backend, terrain, setting, batch) until the time budget runs out; write after each row."""
-    rows = report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
+    rows = benchmarks.throughput_report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
     start = time.perf_counter()
     for terrain in args.terrains:
         for setting in settings_for(terrain, args.settings):
@@ -421,7 +430,9 @@ def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[li
                         flush=True,
                     )
                     continue
-                rows = report.upsert(rows, _row(args, info, terrain, setting, backend, batch, baseline, observation))
+                rows = benchmarks.throughput_report.upsert(
+                    rows, _row(args, info, terrain, setting, backend, batch, baseline, observation)
+                )
                 out(rows)
     return rows
 
@@ -469,19 +480,23 @@ def main(argv: Sequence[str] | None = None) -> None:
         jax.config.update("jax_compilation_cache_dir", str(args.compile_cache))
     info = run_info()
     tag = "_".join(t for t in (args.tag, "quick" if args.quick else "") if t)
-    args.stem = f"throughput_{report.slug(info['device'])}" + (f"_{report.slug(tag)}" if tag else "")
+    args.stem = f"throughput_{benchmarks.throughput_report.slug(info['device'])}" + (
+        f"_{benchmarks.throughput_report.slug(tag)}" if tag else ""
+    )
     meta = {
         **info,
         "steps_per_call": args.steps or f"{ENV_STEPS_PER_CALL} / batch in [2, 20]",
         "repeats": args.repeats,
         "settings": {t: {s: SETTINGS[s] for s in settings_for(t, args.settings)} for t in args.terrains},
         "backends": list(args.backends),
-        "observations": {o: OBSERVATIONS[o] for o in args.observations},
+        "observations": {o: OBSERVATIONS[o]() for o in args.observations},
         "terrains": {t: TERRAINS[t] for t in args.terrains},
     }
-    rows = run_matrix(args, info, lambda rows: report.write_all(args.out_dir, args.stem, rows, meta))
-    paths = report.write_all(args.out_dir, args.stem, rows, meta)
-    print(report.markdown(rows, meta))
+    rows = run_matrix(
+        args, info, lambda rows: benchmarks.throughput_report.write_all(args.out_dir, args.stem, rows, meta)
+    )
+    paths = benchmarks.throughput_report.write_all(args.out_dir, args.stem, rows, meta)
+    print(benchmarks.throughput_report.markdown(rows, meta))
     print("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -66,7 +66,8 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         mib = r.get("env_compiled_bytes_per_env")
         mib = None if mib is None else mib / 2**20
         head.append(
-            f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {_observation(r)} | {r['batch']:,} | {_fmt(r['env_steps_per_s'])} | "
+            f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {_observation(r)} | {r['batch']:,} | "
+            f"{_fmt(r['env_steps_per_s'])} | "
             f"{_fmt(r['physics_ceiling_env_steps_per_s'])} | {_fmt(r['env_over_ceiling'], 2)} | "
             f"{_fmt(r['compile_s_env'], 1)} | {_fmt(r['compile_s_ceiling'], 1)} | "
             f"{_fmt(mib, 3)} | {_fmt(r['nan_terminations_per_million_env_steps'], 1)} | "
@@ -79,13 +80,11 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
 
 def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     """Log-log env-steps/s against batch: env (solid) and physics ceiling (dashed) per terrain/setting."""
-    import matplotlib
     import matplotlib.ticker
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.5, 5))
+    fig = Figure(figsize=(7.5, 5))
+    ax = fig.subplots()
     groups = sorted({(_backend(r), r["terrain"], r["settings"], _observation(r)) for r in rows})
     for i, group in enumerate(groups):
         pts = sorted(
@@ -120,7 +119,6 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def _backend(row: dict[str, Any]) -> str:

@@ -4,7 +4,7 @@
 
 For each run (a folder ``python -m train`` wrote, or a copy under ``benchmarks/results/training/``)
 it reads ``config.yaml`` and ``metrics.jsonl`` and reports the first log at which the goal
-curriculum has reached its full range (``curriculum.target_range``; a run without the curriculum
+curriculum has reached its full range (``goal_curriculum.target_range``; a run without the curriculum
 counts from its first log) with a logged episode success rate of at least ``--success``: the
 training loop's wall-clock to it (``training/walltime``, which includes the first epoch's compile;
 a resumed run's calls are added up), the env steps and the PPO iterations to it. Beside it, what the
@@ -27,7 +27,8 @@ from typing import Any
 
 import yaml
 
-from train.logger import read_jsonl
+import hsa_mjx.migrations
+from hsa_mjx_train.logger import read_jsonl
 
 SUCCESS = "episode/success_rate"
 GOAL = "curriculum/max_distance"
@@ -87,7 +88,7 @@ def _snapshot(row: dict[str, Any], wall: float, per_iteration: int) -> dict[str,
 def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: float) -> dict[str, Any]:
     """The run's figures at the first log meeting the target (``None`` when none does) and at its last log."""
     walls, per_iteration = cumulative_walltime(rows), iteration_steps(config)
-    curriculum = config.get("curriculum", {})
+    curriculum = hsa_mjx.migrations.training_keys(config).get("goal_curriculum", {})  # older runs: "curriculum"
     goal_max = float(curriculum["target_range"][1]) if curriculum.get("enabled") else None
     hit = None
     for row, wall in zip(rows, walls):

@@ -15,17 +15,13 @@ import importlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hsa_mjx.sim import gl
-
-gl.choose_platform()  # before anything imports mujoco: offscreen frames on a headless machine
-
 if TYPE_CHECKING:
     from hsa_mjx.config import EnvConfig
     from hsa_mjx.task.env import HSAEnv
 
 
 __version__ = "0.1.0"
-# Public names, imported on first use: ``import hsa_mjx.deploy.policy`` (numpy only) must not import JAX.
+# Public names, imported on first use: ``import hsa_mjx.deploy.policy_file`` (numpy only) must not import JAX.
 _LAZY = {
     "build_config": "hsa_mjx.adapters.original_args",
     "PRESETS": "hsa_mjx.config",
@@ -67,25 +63,13 @@ def make_env(name_or_config: str | Path | EnvConfig = "flat", num_envs: int = 1,
             options), or an original argument and the config key it maps to both given.
         FileNotFoundError: a config path or the robot asset is missing.
     """
+    from hsa_mjx.sim import gl
+
+    gl.choose_platform()  # before mujoco is first imported (by the env below): offscreen frames when headless
     from hsa_mjx.adapters.original_args import build_config
     from hsa_mjx.task.env import HSAEnv
 
     return HSAEnv(build_config(name_or_config, **overrides), num_envs=num_envs)
-
-
-def _spawn_by_default() -> None:
-    """Make ``spawn`` the start method of ``multiprocessing`` when the program has chosen none.
-
-    JAX runs threads, so a process forked after JAX started can deadlock (JAX warns so);
-    Gymnasium's ``async`` vectorization forks by default on Linux and hung on ``reset``. With
-    ``spawn`` its workers start clean (Python 3.14 moves Linux's default away from fork as well).
-    A start method set before ``import hsa_mjx`` is kept. Spawned workers import the main module, so
-    a script that creates them needs the usual ``if __name__ == "__main__":`` guard.
-    """
-    import multiprocessing
-
-    if multiprocessing.get_start_method(allow_none=True) is None:
-        multiprocessing.set_start_method("spawn")
 
 
 def _register_gymnasium() -> None:
@@ -97,12 +81,11 @@ def _register_gymnasium() -> None:
     if "hsa_mjx/HSA-v0" not in gymnasium.registry:
         gymnasium.register(
             id="hsa_mjx/HSA-v0",
-            entry_point="hsa_mjx.adapters.gymnasium:from_registry",
-            vector_entry_point="hsa_mjx.adapters.gymnasium_vector:make_vector_env",
+            entry_point="hsa_mjx.adapters.entry_points:single_env",
+            vector_entry_point="hsa_mjx.adapters.entry_points:vector_env",
         )
 
 
-_spawn_by_default()
 _register_gymnasium()
 
 __all__ = [

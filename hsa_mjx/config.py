@@ -10,19 +10,19 @@ quirks fixed as listed in ``docs/environment.md``.
 from __future__ import annotations
 
 import dataclasses
-import math
-import typing
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from hsa_mjx import migrations
+from hsa_mjx.config_schema import build_section, non_finite, plain
 from hsa_mjx.randomization_config import ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.randomization_config import validate as validate_randomization
 from hsa_mjx.resources import data_dir, merge, read_yaml
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
-from hsa_mjx.terrain.params import TerrainConfig, upgrade_keys, validate_terrain
+from hsa_mjx.terrain.params import TerrainConfig, validate_terrain, with_default_proportions
 
 SCENES = ("flat", "terrain")
 BACKENDS = ("auto", "jax", "warp", "c")  # physics.backend (hsa_mjx.sim.backend): c = C MuJoCo substeps
@@ -31,7 +31,7 @@ SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
 HINGE_ANGLE_MODES = ("raw", "wrapped", "sincos")  # observation.hinge_angles
-MIXED = "mixed"  # terrain_type of a batch drawing from several types (terrain.types)
+MIXED = migrations.MIXED  # terrain_type of a batch drawing from several types (terrain.types)
 TERRAIN_TYPES = GENERATOR_TYPES + (MIXED,)
 
 
@@ -166,6 +166,9 @@ class EnvConfig:
     observation: ObservationConfig = ObservationConfig()
     randomization: RandomizationConfig = RandomizationConfig()
 
+    def __post_init__(self) -> None:
+        validate(self)  # every config is valid from the moment it is built: no later check repeats it
+
     @property
     def terrain_type(self) -> str:
         """The terrain's one type, or ``mixed`` for several (``terrain.types``; the key is a shorthand)."""
@@ -205,80 +208,9 @@ _POSITIVE = {
 }
 
 
-def _coerce(value: Any, annotation: Any, key: str) -> Any:
-    """Convert a YAML value to the annotated type or raise ValueError naming the key."""
-    origin = typing.get_origin(annotation)
-    if annotation is bool:
-        if not isinstance(value, bool):
-            raise ValueError(f"config key '{key}' must be true or false, got {value!r}")
-        return value
-    if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"config key '{key}' must be an integer, got {value!r}")
-        return value
-    if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"config key '{key}' must be a number, got {value!r}")
-        return float(value)
-    if annotation is str:
-        if not isinstance(value, str):
-            raise ValueError(f"config key '{key}' must be a string, got {value!r}")
-        return value
-    if origin is tuple:
-        args = typing.get_args(annotation)
-        if len(args) == 2 and args[1] is Ellipsis:  # tuple[T, ...]: any length >= 1
-            if not isinstance(value, (list, tuple)) or not value:
-                raise ValueError(f"config key '{key}' must be a non-empty list, got {value!r}")
-            return tuple(_coerce(v, args[0], key) for v in value)
-        if not isinstance(value, (list, tuple)) or len(value) != len(args):
-            raise ValueError(f"config key '{key}' must be a list of {len(args)} numbers, got {value!r}")
-        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
-    raise TypeError(f"unsupported annotation {annotation!r} for '{key}'")  # programming error
-
-
-def _build(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
-    """Build dataclass ``cls`` from a mapping, recursing into nested sections."""
-    if not isinstance(data, Mapping):
-        raise ValueError(f"config section '{prefix or '<root>'}' must be a mapping, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        where = f"section '{prefix}'" if prefix else "the top level"
-        raise ValueError(f"unknown config key(s) {unknown} in {where}; valid keys: {sorted(fields)}")
-    kwargs = {}
-    for name, value in data.items():
-        key = f"{prefix}.{name}" if prefix else name
-        hint = hints[name]
-        if dataclasses.is_dataclass(hint):
-            kwargs[name] = _build(hint, value, key)
-        else:
-            kwargs[name] = _coerce(value, hint, key)
-    return cls(**kwargs)
-
-
-def build_section(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
-    """Build any config dataclass from a mapping with this module's key and type checks."""
-    return _build(cls, data, prefix)
-
-
-def _non_finite(config: Any, prefix: str = "") -> list[str]:
-    """Dotted keys of every NaN or infinite number in a config tree."""
-    bad = []
-    for field in dataclasses.fields(config):
-        value, key = getattr(config, field.name), f"{prefix}{field.name}"
-        if dataclasses.is_dataclass(value):
-            bad += _non_finite(value, key + ".")
-        elif any(
-            isinstance(v, float) and not math.isfinite(v) for v in (value if isinstance(value, tuple) else (value,))
-        ):
-            bad.append(f"'{key}' = {value!r}")
-    return bad
-
-
 def validate(config: EnvConfig) -> EnvConfig:
     """Check choices and value ranges; return the config unchanged or raise ValueError."""
-    bad = _non_finite(config)
+    bad = non_finite(config)
     if bad:
         raise ValueError(f"config values must be finite numbers; got {bad}")
     for path, choices in _CHOICES.items():
@@ -349,22 +281,15 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
-    """Merge a nested mapping over ``base`` (default: the flat preset) and validate it."""
-    merged = merge(to_dict(base or EnvConfig()), upgrade_keys(dict(data or {}), MIXED))
-    return validate(_build(EnvConfig, merged))
+    """Merge a nested mapping (older keys mapped, ``hsa_mjx.migrations``) over ``base`` (default: the
+    defaults, the original's flat task) and build it (validated as it is built)."""
+    data = with_default_proportions(migrations.env_keys(dict(data or {}), GENERATOR_TYPES))
+    return build_section(EnvConfig, merge(to_dict(base or EnvConfig()), data))
 
 
 def to_dict(config: EnvConfig) -> dict:
     """The config as plain nested dicts and lists (YAML-ready)."""
-
-    def plain(value: Any) -> Any:
-        if isinstance(value, tuple):
-            return [plain(v) for v in value]
-        if isinstance(value, dict):
-            return {k: plain(v) for k, v in value.items()}
-        return value
-
-    return plain(dataclasses.asdict(config))
+    return plain(config)
 
 
 def with_overrides(config: EnvConfig, **overrides: Any) -> EnvConfig:
@@ -396,7 +321,7 @@ def load_config(path: str | Path) -> EnvConfig:
 
 
 # The presets are the shipped env configs (configs/, package data once installed): each file states
-# its task and why its values differ from the original's flat task.
+# its task and what it changes from the defaults (the original's flat task). They are read on first use.
 PRESET_FILES = {
     "flat": "flat.yaml",
     "craters": "craters.yaml",
@@ -404,14 +329,34 @@ PRESET_FILES = {
     "spiral": "spiral.yaml",
     "mixed": "mixed_terrain.yaml",
 }
-PRESETS: dict[str, EnvConfig] = {name: load_config(data_dir("configs") / file) for name, file in PRESET_FILES.items()}
 # the flat task with the other goal rules (radial: the training configs' default, for the goal curriculum)
-PRESETS.update(
-    {
-        f"flat_{label}": with_overrides(PRESETS["flat"], name=f"flat_{label}", goal__mode=mode)
-        for label, mode in (("fixed_goal", "fixed"), ("radial", "radial"))
-    }
-)
+FLAT_GOAL_VARIANTS = {"flat_fixed_goal": "fixed", "flat_radial": "radial"}
+
+
+class Presets(Mapping):
+    """The presets by name, each built from its YAML file the first time it is asked for."""
+
+    def __init__(self) -> None:
+        self._built: dict[str, EnvConfig] = {}
+
+    def __getitem__(self, name: str) -> EnvConfig:
+        if name not in self._built:
+            if name in PRESET_FILES:
+                self._built[name] = load_config(data_dir("configs") / PRESET_FILES[name])
+            elif name in FLAT_GOAL_VARIANTS:
+                self._built[name] = with_overrides(self["flat"], name=name, goal__mode=FLAT_GOAL_VARIANTS[name])
+            else:
+                raise KeyError(name)
+        return self._built[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter((*PRESET_FILES, *FLAT_GOAL_VARIANTS))
+
+    def __len__(self) -> int:
+        return len(PRESET_FILES) + len(FLAT_GOAL_VARIANTS)
+
+
+PRESETS = Presets()
 
 
 def get_preset(name: str) -> EnvConfig:

@@ -107,7 +107,7 @@ TINY_RUN = {
         "termination": {"max_episode_steps": 15},
     },
     # success_threshold 0: every full window widens the range, so the wiring is visible in 80 steps
-    "curriculum": {
+    "goal_curriculum": {
         "enabled": True,
         "window_size": 4,
         "min_episodes": 4,
@@ -129,11 +129,11 @@ TINY_RUN = {
 @pytest.fixture(scope="session")
 def tiny_run_dir(tmp_path_factory):
     """The run directory of ``TINY_RUN``, trained once per session on the CPU."""
-    from train import config as tcfg
-    from train.trainer import train
+    import hsa_mjx_train.config
+    from hsa_mjx_train.trainer import train
 
     path = tmp_path_factory.mktemp("run")
-    summary = train(tcfg.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
+    summary = train(hsa_mjx_train.config.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
     assert summary["env_steps"] == 80
     return path
 

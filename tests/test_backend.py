@@ -20,7 +20,7 @@ from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
 import hsa_mjx
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.sim import backend
-from train.logger import read_jsonl
+from hsa_mjx_train.logger import read_jsonl
 
 ENVS, REST, STEPS = 3, 8, 20  # envs, zero-action steps at rest, then gait steps
 # Terrain tiles: flat, stairs and craters; solver settings of the shipped heightfield configs.
@@ -105,7 +105,8 @@ def test_importing_the_package_and_its_entry_points_prints_nothing(warp):
     hide = "import sys; sys.modules['warp'] = None\n" if warp == "missing" else ""
     modules = (
         "hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
-        "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluate, train.export"
+        "hsa_mjx.adapters.gymnasium_vector, hsa_mjx_train.cli, hsa_mjx_train.trainer, hsa_mjx_train.evaluation, "
+        "hsa_mjx_train.export"
     )
     out = subprocess.run([sys.executable, "-c", f"{hide}import {modules}"], capture_output=True, text=True, check=True)
     assert out.stdout == "" and "Failed to import" not in out.stderr, out.stdout + out.stderr

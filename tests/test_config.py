@@ -5,14 +5,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hsa_mjx import config as cfg
+import hsa_mjx.config
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_defaults_reproduce_original_flat_config():
     """Weights of the original flat_config.yaml (ORIGINAL_FACTS 6.6)."""
-    c = cfg.EnvConfig()
+    c = hsa_mjx.config.EnvConfig()
     r = c.reward
     assert (r.forward, r.ctrl, r.contact, r.lateral, r.constraint) == (6.0, 0.001, 0.0005, 0.0, 0.05)
     assert (r.acceleration, r.joint_velocity, r.distance, r.alive) == (1e-5, 5e-4, 10.0, 0.03)
@@ -24,64 +24,64 @@ def test_defaults_reproduce_original_flat_config():
 
 
 def test_shipped_flat_yaml_equals_preset():
-    assert cfg.load_config(ROOT / "configs" / "flat.yaml") == cfg.get_preset("flat")
+    assert hsa_mjx.config.load_config(ROOT / "configs" / "flat.yaml") == hsa_mjx.config.get_preset("flat")
 
 
 def test_yaml_under_env_section(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(yaml.safe_dump({"env": {"reward": {"forward": 3.0}}, "ppo": {"lr": 1}}))
-    assert cfg.load_config(path).reward.forward == 3.0
+    assert hsa_mjx.config.load_config(path).reward.forward == 3.0
 
 
 def test_unknown_key_names_key_and_valid_options(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text("reward:\n  forwrd: 1.0\n")
     with pytest.raises(ValueError, match=r"forwrd.*valid keys.*'forward'"):
-        cfg.load_config(path)
+        hsa_mjx.config.load_config(path)
 
 
 def test_wrong_type_and_bad_choice_and_range():
     with pytest.raises(ValueError, match="control.frame_skip.*integer"):
-        cfg.from_dict({"control": {"frame_skip": 2.5}})
+        hsa_mjx.config.from_dict({"control": {"frame_skip": 2.5}})
     with pytest.raises(ValueError, match="reward.forward.*number"):
-        cfg.from_dict({"reward": {"forward": "fast"}})
+        hsa_mjx.config.from_dict({"reward": {"forward": "fast"}})
     with pytest.raises(ValueError, match=r"physics.integrator.*\['euler', 'implicitfast', 'rk4'\]"):
-        cfg.from_dict({"physics": {"integrator": "verlet"}})
+        hsa_mjx.config.from_dict({"physics": {"integrator": "verlet"}})
     with pytest.raises(ValueError, match="terrain_type.*'flat'"):
-        cfg.from_dict({"terrain_type": "lava"})
+        hsa_mjx.config.from_dict({"terrain_type": "lava"})
     with pytest.raises(ValueError, match="frame_skip.*> 0"):
-        cfg.from_dict({"control": {"frame_skip": 0}})
+        hsa_mjx.config.from_dict({"control": {"frame_skip": 0}})
     with pytest.raises(ValueError, match="radial_range"):
-        cfg.from_dict({"goal": {"radial_range": [3.0, 1.0]}})
+        hsa_mjx.config.from_dict({"goal": {"radial_range": [3.0, 1.0]}})
     with pytest.raises(ValueError, match=r"radial_bearing_deg.*<= 180"):
-        cfg.from_dict({"goal": {"radial_bearing_deg": [60.0, 200.0]}})
+        hsa_mjx.config.from_dict({"goal": {"radial_bearing_deg": [60.0, 200.0]}})
 
 
 def test_missing_file_and_unknown_preset(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.yaml"):
-        cfg.load_config(tmp_path / "nope.yaml")
+        hsa_mjx.config.load_config(tmp_path / "nope.yaml")
     with pytest.raises(ValueError, match="available presets.*flat"):
-        cfg.get_preset("mountain")
+        hsa_mjx.config.get_preset("mountain")
 
 
 def test_overrides_with_dotted_keys():
-    c = cfg.with_overrides(cfg.get_preset("flat"), reward__forward=2.0, **{"goal.mode": "fixed"})
+    c = hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("flat"), reward__forward=2.0, **{"goal.mode": "fixed"})
     assert c.reward.forward == 2.0 and c.goal.mode == "fixed"
     with pytest.raises(ValueError, match="unknown config key"):
-        cfg.with_overrides(c, reward__nope=1.0)
+        hsa_mjx.config.with_overrides(c, reward__nope=1.0)
 
 
 def test_round_trip_to_dict():
-    c = cfg.get_preset("flat_radial")
-    assert cfg.from_dict(cfg.to_dict(c)) == c
+    c = hsa_mjx.config.get_preset("flat_radial")
+    assert hsa_mjx.config.from_dict(hsa_mjx.config.to_dict(c)) == c
 
 
 def test_observation_section_is_opt_in_and_checked():
-    assert cfg.EnvConfig().observation.heading is False  # the original's 24 values by default
-    assert all(not preset.observation.heading for preset in cfg.PRESETS.values())
-    on = cfg.from_dict({"observation": {"heading": True}})
-    assert on.observation.heading and cfg.from_dict(cfg.to_dict(on)) == on
-    section = cfg.to_dict(on)["observation"]
+    assert hsa_mjx.config.EnvConfig().observation.heading is False  # the original's 24 values by default
+    assert all(not preset.observation.heading for preset in hsa_mjx.config.PRESETS.values())
+    on = hsa_mjx.config.from_dict({"observation": {"heading": True}})
+    assert on.observation.heading and hsa_mjx.config.from_dict(hsa_mjx.config.to_dict(on)) == on
+    section = hsa_mjx.config.to_dict(on)["observation"]
     assert section == {
         "heading": True,
         "servo_targets": False,
@@ -91,26 +91,28 @@ def test_observation_section_is_opt_in_and_checked():
         "noise": section["noise"],
     }
     assert section["height_scan"]["enabled"] is False and not any(section["noise"].values())  # off by default
-    assert cfg.with_overrides(cfg.get_preset("flat"), observation__heading=True) == on
+    assert hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("flat"), observation__heading=True) == on
     with pytest.raises(ValueError, match=r"\['headng'\].*section 'observation'.*valid keys.*'heading'"):
-        cfg.from_dict({"observation": {"headng": True}})
+        hsa_mjx.config.from_dict({"observation": {"headng": True}})
     with pytest.raises(ValueError, match="observation.heading.*true or false"):
-        cfg.from_dict({"observation": {"heading": "yes"}})
-    assert all(not p.observation.servo_targets and p.observation.clock_period_s == 0 for p in cfg.PRESETS.values())
+        hsa_mjx.config.from_dict({"observation": {"heading": "yes"}})
+    assert all(
+        not p.observation.servo_targets and p.observation.clock_period_s == 0 for p in hsa_mjx.config.PRESETS.values()
+    )
     with pytest.raises(ValueError, match="observation.servo_targets.*true or false"):
-        cfg.from_dict({"observation": {"servo_targets": 1}})
+        hsa_mjx.config.from_dict({"observation": {"servo_targets": 1}})
     with pytest.raises(ValueError, match=r"observation.clock_period_s.*>= 0.*-4.0"):
-        cfg.from_dict({"observation": {"clock_period_s": -4}})
-    assert all(p.observation.hinge_angles == "raw" for p in cfg.PRESETS.values())  # the original's angles
+        hsa_mjx.config.from_dict({"observation": {"clock_period_s": -4}})
+    assert all(p.observation.hinge_angles == "raw" for p in hsa_mjx.config.PRESETS.values())  # the original's angles
     with pytest.raises(ValueError, match=r"observation.hinge_angles.*'wrap'.*\['raw', 'wrapped', 'sincos'\]"):
-        cfg.from_dict({"observation": {"hinge_angles": "wrap"}})
+        hsa_mjx.config.from_dict({"observation": {"hinge_angles": "wrap"}})
 
 
 @pytest.mark.parametrize("key", ["reward.forward", "termination.z_max", "goal.radial_range"])
 def test_non_finite_numbers_are_refused_naming_the_key(key):
     value = [1.5, float("inf")] if key == "goal.radial_range" else float("nan")
     with pytest.raises(ValueError, match=f"finite.*{key}"):
-        cfg.with_overrides(cfg.get_preset("flat"), **{key: value})
+        hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("flat"), **{key: value})
 
 
 # ----- YAML files: base configs ----------------------------------------------------------------
@@ -122,21 +124,51 @@ def _leaves(data: dict, prefix: str = "") -> dict:
     return out
 
 
-def test_no_training_yaml_restates_its_base():
+def _without(data: dict, dotted: str) -> dict:
+    """A copy of nested dicts with one dotted key removed (and its section, when it empties)."""
+    head, _, rest = dotted.partition(".")
+    out = dict(data)
+    if not rest:
+        del out[head]
+    else:
+        out[head] = _without(data[head], rest)
+        if not out[head]:
+            del out[head]
+    return out
+
+
+SHIPPED = sorted(p.name for p in (Path(__file__).resolve().parents[1] / "configs").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_each_shipped_config_states_only_what_differs(name, tmp_path):
+    """Each fact once: drop any one key of a shipped config and the config it builds changes (a key equal
+    to the dataclass default, the preset's value or the base file's would change nothing)."""
     import yaml
 
+    import hsa_mjx_train.config
     from hsa_mjx import resources
 
-    derived = 0
-    for path in sorted(resources.data_dir("configs").glob("train_*.yaml")):
-        raw = yaml.safe_load(path.read_text())
-        if "base" not in raw:
+    path = resources.data_dir("configs") / name
+    raw = yaml.safe_load(path.read_text()) or {}
+    if name.startswith("train_"):
+        build = lambda p: hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load(p))  # noqa: E731
+    else:
+        build = lambda p: hsa_mjx.config.to_dict(hsa_mjx.config.load_config(p))  # noqa: E731
+    if "base" in raw:
+        raw["base"] = str(path.parent / raw["base"])  # the copies below live elsewhere
+    full, copy, restated = build(path), tmp_path / name, []
+    for key in _leaves(raw):
+        if key in ("base", "env.preset"):
             continue
-        derived += 1
-        base = _leaves(resources.read_yaml(path.parent / raw.pop("base")))
-        restated = {k: v for k, v in _leaves(raw).items() if k in base and base[k] == v}
-        assert not restated, f"{path.name} restates its base's values: {restated}"
-    assert derived >= 4  # corridor, spiral, rough and the CPU quickstart derive from the flat task
+        copy.write_text(yaml.safe_dump(_without(raw, key)))
+        try:
+            if build(copy) == full:
+                restated.append(key)
+        except ValueError:  # without it the config is invalid: needed
+            continue
+    assert restated == [], f"{name} states what it would be anyway: {restated}"
+    assert name == "flat.yaml" or _leaves(raw)  # the flat task is the defaults: its file states nothing
 
 
 def test_base_configs_merge_and_refuse_a_cycle(tmp_path):

@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 
 import hsa_mjx
-from hsa_mjx.deploy import loop
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import loop, policy_file
 from hsa_mjx.deploy.__main__ import main
 from hsa_mjx.task.observation import observation_labels
 
 
 def test_the_loop_builds_the_envs_observation_from_sensor_readings():
-    meta = pol.read_meta(pol.locate("flat"))
+    meta = policy_file.read_meta(policy_file.locate("flat"))
     config, labels, goal_range = loop.policy_env(meta)
     assert goal_range == (1.5, 4.5)  # the curriculum's target, not its start
     env = hsa_mjx.make_env(

@@ -169,7 +169,7 @@ def test_large_batches_lower_without_lapack_on_cpu(env):
     """
     from hsa_mjx.sim import cpu_linalg
 
-    assert cpu_linalg.use_xla_linalg_on_cpu()  # installed on import of hsa_mjx.model (the env imports it)
+    assert cpu_linalg.use_xla_linalg_on_cpu()  # installed when the env was built (hsa_mjx.sim.model.load_robot)
     n = 64
     state = jax.eval_shape(jax.vmap(env.reset), jax.random.split(jax.random.PRNGKey(7), n))
     assert _lapack_calls(jax.jit(jax.vmap(env.step)).lower(state, jnp.zeros((n, env.action_size)))) == 0
@@ -193,11 +193,8 @@ def test_cpu_triangular_solves_and_failed_factorisations_match_numpy(batch):
     for is_lower, transpose, left in itertools.product((True, False), repeat=3):
         a = lower if is_lower else np.swapaxes(lower, 1, 2)
         rhs = b if left else np.swapaxes(b, 1, 2)
-        solve = jax.jit(
-            lambda a, r: jax.lax.linalg.triangular_solve(  # noqa: B023
-                a, r, left_side=left, lower=is_lower, transpose_a=transpose
-            )
-        )
+        options = {"left_side": left, "lower": is_lower, "transpose_a": transpose}
+        solve = jax.jit(lambda a, r, options=options: jax.lax.linalg.triangular_solve(a, r, **options))
         assert (_lapack_calls(solve.lower(a, rhs)) > 0) == (batch <= cpu_linalg.LAPACK_MAX_BATCH)
         op = np.swapaxes(a, 1, 2) if transpose else a
         expected = (

@@ -11,25 +11,28 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hsa_mjx.deploy import policy as pol
-from train import config as tcfg
-from train import export
+import hsa_mjx_train.config
+from hsa_mjx.deploy import policy_file
+from hsa_mjx_train import export
 
 ATOL = 1e-5
 N_OBS, N_ACT = 24, 8  # the default observation (no optional entries) and the 8 servos
 
 
-def random_training_state(config: tcfg.TrainConfig, seed: int = 0):
+def random_training_state(config: hsa_mjx_train.config.TrainConfig, seed: int = 0):
     """(networks, TrainingState) with random weights, biases and observation statistics."""
     import jax
     import jax.numpy as jnp
 
-    from train.ppo import init_training_state, make_networks
+    from hsa_mjx_train.networks import init_training_state, make_networks
 
     networks = make_networks(config, N_OBS, N_ACT)
     ts = init_training_state(config, networks, jax.random.PRNGKey(seed), N_OBS)
     rng = np.random.default_rng(seed)
-    noisy = lambda x: jnp.asarray(np.asarray(x) + 0.3 * rng.normal(size=np.shape(x)), jnp.float32)  # noqa: E731
+
+    def noisy(x):
+        return jnp.asarray(np.asarray(x) + 0.3 * rng.normal(size=np.shape(x)), jnp.float32)
+
     normalizer = ts.normalizer.replace(
         mean=jnp.asarray(rng.normal(size=N_OBS) * 2.0, jnp.float32),
         std=jnp.asarray(rng.uniform(0.05, 3.0, size=N_OBS), jnp.float32),
@@ -39,7 +42,7 @@ def random_training_state(config: tcfg.TrainConfig, seed: int = 0):
     )
 
 
-def observations(policy: pol.NumpyPolicy, n: int = 100, seed: int = 1) -> np.ndarray:
+def observations(policy: policy_file.NumpyPolicy, n: int = 100, seed: int = 1) -> np.ndarray:
     """Observations around the normaliser's mean, many far enough out to hit the observation clip."""
     rng = np.random.default_rng(seed)
     return (policy.params["obs_mean"] + policy.params["obs_std"] * rng.normal(size=(n, N_OBS)) * 6.0).astype(np.float32)
@@ -62,17 +65,17 @@ def onnx_actions(directory, obs: np.ndarray) -> np.ndarray:
     return session.run(["action"], {"observation": obs})[0]
 
 
-def export_both(policy: pol.NumpyPolicy, tmp_path) -> tuple[pol.NumpyPolicy, object]:
+def export_both(policy: policy_file.NumpyPolicy, tmp_path) -> tuple[policy_file.NumpyPolicy, object]:
     """Write ``policy`` as npz and onnx; return (the npz loaded back, the onnx directory)."""
     export.write(policy, tmp_path / "npz", "npz")
     export.write(policy, tmp_path / "onnx", "onnx")
-    return pol.load_policy(tmp_path / "npz"), tmp_path / "onnx"
+    return policy_file.load_policy(tmp_path / "npz"), tmp_path / "onnx"
 
 
-@pytest.mark.parametrize("distribution", tcfg.DISTRIBUTIONS)
-@pytest.mark.parametrize("activation", tcfg.ACTIVATIONS)
+@pytest.mark.parametrize("distribution", hsa_mjx_train.config.DISTRIBUTIONS)
+@pytest.mark.parametrize("activation", hsa_mjx_train.config.ACTIVATIONS)
 def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_path):
-    config = tcfg.from_dict(
+    config = hsa_mjx_train.config.from_dict(
         {
             "ppo": {
                 "activation": activation,
@@ -93,11 +96,11 @@ def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_pa
     np.testing.assert_allclose(onnx_actions(onnx_dir, obs), want, atol=ATOL, rtol=0)
     np.testing.assert_allclose(policy(obs[3]), want[3], atol=ATOL, rtol=0)  # one observation
     assert policy.meta["network"]["output"] == ("tanh" if distribution == "tanh_normal" else "identity")
-    assert tcfg.from_dict(policy.meta["config"]) == config  # the env and networks can be rebuilt
+    assert hsa_mjx_train.config.from_dict(policy.meta["config"]) == config  # the env and networks can be rebuilt
 
 
 def test_export_without_observation_normalisation(tmp_path):
-    config = tcfg.from_dict(
+    config = hsa_mjx_train.config.from_dict(
         {"ppo": {"normalize_observations": False, "observation_clip": 5.0, "policy_hidden_sizes": [16]}}
     )
     networks, ts = random_training_state(config)
@@ -111,16 +114,16 @@ def test_export_without_observation_normalisation(tmp_path):
 
 
 def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
-    from train import checkpoint
-    from train.evaluate import load_training_state
+    from hsa_mjx_train import checkpoint
+    from hsa_mjx_train.run_state import load_training_state
 
     for fmt in export.FORMATS:
         assert export.main([str(tiny_run_dir), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
     assert "env steps" in capsys.readouterr().out
     latest = checkpoint.latest(tiny_run_dir)
-    config = tcfg.from_dict(checkpoint.read_meta(latest)["config"])
+    config = hsa_mjx_train.config.from_dict(checkpoint.read_meta(latest)["config"])
     networks, ts = load_training_state(config, latest, N_OBS, N_ACT)
-    policy = pol.load_policy(tmp_path / "npz")
+    policy = policy_file.load_policy(tmp_path / "npz")
     # observations as the env gives them, within 3 normaliser stds: the tiny run's stds are tiny in
     # some slots, and raw N(0, 3) values there normalise to thousands, where float32 sums in numpy's
     # and XLA's orders differ by more than the bound (1.6e-5 seen) for reasons the export cannot change
@@ -132,13 +135,13 @@ def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
     source = policy.meta["source"]
     assert source["step"] == source["env_steps"] == int(latest.name.split("_")[1]) >= 80
     assert source["checkpoint"] == str(latest) and "--format npz" in source["command"]
-    assert tcfg.from_dict(policy.meta["config"]) == config
-    assert json.loads((tmp_path / "onnx" / pol.META_FILE).read_text())["network"] == policy.meta["network"]
+    assert hsa_mjx_train.config.from_dict(policy.meta["config"]) == config
+    assert json.loads((tmp_path / "onnx" / policy_file.META_FILE).read_text())["network"] == policy.meta["network"]
 
 
 def corrupt_copies(run_dir, root):
     """Copies of a run's latest checkpoint, each broken in one way, with the expected error text."""
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     latest = checkpoint.latest(run_dir)
     meta = json.loads((latest / checkpoint.META_FILE).read_text())
@@ -184,7 +187,7 @@ def test_export_refuses_corrupt_or_incompatible_runs(tiny_run_dir, tmp_path, cap
         export.main([str(tiny_run_dir), "--format", "pt"])
 
 
-def small_policy(tmp_path, name="p", hidden=(5,)) -> pol.NumpyPolicy:
+def small_policy(tmp_path, name="p", hidden=(5,)) -> policy_file.NumpyPolicy:
     """A hand-made policy written with the numpy-only writer (no JAX involved)."""
     rng = np.random.default_rng(4)
     sizes = [N_OBS, *hidden, N_ACT]
@@ -194,14 +197,14 @@ def small_policy(tmp_path, name="p", hidden=(5,)) -> pol.NumpyPolicy:
         "kernels": tuple(rng.normal(size=(a, b)) for a, b in zip(sizes[:-1], sizes[1:])),
         "biases": tuple(rng.normal(size=b) for b in sizes[1:]),
     }
-    meta = pol.describe(params, "elu", "tanh_normal", 3.0, [f"o{i}" for i in range(N_OBS)])
-    pol.save_policy(tmp_path / name, params, {**meta, "config": {}, "source": {}})
-    return pol.load_policy(tmp_path / name)
+    meta = policy_file.describe(params, "elu", "tanh_normal", 3.0, [f"o{i}" for i in range(N_OBS)])
+    policy_file.save_policy(tmp_path / name, params, {**meta, "config": {}, "source": {}})
+    return policy_file.load_policy(tmp_path / name)
 
 
 def test_policy_round_trip_and_numpy_forward(tmp_path):
     policy = small_policy(tmp_path)
-    assert all(a.dtype == np.float32 for a in pol.flatten(policy.params).values())
+    assert all(a.dtype == np.float32 for a in policy_file.flatten(policy.params).values())
     obs = observations(policy, 10)
     x = np.clip((obs - policy.params["obs_mean"]) / policy.params["obs_std"], -3.0, 3.0)
     hidden = x @ policy.params["kernels"][0] + policy.params["biases"][0]
@@ -212,20 +215,20 @@ def test_policy_round_trip_and_numpy_forward(tmp_path):
     with pytest.raises(ValueError, match=r"observation must have shape \(24,\)"):
         policy(np.zeros(N_OBS + 1))
     small_policy(tmp_path, hidden=(7, 7))  # re-export over an existing policy directory replaces it
-    assert len(pol.load_policy(tmp_path / "p").params["kernels"]) == 3
+    assert len(policy_file.load_policy(tmp_path / "p").params["kernels"]) == 3
 
 
 def test_policy_loader_refuses_bad_files(tmp_path):
     good = small_policy(tmp_path)
-    meta = json.loads((tmp_path / "p" / pol.META_FILE).read_text())
-    arrays = pol.flatten(good.params)
+    meta = json.loads((tmp_path / "p" / policy_file.META_FILE).read_text())
+    arrays = policy_file.flatten(good.params)
 
     def variant(name, meta_text=None, npz=None):
         shutil.copytree(tmp_path / "p", tmp_path / name)
         if meta_text is not None:
-            (tmp_path / name / pol.META_FILE).write_text(meta_text)
+            (tmp_path / name / policy_file.META_FILE).write_text(meta_text)
         if npz is not None:
-            np.savez(tmp_path / name / pol.WEIGHTS_FILE, **npz)
+            np.savez(tmp_path / name / policy_file.WEIGHTS_FILE, **npz)
         return tmp_path / name
 
     cases = {
@@ -243,21 +246,21 @@ def test_policy_loader_refuses_bad_files(tmp_path):
     }
     for expected, directory in cases.items():
         with pytest.raises(ValueError, match=expected.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
-            pol.load_policy(directory)
-    (variant("garbage") / pol.WEIGHTS_FILE).write_bytes(b"PK\x03\x04 truncated")
+            policy_file.load_policy(directory)
+    (variant("garbage") / policy_file.WEIGHTS_FILE).write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(ValueError, match="garbage/policy.npz is corrupt"):
-        pol.load_policy(tmp_path / "garbage")
-    (variant("no_npz") / pol.WEIGHTS_FILE).unlink()
+        policy_file.load_policy(tmp_path / "garbage")
+    (variant("no_npz") / policy_file.WEIGHTS_FILE).unlink()
     with pytest.raises(FileNotFoundError, match="no_npz/policy.npz"):
-        pol.load_policy(tmp_path / "no_npz")
+        policy_file.load_policy(tmp_path / "no_npz")
     with pytest.raises(FileNotFoundError, match="policy directory not found"):
-        pol.load_policy(tmp_path / "nowhere")
+        policy_file.load_policy(tmp_path / "nowhere")
 
 
 def test_numpy_policy_loads_and_runs_without_jax(tmp_path):
     small_policy(tmp_path)
     code = (
-        f"import sys, numpy as np\nfrom hsa_mjx.deploy.policy import load_policy\n"
+        f"import sys, numpy as np\nfrom hsa_mjx.deploy.policy_file import load_policy\n"
         f"p = load_policy({str(tmp_path / 'p')!r})\n"
         f"assert p(np.zeros({N_OBS})).shape == ({N_ACT},) and p(np.zeros((3, {N_OBS}))).shape == (3, {N_ACT})\n"
         "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('jax', 'jaxlib', 'brax', 'flax', 'mujoco'))\n"
@@ -273,7 +276,7 @@ def test_numpy_policy_loads_and_runs_without_jax(tmp_path):
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
 
 
-SHIPPED = sorted(p.parent.name for p in Path("policies").glob(f"*/{pol.META_FILE}"))
+SHIPPED = sorted(p.parent.name for p in Path("policies").glob(f"*/{policy_file.META_FILE}"))
 
 
 @pytest.mark.parametrize("name", SHIPPED)
@@ -281,9 +284,9 @@ def test_a_shipped_policy_folder_converts_to_onnx_with_the_same_actions(name, tm
     """``python -m train.export policies/NAME --format onnx``: the documented bound, 1e-5, holds for
     observations within 10 standard deviations of the normaliser's mean (arbitrary values far
     outside it round differently in float32: docs/policies.md)."""
-    policy = pol.load_policy(Path("policies") / name)
+    policy = policy_file.load_policy(Path("policies") / name)
     assert export.main([f"policies/{name}", "--format", "onnx", "--out", str(tmp_path / "onnx")]) == 0
-    meta = json.loads((tmp_path / "onnx" / pol.META_FILE).read_text())
+    meta = json.loads((tmp_path / "onnx" / policy_file.META_FILE).read_text())
     assert meta["source"]["converted_from"] == f"policies/{name}" and meta["observation"] == policy.meta["observation"]
     rng = np.random.default_rng(0)
     scale = rng.uniform(-10, 10, size=(200, policy.observation_size))

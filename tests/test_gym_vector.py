@@ -1,5 +1,7 @@
 """The Gymnasium vector env: make_vec, the vector API checks, same-step autoreset, seeds, bad input, render."""
 
+import os
+
 import gymnasium
 import jax
 import jax.numpy as jnp
@@ -198,21 +200,35 @@ def test_next_step_autoreset_suits_gymnasiums_vector_wrappers():
         HSAVectorEnv(2, autoreset_mode="disabled")
 
 
-def test_async_vectorization_resets_and_steps_without_extra_arguments(tmp_path):
-    """make_vec(..., vectorization_mode="async") as a user's script runs it (its own process, the main guard)."""
+def test_async_vectorization_with_spawned_workers(tmp_path):
+    """make_vec(..., vectorization_mode="async") as a user's script runs it (its own process, the main guard),
+    with the spawn context the docs give: importing hsa_mjx leaves the start method alone."""
     import subprocess
     import sys
 
     script = tmp_path / "run_async.py"
     script.write_text(
         "import multiprocessing, gymnasium, numpy as np, hsa_mjx\n"
+        "from hsa_mjx.adapters.entry_points import SPAWN\n"
         "if __name__ == '__main__':\n"
-        "    envs = gymnasium.make_vec('hsa_mjx/HSA-v0', num_envs=2, vectorization_mode='async')\n"
+        "    method = multiprocessing.get_start_method(allow_none=True)  # after import hsa_mjx: the program's own\n"
+        "    envs = gymnasium.make_vec('hsa_mjx/HSA-v0', num_envs=2, vectorization_mode='async', vector_kwargs=SPAWN)\n"
         "    obs, _ = envs.reset(seed=0)\n"
         "    obs, reward, *_ = envs.step(np.zeros((2, 8), np.float32))\n"
-        "    print(multiprocessing.get_start_method(), obs.shape, np.isfinite(reward).all())\n"
+        "    print(method, obs.shape, np.isfinite(reward).all())\n"
         "    envs.close()\n"
     )
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "spawn (2, 24) True"
+    assert out.stdout.strip().splitlines()[-1] == "None (2, 24) True"  # no start method set by the import
+
+
+def test_an_env_in_a_forked_copy_of_a_jax_process_is_refused(monkeypatch):
+    """Forked workers of a process that built an env would deadlock: the entry point says to spawn them."""
+    from hsa_mjx.adapters import entry_points
+
+    monkeypatch.setattr(entry_points, "_built_in", [os.getpid() + 1])  # as a forked copy sees its parent's record
+    with pytest.raises(RuntimeError, match=r"forked.*vector_kwargs=\{'context': 'spawn'\}"):
+        entry_points.single_env()
+    monkeypatch.setattr(entry_points, "_built_in", [os.getpid()])
+    entry_points.check_not_forked()  # the process that built the env: fine

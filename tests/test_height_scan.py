@@ -7,13 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import config as cfg
+import hsa_mjx.config
+import hsa_mjx_train.config
 from hsa_mjx.task import observation, privileged
 from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.height_scan import HeightScanConfig
-from train import config as tcfg
-from train.export import policy_params
-from train.ppo import init_training_state, make_networks
+from hsa_mjx_train.networks import init_training_state, make_networks
+from hsa_mjx_train.run_state import policy_arrays
 
 DEFAULT = HeightScanConfig(enabled=True)
 POSITION = np.array([1.0, 2.0], np.float32)
@@ -99,16 +99,16 @@ def test_shape_clips_then_scales_and_noise_is_bounded_per_point():
 )
 def test_bad_scan_settings_are_refused_naming_the_key(key, value, needle):
     with pytest.raises(ValueError, match=needle):
-        cfg.with_overrides(
-            cfg.get_preset("mixed"),
+        hsa_mjx.config.with_overrides(
+            hsa_mjx.config.get_preset("mixed"),
             **{"observation.height_scan.enabled": True, f"observation.height_scan.{key}": value},
         )
     with pytest.raises(ValueError, match="unknown config key"):
-        cfg.with_overrides(cfg.get_preset("mixed"), **{"observation.height_scan.radius": 1.0})
+        hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("mixed"), **{"observation.height_scan.radius": 1.0})
 
 
 def test_the_scan_is_appended_to_the_observation_and_labelled():
-    config = cfg.ObservationConfig(heading=True, height_scan=DEFAULT)
+    config = hsa_mjx.config.ObservationConfig(heading=True, height_scan=DEFAULT)
     labels = observation.observation_labels(config)
     assert observation.observation_size(config) == 28 + 63 and labels[28] == "height_scan_x-80_y-60"
     names = privileged.labels(config)
@@ -116,8 +116,8 @@ def test_the_scan_is_appended_to_the_observation_and_labelled():
     assert names[0] == "clean_height_scan_x-80_y-60" and names[-1] == "terrain_level"
 
 
-def _privileged_config() -> tcfg.TrainConfig:
-    return tcfg.from_dict(
+def _privileged_config() -> hsa_mjx_train.config.TrainConfig:
+    return hsa_mjx_train.config.from_dict(
         {
             "env": {
                 "preset": "mixed",
@@ -137,11 +137,16 @@ def test_privileged_inputs_reach_the_critic_and_never_the_policy_or_its_export()
     rng = np.random.default_rng(0)
     obs = jnp.asarray(rng.normal(size=(4, n_obs)), jnp.float32)
     a, b = (jnp.asarray(rng.normal(size=(4, n_priv)), jnp.float32) for _ in range(2))
-    policy = lambda x: networks.policy_network.apply(ts.normalizer, ts.params.policy, x)  # noqa: E731
-    value = lambda x: networks.value_network.apply(ts.normalizer, ts.params.value, x)  # noqa: E731
+
+    def policy(x):
+        return networks.policy_network.apply(ts.normalizer, ts.params.policy, x)
+
+    def value(x):
+        return networks.value_network.apply(ts.normalizer, ts.params.value, x)
+
     with_a, with_b = policy(jnp.concatenate([obs, a], -1)), policy(jnp.concatenate([obs, b], -1))
     np.testing.assert_array_equal(with_a, with_b)  # the privileged values change nothing for the policy
     np.testing.assert_allclose(policy(obs), with_a, atol=1e-6)  # and it runs on its own observation alone
     assert not np.allclose(value(jnp.concatenate([obs, a], -1)), value(jnp.concatenate([obs, b], -1)))
-    params = policy_params(config, ts, 8)
+    params = policy_arrays(config, ts, 8)
     assert params["kernels"][0].shape[0] == params["obs_mean"].shape[0] == n_obs  # the export: actor inputs only

@@ -45,9 +45,11 @@ def _repo_files(folder: str, pattern: str) -> set[str]:
 
 def test_wheel_holds_the_code_assets_configs_and_policies(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    for package in ("hsa_mjx", "train"):
-        missing = {f"{package}/{f}" for f in _repo_files(package, "**/*.py")} - names
+    for package, folder in (("hsa_mjx", "hsa_mjx"), ("hsa_mjx_train", "train")):
+        missing = {f"{package}/{f}" for f in _repo_files(folder, "**/*.py")} - names
         assert not missing, f"modules left out of the wheel (pyproject's packages list): {sorted(missing)}"
+    # the trainer ships under its own name: no top-level "train" package to collide with another's
+    assert not [n for n in names if n.startswith("train/")]
     for folder, pattern in (("assets", "*.xml"), ("configs", "*.yaml"), ("policies", "*/policy.*")):
         expected = {f"hsa_mjx/data/{folder}/{f}" for f in _repo_files(folder, pattern)}
         assert expected and expected <= names, sorted(expected - names)
@@ -66,7 +68,7 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(site), "JAX_PLATFORMS": "cpu"}
     script = (
         "import json, hsa_mjx\n"
-        "from train import cli\n"
+        "from hsa_mjx_train import cli\n"
         "env = hsa_mjx.make_env('flat')\n"
         "config, run_dir = cli.resolve(cli.parse_args([]))\n"
         "print(json.dumps({'file': hsa_mjx.__file__, 'obs': env.observation_size,\n"
@@ -86,7 +88,7 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
     assert Path(facts["file"]).is_relative_to(site)  # the installed copy, not the checkout
     assert facts["obs"] == 24 and facts["init_from"] == "flat"  # the CPU quickstart config, found as package data
     evaluated = subprocess.run(
-        [sys.executable, "-m", "train.evaluate", "--policy", "flat", "--episodes", "2", "--steps", "20"],
+        [sys.executable, "-m", "hsa_mjx_train.evaluate", "--policy", "flat", "--episodes", "2", "--steps", "20"],
         cwd=work,
         env=env,
         capture_output=True,

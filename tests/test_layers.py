@@ -1,4 +1,6 @@
-"""The package's imports run one way: each layer imports only its own layer and those below it."""
+"""The code imports one way: each layer imports only its own layer and those below it, in hsa_mjx/, in
+the trainer (train/, installed as hsa_mjx_train) and in benchmarks/; the command-line tools are on top,
+nothing calls another module's private names, and nothing reaches into JAX's internals."""
 
 from __future__ import annotations
 
@@ -6,17 +8,39 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = {"hsa_mjx": "hsa_mjx", "hsa_mjx_train": "train", "benchmarks": "benchmarks"}  # import name: folder
+T = "hsa_mjx_train."
 # Bottom to top (docs/architecture.md). A module of layer i may import modules of layers 0..i.
 LAYERS = (
-    ("hsa_mjx.resources", "hsa_mjx.config", "hsa_mjx.randomization_config", "hsa_mjx.pose", "hsa_mjx.terrain"),
+    (
+        "hsa_mjx.resources",
+        "hsa_mjx.config",
+        "hsa_mjx.config_schema",
+        "hsa_mjx.migrations",
+        "hsa_mjx.randomization_config",
+        "hsa_mjx.pose",
+        "hsa_mjx.terrain",
+    ),
     ("hsa_mjx.sim",),
     ("hsa_mjx.task",),
     ("hsa_mjx.curricula",),
     ("hsa_mjx.batch",),
     ("hsa_mjx.adapters", "hsa_mjx.deploy"),
     ("hsa_mjx",),  # the package's own __init__: make_env and the public names
-    ("train",),
+    # the trainer, floor by floor: file formats and host tools; networks; the run state and the PPO
+    # learner; what builds on them; the collection strategies; the training loop and the evaluation;
+    # on top, the command-line tools nothing else imports
+    tuple(T + m for m in ("checkpoint", "compat", "config", "distributed", "logger", "onnx_policy", "diagnostics")),
+    (T + "rollout", T + "networks", T + "plots", T + "run_dir"),
+    (T + "learner", T + "run_state", T + "terrain_eval"),
+    (T + "placement", T + "warm_start", T + "policy_sources"),
+    (T + "thread_per_device",),
+    (T + "strategies",),
+    (T + "trainer", T + "evaluation"),
+    (T + "cli", T + "evaluate", T + "export", T + "__main__", "hsa_mjx_train"),
+    ("benchmarks",),
 )
+TOOLS = (T + "cli", T + "evaluate", T + "export", T + "__main__")  # imported by no other module
 
 
 def layer_of(module: str) -> int:
@@ -32,13 +56,14 @@ def layer_of(module: str) -> int:
 
 
 def module_name(path: Path) -> str:
-    """The dotted module name of a source file of the checkout."""
+    """The dotted module name of a source file of the checkout (train/ is the package hsa_mjx_train)."""
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    parts[0] = {folder: name for name, folder in PACKAGES.items()}[parts[0]]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def imported(path: Path) -> list[tuple[int, str]]:
-    """(line, module) of every import of hsa_mjx or train in a file, at any depth (deferred ones too)."""
+    """(line, module) of every import of the project's packages in a file, at any depth (deferred ones too)."""
     found = []
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
@@ -47,25 +72,34 @@ def imported(path: Path) -> list[tuple[int, str]]:
             base = node.module
             # "from hsa_mjx.task import env" imports the module hsa_mjx.task.env
             found += [(node.lineno, f"{base}.{a.name}" if _is_module(f"{base}.{a.name}") else base) for a in node.names]
-    return [(line, name) for line, name in found if name.split(".")[0] in ("hsa_mjx", "train")]
+    return [(line, name) for line, name in found if name.split(".")[0] in PACKAGES]
 
 
 def _is_module(name: str) -> bool:
     """Whether a dotted name is a module or package of the checkout."""
-    path = ROOT.joinpath(*name.split("."))
+    parts = name.split(".")
+    if parts[0] not in PACKAGES:
+        return False
+    path = ROOT.joinpath(PACKAGES[parts[0]], *parts[1:])
     return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
 
 
+def sources() -> list[Path]:
+    """Every Python file of the three packages."""
+    return sorted(p for folder in PACKAGES.values() for p in ROOT.glob(f"{folder}/**/*.py"))
+
+
 def violations() -> list[str]:
-    """Every import against the layer order in hsa_mjx/ and train/."""
+    """Every import against the layer order, and every import of a command-line tool."""
     bad = []
-    for path in sorted([*ROOT.glob("hsa_mjx/**/*.py"), *ROOT.glob("train/**/*.py")]):
+    for path in sources():
         here = module_name(path)
         for line, name in imported(path):
+            where = f"{path.relative_to(ROOT)}:{line} imports {name}"
             if layer_of(name) > layer_of(here):
-                bad.append(
-                    f"{path.relative_to(ROOT)}:{line} imports {name} (layer {layer_of(name)} > {layer_of(here)})"
-                )
+                bad.append(f"{where} (layer {layer_of(name)} > {layer_of(here)})")
+            elif name in TOOLS and here not in (name, T + "__main__") and not here.startswith("benchmarks"):
+                bad.append(f"{where}: a command-line tool, which nothing in the packages imports")
     return bad
 
 
@@ -73,18 +107,37 @@ def test_imports_follow_the_layer_order():
     assert violations() == []
 
 
+def test_the_trainer_has_no_chain_through_its_tools():
+    """No trainer module imports evaluate or export: they are top-floor tools."""
+    importers = {
+        module_name(path)
+        for path in sources()
+        for _, name in imported(path)
+        if name in (T + "evaluate", T + "export") and module_name(path) != T + "__main__"
+    }
+    assert importers == set()
+    assert layer_of(T + "evaluate") == layer_of(T + "export") == max(layer_of(m) for m in TOOLS)
+    assert all(layer_of(T + m) < layer_of(T + "evaluate") for m in ("trainer", "warm_start", "run_state"))
+
+
 def test_the_check_sees_an_upward_import(tmp_path):
-    """The walk finds a deferred import of a higher layer (what the test above would fail on)."""
+    """The walk finds a deferred import of a higher layer (what the tests above would fail on)."""
     source = tmp_path / "probe.py"
-    source.write_text("def f():\n    from hsa_mjx.batch import auto_reset\n    import train.ppo\n")
+    source.write_text("def f():\n    from hsa_mjx.batch import auto_reset\n    import hsa_mjx_train.learner\n")
     names = [name for _, name in imported(source)]
-    assert names == ["hsa_mjx.batch.auto_reset", "train.ppo"]
-    assert layer_of("hsa_mjx.batch.auto_reset") > layer_of("hsa_mjx.sim.model") and layer_of("train.ppo") == 7
+    assert names == ["hsa_mjx.batch.auto_reset", "hsa_mjx_train.learner"]
+    assert layer_of("hsa_mjx.batch.auto_reset") > layer_of("hsa_mjx.sim.model")
+    assert layer_of("hsa_mjx_train.learner") > layer_of("hsa_mjx_train.config")
+    assert module_name(ROOT / "train" / "trainer.py") == "hsa_mjx_train.trainer"
 
 
-# The one private field read: MJX keeps Warp-only options (here, which overflow warnings print) in
-# ``Model.opt._impl`` and offers no public setter; its own deprecation message points there.
-PRIVATE_FIELD_ALLOWED = {("hsa_mjx/sim/backend.py", "put_model")}
+# The private names read on purpose: MJX keeps Warp-only options (which overflow warnings print) in
+# ``Model.opt._impl`` with no public setter (its own deprecation message points there), and the
+# Gymnasium entry point reads the time limit from ``gymnasium.make``'s frame (``sys._getframe``).
+PRIVATE_ALLOWED = {
+    ("hsa_mjx/sim/backend.py", "put_model", "_impl"),
+    ("hsa_mjx/adapters/gymnasium.py", None, "_getframe"),
+}
 
 
 def _function_at(tree: ast.AST, line: int) -> str | None:
@@ -94,14 +147,40 @@ def _function_at(tree: ast.AST, line: int) -> str | None:
     return max(inside)[2] if inside else None
 
 
-def test_no_private_jax():
-    """Nothing reaches into JAX internals; a backend's private field only in the one function named above."""
+def private_uses(path: Path, root: Path = ROOT) -> list[str]:
+    """Where a file reads another object's or module's private name: ``x._name`` with ``x`` not ``self``
+    or ``cls``, or ``from module import _name``."""
+    tree, name = ast.parse(path.read_text()), path.relative_to(root).as_posix()
     hits = []
-    for path in [*ROOT.glob("hsa_mjx/**/*.py"), *ROOT.glob("train/**/*.py")]:
-        text, name = path.read_text(), path.relative_to(ROOT).as_posix()
-        for i, line in enumerate(text.splitlines(), 1):
-            if "jax._src" in line or (
-                "._impl" in line and (name, _function_at(ast.parse(text), i)) not in PRIVATE_FIELD_ALLOWED
-            ):
-                hits.append(f"{name}:{i}")
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and any(a.name.startswith("_") for a in node.names):
+            hits.append(f"{name}:{node.lineno} imports a private name from {node.module}")
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+            owner = node.value.id if isinstance(node.value, ast.Name) else None
+            if owner in ("self", "cls"):
+                continue
+            allowed = {(name, _function_at(tree, node.lineno), node.attr), (name, None, node.attr)}
+            if not allowed & PRIVATE_ALLOWED:
+                hits.append(f"{name}:{node.lineno} reads .{node.attr}")
+    return hits
+
+
+def test_no_module_calls_another_modules_private_names():
+    assert [hit for path in sources() for hit in private_uses(path)] == []
+
+
+def test_the_private_name_check_sees_one(tmp_path):
+    source = tmp_path / "probe.py"
+    source.write_text("from m import _hidden\nx = learner._on_each\ny = self._mine\n")
+    hits = [h.split(" ", 1)[1] for h in private_uses(source, tmp_path)]
+    assert hits == ["imports a private name from m", "reads ._on_each"]
+
+
+def test_no_private_jax():
+    """Nothing reaches into JAX's internals."""
+    hits = []
+    for path in sources():
+        for i, line in enumerate(path.read_text().splitlines(), 1):
+            if "jax._src" in line:
+                hits.append(f"{path.relative_to(ROOT)}:{i}")
     assert hits == []

@@ -57,7 +57,7 @@ ONE_DEVICE_RESUME = [
         ("ppo.batch_size", TINY["ppo"]["batch_size"]),
         ("run.checkpoint_every", 40),
         ("run.num_timesteps", 280),
-        ("run.multi_device", "per_device"),
+        ("run.collection", "thread_per_device"),
     )
 ]
 # What the per-device learner's log must share with pmap's: everything but speed and wall-clock.
@@ -97,7 +97,7 @@ def _fresh_traces() -> None:
 
 def _record_saves() -> list[int]:
     """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     saved, save = [], checkpoint.save
     checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
@@ -106,14 +106,14 @@ def _record_saves() -> list[int]:
 
 def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
     """Messages of the configs refused on 2 devices, and whether anything compiled or was written first."""
-    from train import config as tcfg
-    from train.trainer import train
+    import hsa_mjx_train.config
+    from hsa_mjx_train.trainer import train
 
     before, messages = len(compiles), {}
     bad = {"indivisible": ["run.num_envs=3", "ppo.batch_size=3"], "too_many": ["run.num_devices=3"]}
     for name, override in bad.items():
         try:
-            train(tcfg.load(config_path, override), tmp / name, quiet=True)
+            train(hsa_mjx_train.config.load(config_path, override), tmp / name, quiet=True)
         except ValueError as err:
             messages[name] = str(err)
     made = [name for name in messages if (tmp / name).exists()]
@@ -150,7 +150,7 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
     terrain levels) is equal."""
     from flax import serialization
 
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     def load(run: str) -> dict:
         path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}" / checkpoint.STATE_FILE
@@ -179,7 +179,7 @@ def _learner_facts(seen: dict) -> dict:
 
     start, (ts, state, out) = seen["resets"][0], seen["epochs"][1]
     terrain = {
-        "terrain_rows": start.curricula.terrain.row.tolist(),
+        "terrain_rows": start.curricula.terrain.terrain_type.tolist(),
         "terrain_start": start.curricula.terrain.level.tolist(),
         "terrain_after": state.curricula.terrain.level.tolist(),
         "terrain_totals": {k: np.asarray(v).tolist() for k, v in out["totals"].items() if k.startswith("terrain_")},
@@ -211,27 +211,36 @@ def _curriculum_facts() -> dict:
     import jax
     import jax.numpy as jnp
 
-    from hsa_mjx.curricula import goal as cur
+    import hsa_mjx_train.config
+    from hsa_mjx.curricula import goal_curriculum
     from hsa_mjx.curricula.state import CurriculumRules
-    from hsa_mjx.task.env import HSAEnv
-    from train import config as tcfg
-    from train.ppo import AXIS, replicate
+    from hsa_mjx_train.learner import AXIS
+    from hsa_mjx_train.placement import replicate
 
-    config = cur.CurriculumConfig(window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2)
-    rules = CurriculumRules(HSAEnv(tcfg.from_dict({}).env), config)
+    config = goal_curriculum.GoalCurriculumConfig(
+        window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2
+    )
+    env = hsa_mjx_train.config.from_dict({}).env
+    rules, start = CurriculumRules(env, config), tuple(env.goal.radial_range)
     done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
 
     def steps(cstate, success, done):  # (steps, envs) per device -> (steps, all envs), device order
-        gather = lambda x: jax.lax.all_gather(x, AXIS, axis=1, tiled=True)  # noqa: E731
+        def gather(x):
+            return jax.lax.all_gather(x, AXIS, axis=1, tiled=True)
+
         return rules.after_collection(cstate, gather(success), gather(done))
 
-    start = replicate(cur.init(config), jax.local_devices()[: done.shape[1]])
-    gathered = jax.pmap(steps, axis_name=AXIS)(start, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))
-    reference, alone = cur.init(config), [cur.init(config) for _ in range(done.shape[1])]
-    for s, d in zip(success, done):
-        reference = cur.update(reference, s.reshape(-1), d.reshape(-1), config)  # device 0's envs, then device 1's
-        alone = [cur.update(a, s[i], d[i], config) for i, a in enumerate(alone)]
-    as_lists = lambda tree: {k: np.asarray(v).tolist() for k, v in vars(tree).items()}  # noqa: E731
+    first = replicate(goal_curriculum.init(config, start), jax.local_devices()[: done.shape[1]])
+    gathered = jax.pmap(steps, axis_name=AXIS)(first, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))
+    reference = goal_curriculum.init(config, start)
+    alone = [goal_curriculum.init(config, start) for _ in range(done.shape[1])]
+    for s, d in zip(success, done):  # device 0's envs, then device 1's
+        reference = goal_curriculum.update(reference, s.reshape(-1), d.reshape(-1), config, start)
+        alone = [goal_curriculum.update(a, s[i], d[i], config, start) for i, a in enumerate(alone)]
+
+    def as_lists(tree):
+        return {k: np.asarray(v).tolist() for k, v in vars(tree).items()}
+
     return {
         "curriculum_pmapped": as_lists(gathered),
         "curriculum_reference": as_lists(reference),
@@ -242,11 +251,11 @@ def _curriculum_facts() -> dict:
 def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     """Train through the CLI on two devices of one process, resume, refusals, per-device facts."""
     compiles, saved = _compile_counter(), _record_saves()
-    from train.cli import main
-    from train.per_device import PerDeviceLearner
-    from train.ppo import PPOLearner
+    from hsa_mjx_train.cli import main
+    from hsa_mjx_train.strategies import Pmap
+    from hsa_mjx_train.thread_per_device import ThreadPerDevice
 
-    pmap_seen = _probe(PPOLearner, compiles)
+    pmap_seen = _probe(Pmap, compiles)
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
     rc_train = main(args)
     saved_first = list(saved)
@@ -264,9 +273,9 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     # the same run (config, seed, keys) with one jitted collection per device: checkpoints and logs as pmap's
     per_device_dir = str(Path(run_dir).parent / "run_per_device")
     _fresh_traces()
-    per_device_seen = _probe(PerDeviceLearner, compiles)
+    per_device_seen = _probe(ThreadPerDevice, compiles)
     facts["rc_per_device"] = main(
-        ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.multi_device=per_device"]
+        ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.collection=thread_per_device"]
     )
     facts.update(
         _checkpoint_gap(run_dir, per_device_dir, 160),
@@ -317,16 +326,16 @@ def _scaling_rows(config_path: str, out_dir: Path) -> list[dict]:
 def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
     """One of two processes (one CPU device each) training through the CLI; process 1 comes late to the loop."""
     saved = _record_saves()
-    from train import trainer
-    from train.cli import main
+    from hsa_mjx_train import trainer
+    from hsa_mjx_train.cli import main
 
-    loop = trainer._loop
+    loop = trainer.run_epochs
 
     def late_loop(*args, **kwargs):  # later than the 30 s a collective's first use waits for the other processes
         time.sleep(PROCESS_1_LATE_S if process_id == "1" else 0)
         return loop(*args, **kwargs)
 
-    trainer._loop = late_loop
+    trainer.run_epochs = late_loop
     rc = main(
         [
             "--config",
@@ -347,7 +356,7 @@ def scenario_process(config_path: str, run_dir: str, port: str, process_id: str)
 
 def scenario_warp_per_device(config_path: str, run_dir: str) -> dict:
     """The per-device learner (one env copy and one jitted collection per device) on the Warp backend."""
-    from train.cli import main
+    from hsa_mjx_train.cli import main
 
     # one epoch (10 steps per env) with 8-step episodes: every env ends one episode (Warp runs slowly on a CPU)
     rc = main(
@@ -360,7 +369,7 @@ def scenario_warp_per_device(config_path: str, run_dir: str) -> dict:
             "--set",
             "env.physics.backend=warp",
             "--set",
-            "run.multi_device=per_device",
+            "run.collection=thread_per_device",
             "--set",
             "run.num_timesteps=80",
             "--set",
@@ -471,13 +480,13 @@ def _run_processes(command: list[str], count: int) -> list[dict]:
 
 def _records(run_dir: Path) -> list[dict]:
     """The run's metrics records."""
-    from train.logger import read_jsonl
+    from hsa_mjx_train.logger import read_jsonl
 
     return read_jsonl(run_dir / "metrics.jsonl")
 
 
 def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_train"] == 0 and facts["rc_resume"] == 0
@@ -515,7 +524,7 @@ def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
 
 def _saved_levels(run_dir: Path, step: int) -> np.ndarray:
     """The per-env terrain levels a checkpoint of the run holds."""
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     path = checkpoint.checkpoint_dir(run_dir) / f"step_{step:012d}"
     count = checkpoint.read_meta(path)["terrain_envs"]
@@ -563,7 +572,7 @@ def test_per_device_learner_trains_exactly_like_pmap(two_devices):
 
 
 def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_per_device"] == 0
@@ -592,7 +601,7 @@ def test_bad_device_split_refused_before_compile(two_devices):
 
 
 def test_two_processes_train_like_two_devices(two_devices, tmp_path):
-    from train import checkpoint
+    from hsa_mjx_train import checkpoint
 
     config, run_dir = write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
     facts = _run_processes([sys.executable, __file__, "process", config, str(run_dir), str(_free_port())], 2)
@@ -610,14 +619,14 @@ def test_two_processes_train_like_two_devices(two_devices, tmp_path):
 
 
 def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
-    from train import checkpoint
-    from train.evaluate import main as evaluate
+    from hsa_mjx_train import checkpoint
+    from hsa_mjx_train.evaluate import main as evaluate
 
     facts, run_dir = two_devices
     assert facts["rc_one_device"] == 0 and facts["saved_one_device"] == [280]
     meta = checkpoint.read_meta(checkpoint.latest(run_dir))
     assert meta["step"] == 280 and meta["config"]["run"]["num_devices"] == 1
-    assert meta["config"]["run"]["multi_device"] == "per_device"
+    assert meta["config"]["run"]["collection"] == "thread_per_device"
     last = _records(run_dir)[-1]
     assert last["step"] == 280 and last["curriculum/episode_count"] >= 8  # the curriculum came along
     assert (
@@ -658,7 +667,7 @@ def test_scaling_benchmark_smoke(two_devices):
     for key in ("env_steps_per_s", "ppo_env_steps_per_s"):
         assert row[key] > 0, key
     assert row["gpu"] == "cpu" and row["versions"]["jax"]
-    assert row["multi_device"] == "pmap" and row["physics_backend"] == "jax"  # auto: pmap and JAX on CPUs
+    assert row["collection"] == "pmap" and row["physics_backend"] == "jax"  # auto: pmap and JAX on CPUs
     assert row["speedup_ppo_env_steps_per_s"] == 1.0  # the fewest devices measured are the base
 
 
@@ -679,11 +688,11 @@ def test_scaling_speedups_are_relative_to_the_fewest_devices():
 
 
 def test_scaling_device_counts_and_config():
+    import hsa_mjx_train.config
     from benchmarks.scaling import device_counts, scaled_config
-    from train import config as tcfg
 
     assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
-    flat = tcfg.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
+    flat = hsa_mjx_train.config.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
     four = scaled_config(flat, 8192, 4, iterations=1)
     assert (four.run.num_envs, four.run.num_devices, four.ppo.batch_size) == (32768, 4, 2048)
     assert four.run.steps_per_epoch == 2048 * 32 * 20 and four.ppo.num_minibatches == 32
@@ -694,7 +703,7 @@ def test_scaling_device_counts_and_config():
 
 
 def test_cluster_spec_from_flags_or_environment():
-    from train import distributed
+    from hsa_mjx_train import distributed
 
     assert distributed.resolve_spec(environ={}) is None
     env = {"HSA_COORDINATOR": "10.0.0.1:1234", "HSA_NUM_PROCESSES": "4", "HSA_PROCESS_ID": "3"}
@@ -714,7 +723,7 @@ def test_cluster_spec_from_flags_or_environment():
 def test_one_process_keys_are_the_single_host_split():
     import jax
 
-    from train import distributed
+    from hsa_mjx_train import distributed
 
     devices, key = jax.local_devices()[:1], jax.random.PRNGKey(7)
     np.testing.assert_array_equal(distributed.env_keys(key, 6, devices), jax.random.split(key, 6).reshape(1, 6, 2))

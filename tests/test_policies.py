@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from hsa_mjx import resources
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.host_physics import HostPhysics
-from train import evaluate
+from hsa_mjx_train import evaluate, policy_sources, rollout
 
-SHIPPED = list(pol.shipped())
+SHIPPED = list(policy_file.shipped())
 EPISODES, STEPS = 4, 250  # per policy: the corridor policy, slowest between its walls, closes the least
 MARGIN_M = 0.02
 
@@ -44,7 +44,7 @@ def test_shipped_policy_beats_a_zero_policy(name):
     import jax
     import jax.numpy as jnp
 
-    config, env, _, policy = evaluate.load_shipped_policy(pol.shipped()[name])
+    config, env, _, policy = policy_sources.load_shipped_policy(policy_file.shipped()[name])
     trained = jax.tree.map(jnp.asarray, policy.params)
     zero = {
         **trained,
@@ -53,12 +53,12 @@ def test_shipped_policy_beats_a_zero_policy(name):
     }
     params = jax.tree.map(lambda a, b: jnp.stack([a] * EPISODES + [b] * EPISODES), trained, zero)
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
-    goal_range = jnp.asarray(evaluate.default_goal_range(config), jnp.float32)
+    goal_range = jnp.asarray(policy_sources.default_goal_range(config), jnp.float32)
     c_mujoco = HostPhysics(env.robot.mj_model, env.index)  # the substeps in C MuJoCo: fast on a CPU
     traces = jax.device_get(
-        evaluate.rollout(
+        rollout.rollout(
             env,
-            evaluate.shipped_policy_apply(policy),
+            policy_sources.shipped_policy_apply(policy),
             jnp.concatenate([keys, keys]),
             goal_range,
             STEPS,
@@ -105,13 +105,13 @@ def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
     assert "unknown config key(s) ['far'] in section 'goal'" in capsys.readouterr().err
     broken = tmp_path / "broken"
     broken.mkdir()
-    (broken / pol.META_FILE).write_text(json.dumps({"format": pol.FORMAT, "format_version": 99}))
+    (broken / policy_file.META_FILE).write_text(json.dumps({"format": policy_file.FORMAT, "format_version": 99}))
     assert evaluate.main(["--policy", str(broken)]) == 2
     assert "format version 99" in capsys.readouterr().err
 
 
 def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys):
-    from train import export
+    from hsa_mjx_train import export
 
     assert export.main([str(tiny_run_dir), "--format", "npz", "--out", str(tmp_path / "tiny")]) == 0
     out = tmp_path / "eval"
@@ -148,7 +148,7 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
 def test_gif_frames_are_capped(env, tmp_path):
     from PIL import Image
 
-    from train import diagnostics
+    from hsa_mjx_train import diagnostics
 
     steps = 12
     qpos = np.tile(env.robot.mj_model.qpos0, (1, steps, 1))

@@ -31,8 +31,8 @@ PHYSICS = {
 def _scales(env, state, **values):
     """``state`` with every env's physical scales replaced by ``values`` (lists over the batch)."""
     task = state.pipeline_state.task
-    physics = task.realism.physics.replace(**{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
-    task = task.replace(realism=task.realism.replace(physics=physics))
+    physics = task.randomization.physics.replace(**{k: jnp.asarray(v, jnp.float32) for k, v in values.items()})
+    task = task.replace(randomization=task.randomization.replace(physics=physics))
     return state.replace(pipeline_state=state.pipeline_state.replace(task=task))
 
 
@@ -57,7 +57,9 @@ def test_the_same_key_draws_the_same_episode_on_every_backend():
     realism = {}
     for backend in ("jax", "warp", "c"):
         env = hsa_mjx.make_env("flat", physics__backend=backend, randomization__latency_steps=[0, 2], **overrides)
-        draw = jax.jit(jax.vmap(lambda key, env=env: env.reset(key).pipeline_state.task.realism))  # physics pruned
+        draw = jax.jit(
+            jax.vmap(lambda key, env=env: env.reset(key).pipeline_state.task.randomization)
+        )  # physics pruned
         realism[backend] = jax.device_get(draw(keys))
     for backend in ("warp", "c"):
         same = jax.tree.map(np.array_equal, realism["jax"], realism[backend])

@@ -4,10 +4,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import hsa_mjx.task.reward
 from hsa_mjx.config import RewardConfig
-from hsa_mjx.task import reward as R
 
-W = R.RewardWeights.from_config(RewardConfig())
+W = hsa_mjx.task.reward.RewardWeights.from_config(RewardConfig())
 
 
 def inputs(**kw):
@@ -34,74 +34,87 @@ def inputs(**kw):
         dt=0.02,
     )
     base.update(kw)
-    return R.RewardInputs(**base)
+    return hsa_mjx.task.reward.RewardInputs(**base)
 
 
 def test_forward_is_signed_unless_rectified():
     back = inputs(velocity=jnp.array([-0.5, 0.0]))
-    assert float(R.forward(back, W)) == pytest.approx(-3.0)
-    assert float(R.forward(back.replace(rectified_forward=True), W)) == 0.0
-    assert float(R.forward(inputs(velocity=jnp.array([0.5, 0.2])), W)) == pytest.approx(3.0)
+    assert float(hsa_mjx.task.reward.forward(back, W)) == pytest.approx(-3.0)
+    assert float(hsa_mjx.task.reward.forward(back.replace(rectified_forward=True), W)) == 0.0
+    assert float(hsa_mjx.task.reward.forward(inputs(velocity=jnp.array([0.5, 0.2])), W)) == pytest.approx(3.0)
 
 
 def test_lateral_is_a_cost():
-    w = W.replace(lateral=jnp.float32(1.0))
-    assert float(R.lateral_cost(inputs(velocity=jnp.array([0.0, -0.3])), w)) == pytest.approx(-0.3)
+    w = W.with_weights(lateral=jnp.float32(1.0))
+    assert float(hsa_mjx.task.reward.lateral_cost(inputs(velocity=jnp.array([0.0, -0.3])), w)) == pytest.approx(-0.3)
 
 
 def test_ctrl_cost_and_cap():
     x = inputs(action=jnp.ones(8), prev_action=-jnp.ones(8))
-    assert float(R.ctrl_cost(x, W)) == pytest.approx(-0.001 * 32)
-    assert float(R.ctrl_cost(x, W.replace(ctrl=jnp.float32(10.0)))) == -20.0
+    assert float(hsa_mjx.task.reward.ctrl_cost(x, W)) == pytest.approx(-0.001 * 32)
+    assert float(hsa_mjx.task.reward.ctrl_cost(x, W.with_weights(ctrl=jnp.float32(10.0)))) == -20.0
 
 
 def test_contact_cost_uses_force_above_threshold():
     x = inputs(foot_force=jnp.array([14.7, 49.0, 60.0, 0.0]))
-    assert float(R.contact_cost(x, W)) == pytest.approx(-0.0005 * 100.0)
+    assert float(hsa_mjx.task.reward.contact_cost(x, W)) == pytest.approx(-0.0005 * 100.0)
     huge = inputs(foot_force=jnp.full(4, 1e4))
-    assert float(R.contact_cost(huge, W)) == -30.0
+    assert float(hsa_mjx.task.reward.contact_cost(huge, W)) == -30.0
 
 
 def test_constraint_cost_and_bonus():
     q = jnp.zeros(8).at[0].set(1.6).at[4].set(-1.6)  # pair 1: |A - C| = 3.2 > pi
     x = inputs(joint_pos=q)
-    assert float(R.constraint_cost(x, W)) == pytest.approx(-0.05)
-    assert float(R.constraint_bonus(x, W)) == pytest.approx(0.075)
+    assert float(hsa_mjx.task.reward.constraint_cost(x, W)) == pytest.approx(-0.05)
+    assert float(hsa_mjx.task.reward.constraint_bonus(x, W)) == pytest.approx(0.075)
     mid = jnp.zeros(8).at[0].set((np.pi - 0.005) / 2).at[4].set(-(np.pi - 0.005) / 2)  # half the ramp
-    assert float(R.constraint_cost(inputs(joint_pos=mid), W)) == pytest.approx(-0.05 * 0.25, rel=1e-2)
-    assert float(R.constraint_bonus(inputs(), W)) == pytest.approx(0.1)
+    assert float(hsa_mjx.task.reward.constraint_cost(inputs(joint_pos=mid), W)) == pytest.approx(-0.05 * 0.25, rel=1e-2)
+    assert float(hsa_mjx.task.reward.constraint_bonus(inputs(), W)) == pytest.approx(0.1)
 
 
 def test_acceleration_and_joint_velocity_clips_and_caps():
     x = inputs(joint_vel=jnp.full(8, 0.1))  # (0.1 - 0) / 0.02 = 5 rad/s^2
-    assert float(R.acceleration_cost(x, W)) == pytest.approx(-1e-5 * 8 * 25)
+    assert float(hsa_mjx.task.reward.acceleration_cost(x, W)) == pytest.approx(-1e-5 * 8 * 25)
     fast = inputs(joint_vel=jnp.full(8, 1e3))
-    assert float(R.acceleration_cost(fast, W)) == pytest.approx(-1e-5 * 8 * 2500)
-    assert float(R.joint_velocity_cost(fast, W)) == pytest.approx(-5e-4 * 8 * 2500)
-    assert float(R.acceleration_cost(fast, W.replace(acceleration=jnp.float32(1.0)))) == -20.0
+    assert float(hsa_mjx.task.reward.acceleration_cost(fast, W)) == pytest.approx(-1e-5 * 8 * 2500)
+    assert float(hsa_mjx.task.reward.joint_velocity_cost(fast, W)) == pytest.approx(-5e-4 * 8 * 2500)
+    assert float(hsa_mjx.task.reward.acceleration_cost(fast, W.with_weights(acceleration=jnp.float32(1.0)))) == -20.0
 
 
 def test_distance_progress_and_stagnation():
-    assert float(R.distance(inputs(prev_distance=jnp.array(2.0), distance=jnp.array(1.9)), W)) == pytest.approx(1.0)
-    assert float(R.stagnation_cost(inputs(stagnation_progress=jnp.array(0.01)), W)) == pytest.approx(-0.15 * 0.8)
-    assert float(R.stagnation_cost(inputs(stagnation_progress=jnp.array(0.0), history_full=jnp.array(False)), W)) == 0.0
+    assert float(
+        hsa_mjx.task.reward.distance(inputs(prev_distance=jnp.array(2.0), distance=jnp.array(1.9)), W)
+    ) == pytest.approx(1.0)
+    assert float(hsa_mjx.task.reward.stagnation_cost(inputs(stagnation_progress=jnp.array(0.01)), W)) == pytest.approx(
+        -0.15 * 0.8
+    )
+    assert (
+        float(
+            hsa_mjx.task.reward.stagnation_cost(
+                inputs(stagnation_progress=jnp.array(0.0), history_full=jnp.array(False)), W
+            )
+        )
+        == 0.0
+    )
 
 
 def test_bonuses_alive_and_termination():
-    assert float(R.goal_bonus(inputs(goal_reached=jnp.array(True)), W)) == 40.0
-    assert float(R.checkpoint(inputs(checkpoint_collected=jnp.array(True)), W)) == 200.0
-    assert float(R.spiral_completion(inputs(spiral_complete=jnp.array(True)), W)) == 100.0
-    assert float(R.alive(inputs(), W)) == pytest.approx(0.03)
-    assert float(R.alive(inputs(terminated=jnp.array(True)), W)) == 0.0
+    assert float(hsa_mjx.task.reward.goal_bonus(inputs(goal_reached=jnp.array(True)), W)) == 40.0
+    assert float(hsa_mjx.task.reward.checkpoint(inputs(checkpoint_collected=jnp.array(True)), W)) == 200.0
+    assert float(hsa_mjx.task.reward.spiral_completion(inputs(spiral_complete=jnp.array(True)), W)) == 100.0
+    assert float(hsa_mjx.task.reward.alive(inputs(), W)) == pytest.approx(0.03)
+    assert float(hsa_mjx.task.reward.alive(inputs(terminated=jnp.array(True)), W)) == 0.0
     failed = inputs(failed=jnp.array(True), terminated=jnp.array(True))
-    assert float(R.termination(failed, W.replace(termination=jnp.float32(7.0)))) == -7.0
+    assert float(hsa_mjx.task.reward.termination(failed, W.with_weights(termination=jnp.float32(7.0)))) == -7.0
 
 
 def test_components_are_named_and_sum_to_total():
     x = inputs(velocity=jnp.array([0.3, 0.1]), action=jnp.ones(8), distance=jnp.array(1.95))
-    comps = R.compute_rewards(x, W)
-    assert tuple(comps) == R.TERM_NAMES and len(comps) == 16
-    assert float(R.total_reward(comps)) == pytest.approx(sum(float(v) for v in comps.values()), rel=1e-6)
+    comps = hsa_mjx.task.reward.compute_rewards(x, W)
+    assert tuple(comps) == hsa_mjx.task.reward.TERM_NAMES and len(comps) == 16
+    assert float(hsa_mjx.task.reward.total_reward(comps)) == pytest.approx(
+        sum(float(v) for v in comps.values()), rel=1e-6
+    )
 
 
 def _unit(deg):
@@ -109,22 +122,29 @@ def _unit(deg):
 
 
 def test_heading_alignment_pays_turning_towards_the_goal_either_end():
-    w = W.replace(heading_alignment=jnp.float32(100.0))
-    assert float(R.heading_alignment(inputs(heading_before=_unit(30), heading_after=_unit(60)), W)) == 0.0
+    w = W.with_weights(heading_alignment=jnp.float32(100.0))
+    assert (
+        float(hsa_mjx.task.reward.heading_alignment(inputs(heading_before=_unit(30), heading_after=_unit(60)), W))
+        == 0.0
+    )
     side = dict(goal_direction=_unit(90))  # goal to the left of a robot facing +x
     towards = inputs(heading_before=_unit(0), heading_after=_unit(30), **side)
-    assert float(R.heading_alignment(towards, w)) == pytest.approx(50.0, rel=1e-5)
+    assert float(hsa_mjx.task.reward.heading_alignment(towards, w)) == pytest.approx(50.0, rel=1e-5)
     away = inputs(heading_before=_unit(30), heading_after=_unit(0), **side)
-    assert float(R.heading_alignment(away, w)) == pytest.approx(-50.0, rel=1e-5)
+    assert float(hsa_mjx.task.reward.heading_alignment(away, w)) == pytest.approx(-50.0, rel=1e-5)
     backwards = inputs(heading_before=_unit(0), heading_after=_unit(-30), **side)  # tail swings to the goal
-    assert float(R.heading_alignment(backwards, w)) == pytest.approx(50.0, rel=1e-5)
+    assert float(hsa_mjx.task.reward.heading_alignment(backwards, w)) == pytest.approx(50.0, rel=1e-5)
 
 
 def test_heading_alignment_telescopes_over_a_full_spin():
-    w = W.replace(heading_alignment=jnp.float32(100.0))
+    w = W.with_weights(heading_alignment=jnp.float32(100.0))
     angles = np.arange(0, 361, 15)
     total = sum(
-        float(R.heading_alignment(inputs(heading_before=_unit(a), heading_after=_unit(b), goal_direction=_unit(70)), w))
+        float(
+            hsa_mjx.task.reward.heading_alignment(
+                inputs(heading_before=_unit(a), heading_after=_unit(b), goal_direction=_unit(70)), w
+            )
+        )
         for a, b in zip(angles[:-1], angles[1:])
     )
     assert abs(total) < 1e-3

@@ -55,16 +55,19 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
 
 
 def test_the_randomised_training_config_covers_the_grid():
-    from train import config as tcfg
+    import hsa_mjx_train.config
 
-    dr, flat = tcfg.to_dict(tcfg.load("configs/train_flat_dr.yaml")), tcfg.to_dict(tcfg.load("configs/train_flat.yaml"))
+    dr, flat = (
+        hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat_dr.yaml")),
+        hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat.yaml")),
+    )
     ranges = dr["env"].pop("randomization")
     assert dr["env"]["observation"].pop("noise") == robustness.NOISE_ON
     flat["env"].pop("randomization"), flat["env"]["observation"].pop("noise")
     # the flat task at its final goal range, continued from the shipped flat policy
-    assert dr["env"]["goal"].pop("radial_range") == flat["curriculum"]["target_range"]
+    assert dr["env"]["goal"].pop("radial_range") == flat["goal_curriculum"]["target_range"]
     flat["env"]["goal"].pop("radial_range")
-    assert dr["env"] == flat["env"] and dr["run"]["init_from"] == "flat" and not dr["curriculum"]["enabled"]
+    assert dr["env"] == flat["env"] and dr["run"]["init_from"] == "flat" and not dr["goal_curriculum"]["enabled"]
     for name in ("friction", "block_mass", "hsa_stiffness"):
         assert ranges[name] == [min(robustness.GRID[name]), max(robustness.GRID[name])]
     assert ranges["latency_steps"] == [0, max(robustness.GRID["latency_ms"]) // 20]
@@ -73,19 +76,21 @@ def test_the_randomised_training_config_covers_the_grid():
 def test_a_randomised_policy_is_scored_on_the_cells_model_alone():
     import dataclasses
 
-    from hsa_mjx.deploy import policy as pol
+    import hsa_mjx_train.config
+    from hsa_mjx.deploy import policy_file
     from hsa_mjx.randomization_config import RandomizationConfig
-    from train import config as tcfg
-    from train import evaluate
+    from hsa_mjx_train import policy_sources
 
-    trained = pol.load_policy(pol.locate("flat_dr")).meta["config"]
+    trained = policy_file.load_policy(policy_file.locate("flat_dr")).meta["config"]
     assert trained["env"]["randomization"]["push_speed"] > 0  # it trained with pushes and noise
     overridden = {
         o.split("=")[0].rsplit(".", 1)[1] for o in robustness.env_overrides(False, 2) if ".randomization." in o
     }
     assert overridden == {f.name for f in dataclasses.fields(RandomizationConfig)}  # no training range leaks in
     for noise in (False, True):
-        env = tcfg.from_dict(evaluate.env_overrides(trained, robustness.env_overrides(noise, 2))).env
+        env = hsa_mjx_train.config.from_dict(
+            policy_sources.env_overrides(trained, robustness.env_overrides(noise, 2))
+        ).env
         assert env.randomization.push_speed == 0 and env.randomization.hsa_damping == env.randomization.servo_gain == (
             1,
             1,

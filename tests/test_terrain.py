@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hsa_mjx import config as cfg
+import hsa_mjx.config
 from hsa_mjx.sim.model import load_mj_model
 from hsa_mjx.task import goals
 from hsa_mjx.terrain import (
@@ -92,7 +92,9 @@ def test_hfield_data_lifts_negative_heights_and_clips_tall_ones():
 
 def test_layout_and_lookup_match_mujoco_ray_casts():
     """Row = world y, column = world x, and the lookup equals MuJoCo's triangulated surface."""
-    model = load_mj_model(cfg.with_overrides(cfg.get_preset("craters"), terrain__per_env=False))  # one tile
+    model = load_mj_model(
+        hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__per_env=False)
+    )  # one tile
     grid = Grid.from_model(model)
     assert grid == GRID
     rise = generate("incline", None, InclineParams(angle=2.0, direction="x"), grid)
@@ -194,7 +196,7 @@ def test_spiral_preset_has_the_originals_floor():
     from hsa_mjx.terrain.generators import spiral, spiral_extension, spiral_track_distance
 
     x, y = (jnp.asarray(v, jnp.float32) for v in GRID.mesh())
-    preset = cfg.get_preset("spiral").terrain.spiral
+    preset = hsa_mjx.config.get_preset("spiral").terrain.spiral
     original = dataclasses.replace(preset, track_width=0.8)
     distance = spiral_track_distance(original, x, y, spiral_extension(original))
     original_floor = int(jnp.sum((distance <= 0.4) | (jnp.hypot(x, y) <= original.start_radius)))
@@ -208,7 +210,7 @@ def test_spiral_preset_has_the_originals_floor():
 
 @pytest.mark.parametrize("num_checkpoints", [8, 20])
 def test_spiral_track_passes_through_its_checkpoints(num_checkpoints):
-    goal = cfg.GoalConfig(mode="spiral", num_checkpoints=num_checkpoints)
+    goal = hsa_mjx.config.GoalConfig(mode="spiral", num_checkpoints=num_checkpoints)
     data = _data(_no_zone("spiral"))
     wall = D.spiral.wall_height
     checkpoints = jnp.asarray(goals.spiral_checkpoints(goal))
@@ -254,24 +256,27 @@ def test_presets_are_the_shipped_yaml_files():
     """The flat YAML states the config defaults; every preset is its file (no copy elsewhere)."""
     from hsa_mjx import resources
 
-    assert cfg.get_preset("flat") == cfg.EnvConfig()
-    for name, file in cfg.PRESET_FILES.items():
+    assert hsa_mjx.config.get_preset("flat") == hsa_mjx.config.EnvConfig()
+    for name, file in hsa_mjx.config.PRESET_FILES.items():
         assert (
-            cfg.get_preset(name) == cfg.load_config(resources.data_dir("configs") / file)
-            and cfg.get_preset(name).name == name
+            hsa_mjx.config.get_preset(name) == hsa_mjx.config.load_config(resources.data_dir("configs") / file)
+            and hsa_mjx.config.get_preset(name).name == name
         ), name
     assert (
-        cfg.get_preset("spiral").goal.mode == "spiral" and cfg.get_preset("corridor").control.servo_target_limit == 6.28
+        hsa_mjx.config.get_preset("spiral").goal.mode == "spiral"
+        and hsa_mjx.config.get_preset("corridor").control.servo_target_limit == 6.28
     )
 
 
 def test_terrain_type_and_types_stay_in_step():
-    c = cfg.from_dict({"scene": "terrain", "terrain_type": "craters"})
+    c = hsa_mjx.config.from_dict({"scene": "terrain", "terrain_type": "craters"})
     assert c.terrain.types == ("craters",) and c.terrain.proportions == (1.0,)
-    c = cfg.from_dict({"scene": "terrain", "terrain": {"types": ["wavy", "poles"]}})
+    c = hsa_mjx.config.from_dict({"scene": "terrain", "terrain": {"types": ["wavy", "poles"]}})
     assert c.terrain_type == "mixed" and c.terrain.proportions == (0.5, 0.5)
-    assert cfg.with_overrides(c, terrain_type="stairs").terrain.types == ("stairs",)
-    assert cfg.from_dict(cfg.to_dict(cfg.get_preset("mixed"))) == cfg.get_preset("mixed")
+    assert hsa_mjx.config.with_overrides(c, terrain_type="stairs").terrain.types == ("stairs",)
+    assert hsa_mjx.config.from_dict(
+        hsa_mjx.config.to_dict(hsa_mjx.config.get_preset("mixed"))
+    ) == hsa_mjx.config.get_preset("mixed")
 
 
 @pytest.mark.parametrize(
@@ -305,12 +310,12 @@ def test_terrain_type_and_types_stay_in_step():
 )
 def test_bad_terrain_config_raises_when_loading(data, message):
     with pytest.raises(ValueError, match=message):
-        cfg.from_dict(dict(data, scene="terrain"))
+        hsa_mjx.config.from_dict(dict(data, scene="terrain"))
 
 
 def test_terrain_on_a_plane_is_refused():
     with pytest.raises(ValueError, match="need a heightfield: set 'scene: terrain'"):
-        cfg.from_dict({"terrain_type": "craters"})
+        hsa_mjx.config.from_dict({"terrain_type": "craters"})
 
 
 def test_keys_of_older_configs_map_onto_the_current_ones():
@@ -320,9 +325,9 @@ def test_keys_of_older_configs_map_onto_the_current_ones():
         "terrain_type": "spiral",
         "goal": {"mode": "spiral", "spiral_start_radius": 0.7, "spiral_end_radius": 4.0, "spiral_turns": 3.0},
     }
-    config = cfg.from_dict(old)
+    config = hsa_mjx.config.from_dict(old)
     assert config.terrain.types == ("spiral",) and config.terrain_type == "spiral"
     assert (config.terrain.spiral.start_radius, config.terrain.spiral.turns) == (0.7, 3.0)
-    saved = cfg.to_dict(config)
+    saved = hsa_mjx.config.to_dict(config)
     assert "terrain_type" not in saved and not [k for k in saved["goal"] if k.startswith("spiral_")]
-    assert cfg.from_dict(saved) == config
+    assert hsa_mjx.config.from_dict(saved) == config

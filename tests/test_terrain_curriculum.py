@@ -9,13 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hsa_mjx import config as cfg
-from hsa_mjx.curricula import terrain as tcur
+import hsa_mjx.config
+import hsa_mjx_train.config
+from hsa_mjx.curricula import terrain_curriculum
 from hsa_mjx.terrain import TERRAIN_TYPES, Grid, TerrainConfig, generate
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, GENERATORS
-from train import checkpoint
-from train import config as tcfg
+from hsa_mjx_train import checkpoint
 
 GRID = Grid()
 HARD_TYPES = tuple(t for t in TERRAIN_TYPES if t != "flat")
@@ -70,7 +70,7 @@ def test_atlas_holds_every_level_of_every_type():
     assert spread[0] == spread[1] == spread[6] == 0.0  # level 0: level ground
     assert spread[2] > 0 and spread[4] > 0 and 0 < spread[7] < spread[8]  # random tiles differ per level
     for row, level in [(0, 2), (1, 1), (0, 0)]:
-        tiles, types = jax.vmap(lambda k: pool.draw(k, jnp.asarray([row, level])))(
+        tiles, types = jax.vmap(lambda k, cell=(row, level): pool.draw(k, jnp.asarray(cell)))(
             jax.random.split(jax.random.PRNGKey(row), 16)
         )
         assert set(np.asarray(pool.tile_level)[np.asarray(tiles)]) == {level}
@@ -92,7 +92,7 @@ def test_atlas_holds_every_level_of_every_type():
 )
 def test_bad_terrain_levels_are_refused_at_load(override, key):
     with pytest.raises(ValueError, match=key):
-        cfg.from_dict({"terrain": override}, base=cfg.get_preset("mixed"))
+        hsa_mjx.config.from_dict({"terrain": override}, base=hsa_mjx.config.get_preset("mixed"))
 
 
 @pytest.mark.parametrize(
@@ -104,114 +104,133 @@ def test_bad_terrain_levels_are_refused_at_load(override, key):
     ],
 )
 def test_bad_terrain_curriculum_is_refused_at_load(section, key):
-    data = tcfg.read_yaml("configs/train_rough.yaml")
+    data = hsa_mjx_train.config.read_yaml("configs/train_rough.yaml")
     data["terrain_curriculum"] = {**data["terrain_curriculum"], **section}
     with pytest.raises(ValueError, match=key):
-        tcfg.from_dict(data)
+        hsa_mjx_train.config.from_dict(data)
 
 
 def test_terrain_curriculum_needs_per_env_terrain():
     with pytest.raises(ValueError, match="per-env terrain"):
-        tcfg.from_dict({"env": {"preset": "flat_radial"}, "terrain_curriculum": {"enabled": True}})
+        hsa_mjx_train.config.from_dict({"env": {"preset": "flat_radial"}, "terrain_curriculum": {"enabled": True}})
 
 
 def test_types_split_by_proportion_and_levels_spread_at_start():
     terrain = TerrainConfig(types=("flat", "wavy", "stairs"), proportions=(0.5, 0.25, 0.25), levels=11)
-    rows = tcur.type_rows(400, terrain.proportions)
+    rows = terrain_curriculum.type_indices(400, terrain.proportions)
     assert np.bincount(rows).tolist() == [200, 100, 100]
-    config = tcur.TerrainCurriculumConfig(enabled=True, initial_spread=0.5)
-    state = tcur.init(jax.random.split(jax.random.PRNGKey(0), 400), config, terrain)
+    config = terrain_curriculum.TerrainCurriculumConfig(enabled=True, initial_spread=0.5)
+    state = terrain_curriculum.init(jax.random.split(jax.random.PRNGKey(0), 400), config, terrain)
     levels = np.asarray(state.level)
     assert set(levels.tolist()) == set(range(6))  # levels 0..5 (half of 0..10), every one used
-    assert np.asarray(state.row).tolist() == rows.tolist()
-    none = tcur.init(
+    assert np.asarray(state.terrain_type).tolist() == rows.tolist()
+    none = terrain_curriculum.init(
         jax.random.split(jax.random.PRNGKey(0), 8), dataclasses.replace(config, initial_spread=0.0), terrain
     )
     assert np.all(np.asarray(none.level) == 0)
 
 
 def test_promotion_and_demotion_follow_the_episode_outcome():
-    config = tcur.TerrainCurriculumConfig(enabled=True, promote_progress=0.8, demote_progress=0.3)
-    state = tcur.TerrainLevels(row=jnp.zeros(6, jnp.int32), level=jnp.asarray([2, 2, 2, 2, 0, 4], jnp.int32))
+    config = terrain_curriculum.TerrainCurriculumConfig(enabled=True, promote_progress=0.8, demote_progress=0.3)
+    state = terrain_curriculum.TerrainLevels(
+        terrain_type=jnp.zeros(6, jnp.int32), level=jnp.asarray([2, 2, 2, 2, 0, 4], jnp.int32)
+    )
     done = jnp.asarray([True, True, True, False, True, True])
     success = jnp.asarray([True, False, False, False, False, True])
     progress = jnp.asarray([1.0, 0.9, 0.1, 0.0, 0.0, 1.0])
-    new = tcur.update(state, done, success, progress, config, levels=5)
+    new = terrain_curriculum.update(state, done, success, progress, config, levels=5)
     # goal reached: up; 90 % covered: up; 10 %: down; still running: kept; floor and ceiling hold
     assert np.asarray(new.level).tolist() == [3, 3, 1, 2, 0, 4]
-    middling = tcur.update(state, done, jnp.zeros(6, bool), jnp.full(6, 0.5), config, levels=5)
+    middling = terrain_curriculum.update(state, done, jnp.zeros(6, bool), jnp.full(6, 0.5), config, levels=5)
     assert np.asarray(middling.level).tolist() == [2, 2, 2, 2, 0, 4]  # 50 %: neither
 
 
 def test_top_redraw_sends_envs_promoted_from_the_top_to_random_levels():
-    config = tcur.TerrainCurriculumConfig(enabled=True, top_redraw=True)
+    config = terrain_curriculum.TerrainCurriculumConfig(enabled=True, top_redraw=True)
     batch, levels = 512, 10
-    state = tcur.TerrainLevels(row=jnp.zeros(batch, jnp.int32), level=jnp.full(batch, levels - 1, jnp.int32))
+    state = terrain_curriculum.TerrainLevels(
+        terrain_type=jnp.zeros(batch, jnp.int32), level=jnp.full(batch, levels - 1, jnp.int32)
+    )
     keys = jax.random.split(jax.random.PRNGKey(0), batch)
     done, success = jnp.arange(batch) % 2 == 0, jnp.ones(batch, bool)
-    new = np.asarray(tcur.update(state, done, success, jnp.ones(batch), config, levels, keys).level)
+    new = np.asarray(terrain_curriculum.update(state, done, success, jnp.ones(batch), config, levels, keys).level)
     assert np.all(new[1::2] == levels - 1)  # still running: kept at the top
     redrawn = new[0::2]
     assert redrawn.min() == 0 and redrawn.max() == levels - 1 and len(set(redrawn.tolist())) == levels
-    again = tcur.update(state, done, success, jnp.ones(batch), config, levels, keys).level
+    again = terrain_curriculum.update(state, done, success, jnp.ones(batch), config, levels, keys).level
     np.testing.assert_array_equal(np.asarray(again), new)  # reproducible from the keys
     below = state.replace(level=jnp.full(batch, 3, jnp.int32))  # promoted below the top: one level up, as before
-    assert np.all(np.asarray(tcur.update(below, done, success, jnp.ones(batch), config, levels, keys).level)[0::2] == 4)
-    kept = tcur.update(state, done, success, jnp.ones(batch), dataclasses.replace(config, top_redraw=False), levels)
+    assert np.all(
+        np.asarray(terrain_curriculum.update(below, done, success, jnp.ones(batch), config, levels, keys).level)[0::2]
+        == 4
+    )
+    kept = terrain_curriculum.update(
+        state, done, success, jnp.ones(batch), dataclasses.replace(config, top_redraw=False), levels
+    )
     assert np.all(np.asarray(kept.level) == levels - 1)  # without the rule the top level holds
     with pytest.raises(ValueError, match="key"):
-        tcur.update(state, done, success, jnp.ones(batch), config, levels)
+        terrain_curriculum.update(state, done, success, jnp.ones(batch), config, levels)
 
 
 def test_success_is_logged_per_type_and_level_of_the_episode_that_ended():
     types, levels = ("flat", "poles"), 3
-    state = tcur.TerrainLevels(row=jnp.asarray([0, 0, 1, 1, 1]), level=jnp.asarray([2, 2, 0, 1, 1]))
+    state = terrain_curriculum.TerrainLevels(
+        terrain_type=jnp.asarray([0, 0, 1, 1, 1]), level=jnp.asarray([2, 2, 0, 1, 1])
+    )
     done = jnp.asarray([True, True, True, True, False])
     success = jnp.asarray([True, False, True, False, True])  # the last env's episode has not ended
-    sums = tcur.cell_outcomes(state, done, success, len(types) * levels, levels)
-    named = {k: float(v) for k, v in tcur.name_outcomes(sums, types, levels).items()}
-    summary = tcur.summarize(named, levels)
+    sums = terrain_curriculum.cell_outcomes(state, done, success, len(types) * levels, levels)
+    named = {k: float(v) for k, v in terrain_curriculum.name_outcomes(sums, types, levels).items()}
+    summary = terrain_curriculum.summarize(named, levels)
     assert summary["terrain/success/flat/L2"] == 0.5 and summary["terrain/success/poles/L0"] == 1.0
     assert summary["terrain/success/poles/L1"] == 0.0
     assert "terrain/success/flat/L0" not in summary  # no episode ended there: not logged as 0
 
 
 def test_level_logs_per_type_and_top_share():
-    state = tcur.TerrainLevels(row=jnp.asarray([0, 0, 1, 1]), level=jnp.asarray([0, 4, 4, 4]))
-    sums = {k: float(v) for k, v in tcur.totals(state, ("flat", "poles"), levels=5).items()}
-    summary = tcur.summarize(sums, levels=5)
+    state = terrain_curriculum.TerrainLevels(terrain_type=jnp.asarray([0, 0, 1, 1]), level=jnp.asarray([0, 4, 4, 4]))
+    sums = {k: float(v) for k, v in terrain_curriculum.totals(state, ("flat", "poles"), levels=5).items()}
+    summary = terrain_curriculum.summarize(sums, levels=5)
     assert summary["terrain/mean_level/flat"] == 2.0 and summary["terrain/mean_level/poles"] == 4.0
     assert summary["terrain/top_share/flat"] == 0.5 and summary["terrain/top_share"] == 0.75
 
 
 def test_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores (the same batch), or the same mix (another batch)."""
-    from train.trainer import _payload, restore_terrain
+    from hsa_mjx_train.run_state import payload, restore_terrain
 
-    config = tcfg.load("configs/train_rough.yaml")
-    levels = tcur.init(jax.random.split(jax.random.PRNGKey(2), 64), config.terrain_curriculum, config.env.terrain)
-    host = tcur.to_host([jax.device_get(levels)])
+    config = hsa_mjx_train.config.load("configs/train_rough.yaml")
+    levels = terrain_curriculum.init(
+        jax.random.split(jax.random.PRNGKey(2), 64), config.terrain_curriculum, config.env.terrain
+    )
+    host = terrain_curriculum.to_host([jax.device_get(levels)])
     path = checkpoint.save(
         tmp_path,
         5,
-        _payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), host),
-        tcfg.to_dict(config),
+        payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), host),
+        hsa_mjx_train.config.to_dict(config),
         extra={"terrain_envs": 64},
     )
     meta = {**checkpoint.read_meta(path), "path": path}
     same = restore_terrain(config, meta, 64)
     np.testing.assert_array_equal(np.asarray(same.level), np.asarray(levels.level))
-    np.testing.assert_array_equal(np.asarray(same.row), np.asarray(levels.row))
+    np.testing.assert_array_equal(np.asarray(same.terrain_type), np.asarray(levels.terrain_type))
+    # on disk the terrain type keeps checkpoint format 1's name: a checkpoint of any version reads the same
+    assert set(
+        checkpoint.load(path, {"terrain_levels": {k: np.zeros(64, np.int32) for k in ("row", "level")}})[
+            "terrain_levels"
+        ]
+    ) == {"row", "level"}
     more = restore_terrain(config, meta, 256)
     assert more.level.shape == (256,) and set(np.asarray(more.level).tolist()) <= set(np.asarray(levels.level).tolist())
-    off = tcfg.load("configs/train_rough.yaml", ["terrain_curriculum.enabled=false"])
+    off = hsa_mjx_train.config.load("configs/train_rough.yaml", ["terrain_curriculum.enabled=false"])
     assert restore_terrain(off, meta, 64) is None
 
 
 def test_terrain_evaluation_arguments():
-    from train import terrain_eval
+    from hsa_mjx_train import terrain_eval
 
-    rough = tcfg.load("configs/train_rough.yaml").env
+    rough = hsa_mjx_train.config.load("configs/train_rough.yaml").env
     assert terrain_eval.parse_types("all", rough) == tuple(rough.terrain.types)
     assert terrain_eval.parse_types("stairs, poles", rough) == ("stairs", "poles")
     assert terrain_eval.parse_levels("0,0.5,1") == (0.0, 0.5, 1.0)
@@ -228,7 +247,7 @@ def test_terrain_evaluation_arguments():
 
 
 def test_terrain_table_rows_and_means():
-    from train import terrain_eval
+    from hsa_mjx_train import terrain_eval
 
     rows = [
         {"type": t, "difficulty": d, "success_rate": s, "mean_progress_m": p}

@@ -10,7 +10,7 @@ import pytest
 from conftest import TERRAIN_BATCH
 
 import hsa_mjx
-from hsa_mjx import config as cfg
+import hsa_mjx.config
 from hsa_mjx.sim.model import BLOCKS, load_scene
 from hsa_mjx.task import goals, observation
 from hsa_mjx.terrain import TERRAIN_TYPES, surface_height
@@ -20,7 +20,7 @@ from hsa_mjx.terrain.world import TerrainWorld
 REST = 0.14  # block origins above flat ground once settled (0.138-0.140 measured, docs/model.md)
 
 
-def _world(config: cfg.EnvConfig, tiles: np.ndarray | None = None) -> tuple[TerrainWorld, mujoco.MjModel]:
+def _world(config: hsa_mjx.config.EnvConfig, tiles: np.ndarray | None = None) -> tuple[TerrainWorld, mujoco.MjModel]:
     """The terrain world of ``config`` (its own pool, or one hand-made tile per slot given as ``tiles``)."""
     model, pool = load_scene(config)
     if tiles is not None:
@@ -77,7 +77,9 @@ def test_each_reset_draws_a_tile_and_steps_keep_it(terrain_env, terrain_batch, s
 
 def test_tile_lookup_matches_mujoco_ray_casts_on_a_moved_atlas():
     """``world.ground(tile, xy)`` equals the surface MuJoCo collides with once the floor is moved for that tile."""
-    world, model = _world(cfg.with_overrides(cfg.get_preset("craters"), terrain__tiles_per_type=4))
+    world, model = _world(
+        hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__tiles_per_type=4)
+    )
     data = mujoco.MjData(model)
     points = np.random.default_rng(0).uniform(-4.5, 4.5, (60, 2))
     points = points[np.abs(points).max(axis=1) > 0.8]  # keep clear of the robot at the origin
@@ -96,7 +98,9 @@ def test_tile_lookup_matches_mujoco_ray_casts_on_a_moved_atlas():
 
 
 def test_corridor_goals_lie_on_the_corridor_floor():
-    config = cfg.with_overrides(cfg.get_preset("corridor"), goal__mode="radial", goal__radial_range=[1.5, 6.0])
+    config = hsa_mjx.config.with_overrides(
+        hsa_mjx.config.get_preset("corridor"), goal__mode="radial", goal__radial_range=[1.5, 6.0]
+    )
     world, _ = _world(config)
     tile, terrain_id = world.draw(jax.random.PRNGKey(0))
     keys = jax.random.split(jax.random.PRNGKey(1), 256)
@@ -112,7 +116,7 @@ def test_corridor_goals_lie_on_the_corridor_floor():
 
 
 def test_corridor_preset_floor_is_the_originals_three_vertex_rows():
-    config = cfg.get_preset("corridor")
+    config = hsa_mjx.config.get_preset("corridor")
     world, _ = _world(config)
     rows = world.grid.ys()
     near = rows[np.argsort(np.abs(rows - 0.1))[:5]]  # y = -0.306 ... 0.510
@@ -124,7 +128,7 @@ def test_corridor_preset_floor_is_the_originals_three_vertex_rows():
 
 
 def test_spiral_preset_checkpoints_sit_on_its_track():
-    config = cfg.get_preset("spiral")
+    config = hsa_mjx.config.get_preset("spiral")
     world, _ = _world(config)
     checkpoints = jnp.asarray(goals.spiral_checkpoints(config.goal))
     np.testing.assert_array_equal(np.asarray(world.ground(0, checkpoints)), 0.0)
@@ -163,17 +167,17 @@ def test_spiral_track_starts_stand_the_robot_on_its_track_facing_the_next_checkp
 @pytest.mark.parametrize("preset", ["corridor", "spiral"])
 def test_track_presets_have_one_tile_every_env_draws(preset):
     """The tracks are deterministic: the pool holds one tile, every draw takes it, and it equals the shared one."""
-    world, _ = _world(cfg.get_preset(preset))
+    world, _ = _world(hsa_mjx.config.get_preset(preset))
     tiles, _ = jax.vmap(world.draw)(jax.random.split(jax.random.PRNGKey(5), 4))
     np.testing.assert_array_equal(np.asarray(tiles), 0)
-    shared, _ = _world(cfg.with_overrides(cfg.get_preset(preset), terrain__per_env=False))
+    shared, _ = _world(hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset(preset), terrain__per_env=False))
     assert world.pool.tiles.shape == shared.pool.tiles.shape == (1, world.grid.size)
     np.testing.assert_allclose(world.pool.tiles[0], shared.pool.tiles[0], atol=1e-5)  # up to float rounding (a micron)
     assert np.ptp(world.pool.tiles[0]) > 0.4  # a real track, walls and floor
 
 
 def test_spawn_rests_the_lowest_geom_on_a_step_under_one_block():
-    config = cfg.with_overrides(cfg.get_preset("craters"), terrain__per_env=False)
+    config = hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__per_env=False)
     x, _ = _world(config)[0].grid.mesh()
     world, _ = _world(config, np.where(x < -0.05, 0.2, 0.0).reshape(1, -1))  # 0.1 m step under block A
     z = float(world.spawn_height(0))
@@ -181,18 +185,20 @@ def test_spawn_rests_the_lowest_geom_on_a_step_under_one_block():
 
 
 def test_termination_heights_and_bounds_follow_the_terrain():
-    config = cfg.with_overrides(cfg.get_preset("craters"), terrain__per_env=False)
+    config = hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__per_env=False)
     world, _ = _world(config, np.full((1, 2500), 0.6, np.float32))  # ground at 0.3 m everywhere
     np.testing.assert_allclose(np.asarray(world.ground(0, jnp.zeros((2, 2)))), 0.3, atol=1e-6)
     margin = world.config.edge_margin
     assert bool(world.out_of_bounds(jnp.array([5.0 - margin + 0.05, 0.0])))
     assert not bool(world.out_of_bounds(jnp.array([5.0 - margin - 0.05, -4.0])))
-    plane, _ = _world(cfg.get_preset("flat"))
+    plane, _ = _world(hsa_mjx.config.get_preset("flat"))
     assert not bool(plane.out_of_bounds(jnp.array([50.0, 0.0]))) and float(plane.ground(0, jnp.zeros(2))) == 0.0
 
 
 def test_shared_mode_puts_one_terrain_into_the_model():
-    config = cfg.with_overrides(cfg.get_preset("craters"), terrain__per_env=False, terrain__seed=3)
+    config = hsa_mjx.config.with_overrides(
+        hsa_mjx.config.get_preset("craters"), terrain__per_env=False, terrain__seed=3
+    )
     world, model = _world(config)
     assert world.enabled and not world.per_env
     shared = world.pool.tiles[0]
@@ -204,7 +210,7 @@ def test_shared_mode_puts_one_terrain_into_the_model():
     assert float(world.ground(tile, jnp.array([3.0, 3.0]))) == pytest.approx(
         float(surface_height(jnp.asarray(shared), world.grid, jnp.array([3.0, 3.0])))
     )
-    other, _ = _world(cfg.with_overrides(config, terrain__seed=4))
+    other, _ = _world(hsa_mjx.config.with_overrides(config, terrain__seed=4))
     assert not np.array_equal(other.pool.tiles[0], shared)  # the seed picks the terrain
 
 

@@ -5,13 +5,13 @@ import json
 import pytest
 import yaml
 
-from benchmarks import time_to_target as ttt
+import benchmarks.time_to_target
 
 CONFIG = {
     "env": {"physics": {"backend": "warp"}},
     "run": {"num_envs": 64, "num_devices": 2},
     "ppo": {"batch_size": 8, "num_minibatches": 4, "unroll_length": 20},
-    "curriculum": {"enabled": True, "target_range": [1.5, 4.5]},
+    "goal_curriculum": {"enabled": True, "target_range": [1.5, 4.5]},
 }
 
 
@@ -33,31 +33,44 @@ def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path
         _row(1920, 5.0, 4.5, 0.92),  # a resumed call: its clock restarts
         _row(2560, 9.0, 4.5, 0.97),
     ]
-    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
+    result = benchmarks.time_to_target.time_to_target(
+        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
+    )
     assert result["iteration_env_steps"] == 640
     assert result["first_log_s"] == 10.0
     assert result["reached"]["wall_s"] == 25.0 and result["reached"]["env_steps"] == 1920
     assert result["reached"]["ppo_iterations"] == 3
     assert result["last"]["wall_s"] == 29.0 and result["last"]["success_rate"] == 0.97
-    assert "| 10.0 | 25.0 | 1,920 | 3 |" in ttt.markdown({"run": result})
+    assert "| 10.0 | 25.0 | 1,920 | 3 |" in benchmarks.time_to_target.markdown({"run": result})
 
 
 def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
     rows = [_row(640, 10.0, 1.8, 0.95), _row(1280, 20.0, 2.1, 0.99)]
-    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows)), success=0.9)
+    result = benchmarks.time_to_target.time_to_target(
+        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
+    )
     assert result["reached"] is None and result["last"]["goal_max_m"] == 2.1
-    assert "not reached" in ttt.markdown({"run": result})
+    assert "not reached" in benchmarks.time_to_target.markdown({"run": result})
     assert result["physics_backend"] == "warp"
     (tmp_path / "summary.json").write_text(json.dumps({"physics_backend": "jax"}))  # what "auto" resolved to
-    assert ttt.time_to_target(*ttt.read_run(tmp_path), success=0.9)["physics_backend"] == "jax"
-    no_curriculum = {**CONFIG, "curriculum": {"enabled": False}}  # then the success alone counts
-    result = ttt.time_to_target(*ttt.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9)
+    assert (
+        benchmarks.time_to_target.time_to_target(*benchmarks.time_to_target.read_run(tmp_path), success=0.9)[
+            "physics_backend"
+        ]
+        == "jax"
+    )
+    no_curriculum = {**CONFIG, "goal_curriculum": {"enabled": False}}  # then the success alone counts
+    result = benchmarks.time_to_target.time_to_target(
+        *benchmarks.time_to_target.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9
+    )
     assert result["reached"]["env_steps"] == 640
 
 
 def test_bad_folders_are_refused(tmp_path, capsys):
     with pytest.raises(FileNotFoundError, match="metrics.jsonl"):
-        ttt.read_run(tmp_path)
-    assert ttt.main([str(tmp_path)]) == 2 and "not a training run folder" in capsys.readouterr().out
+        benchmarks.time_to_target.read_run(tmp_path)
+    assert (
+        benchmarks.time_to_target.main([str(tmp_path)]) == 2 and "not a training run folder" in capsys.readouterr().out
+    )
     with pytest.raises(ValueError, match="no log rows"):
-        ttt.read_run(_run(tmp_path, []))
+        benchmarks.time_to_target.read_run(_run(tmp_path, []))

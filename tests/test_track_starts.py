@@ -7,11 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from hsa_mjx import config as cfg
+import hsa_mjx.config
 from hsa_mjx import pose
 from hsa_mjx.config import GoalConfig
 from hsa_mjx.task import goals
-from train.evaluate import evaluation_env_config
+from hsa_mjx_train.policy_sources import evaluation_env_config
 
 
 def _rotation(quat) -> np.ndarray:
@@ -87,11 +87,13 @@ def test_track_start_zero_is_the_original_start_and_others_face_the_next_checkpo
 )
 def test_bad_track_starts_are_refused(overrides, match):
     with pytest.raises(ValueError, match=match):
-        cfg.validate(cfg.with_overrides(cfg.EnvConfig(), **overrides))
+        hsa_mjx.config.validate(hsa_mjx.config.with_overrides(hsa_mjx.config.EnvConfig(), **overrides))
 
 
 def test_evaluation_starts_spiral_episodes_at_the_origin():
-    trained = cfg.with_overrides(cfg.get_preset("spiral"), goal__num_checkpoints=20, goal__track_starts=19)
+    trained = hsa_mjx.config.with_overrides(
+        hsa_mjx.config.get_preset("spiral"), goal__num_checkpoints=20, goal__track_starts=19
+    )
     evaluated = evaluation_env_config(trained)
     assert evaluated.goal.track_starts == 0
     assert evaluated.goal.num_checkpoints == 20 and evaluated.terrain == trained.terrain

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from conftest import TINY_RUN as TINY
 
-from train import checkpoint
-from train import config as tcfg
+import hsa_mjx_train.config
+from hsa_mjx_train import checkpoint
 
 
-def tiny(**run) -> tcfg.TrainConfig:
+def tiny(**run) -> hsa_mjx_train.config.TrainConfig:
     data = json.loads(json.dumps(TINY))
     data["run"].update(run)
-    return tcfg.from_dict(data)
+    return hsa_mjx_train.config.from_dict(data)
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def run_dir(tiny_run_dir):
 
 
 def records(path):
-    from train.logger import read_jsonl
+    from hsa_mjx_train.logger import read_jsonl
 
     return read_jsonl(path / "metrics.jsonl")
 
@@ -60,7 +60,7 @@ def test_curriculum_updates_inside_training(run_dir):
 
 
 def test_resume_continues_step_and_curriculum(run_dir):
-    from train.trainer import train
+    from hsa_mjx_train.trainer import train
 
     before = records(run_dir)[-1]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
@@ -72,9 +72,11 @@ def test_resume_continues_step_and_curriculum(run_dir):
 
 
 def test_resume_refuses_other_config_and_overwrite(run_dir):
-    from train.trainer import train
+    from hsa_mjx_train.trainer import train
 
-    other = tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"]))
+    other = hsa_mjx_train.config.from_dict(
+        hsa_mjx_train.config.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"])
+    )
     with pytest.raises(ValueError, match="env.reward.forward"):
         train(other, run_dir, resume=True, quiet=True)
     with pytest.raises(ValueError, match="--resume"):
@@ -95,7 +97,7 @@ def _crashed_copy(run_dir, tmp_path):
 
 
 def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
-    from train.trainer import train
+    from hsa_mjx_train.trainer import train
 
     copy, step = _crashed_copy(run_dir, tmp_path)
     summary = train(tiny(num_timesteps=step + 80), copy, resume=True, quiet=True)
@@ -108,7 +110,7 @@ def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
 
 
 def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, capsys):
-    from train.trainer import train
+    from hsa_mjx_train.trainer import train
 
     copy, step = _crashed_copy(run_dir, tmp_path)
     (checkpoint.latest(copy) / checkpoint.STATE_FILE).write_bytes(b"\x00 not msgpack")
@@ -126,7 +128,7 @@ def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, 
 
 
 def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
-    from train.trainer import prepare_run_dir
+    from hsa_mjx_train.run_dir import prepare_run_dir
 
     early = tmp_path / "early"  # killed before its first checkpoint: logs only
     early.mkdir()
@@ -142,7 +144,7 @@ def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
 
 
 def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_process(tmp_path, monkeypatch):
-    from train import distributed, trainer
+    from hsa_mjx_train import distributed, trainer
 
     started = tmp_path / "started"  # process 0 has already written its config.yaml when process 1 looks
     started.mkdir()
@@ -156,7 +158,7 @@ def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_proc
 
 
 def test_cli_errors_before_compile(run_dir, capsys):
-    from train.cli import main
+    from hsa_mjx_train.cli import main
 
     assert main(["--config", "configs/nope.yaml"]) == 2
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--set", "ppo.nope=1"]) == 2
@@ -168,7 +170,7 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 
 def test_evaluate_writes_summary_and_plots(run_dir):
-    from train.evaluate import main
+    from hsa_mjx_train.evaluate import main
 
     assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0  # auto: C MuJoCo substeps on this CPU
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
@@ -194,15 +196,17 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     import dataclasses
 
     from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
-    from hsa_mjx.curricula import goal as cur
+    from hsa_mjx.curricula import goal_curriculum
     from hsa_mjx.curricula.state import CurriculumRules
     from hsa_mjx.task.env import HSAEnv
 
     config = tiny()
     env = HSAEnv(
-        tcfg.from_dict(tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.termination.max_episode_steps=3"])).env
+        hsa_mjx_train.config.from_dict(
+            hsa_mjx_train.config.apply_overrides(json.loads(json.dumps(TINY)), ["env.termination.max_episode_steps=3"])
+        ).env
     )
-    batch, rules = AutoResetEnv(env), CurriculumRules(env, config.curriculum)
+    batch, rules = AutoResetEnv(env), CurriculumRules(env.config, config.goal_curriculum)
     assert [f.name for f in dataclasses.fields(BatchState)] == ["env", "episode", "totals"]
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     curricula = rules.init(keys)
@@ -215,7 +219,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     goals = np.stack(goals)  # (7, 2 envs, 2)
     distinct = {tuple(np.round(g, 5)) for g in goals[:, 0]}
     assert len(distinct) >= 3  # three episodes of env 0, three different goals
-    lo, hi = np.asarray(cur.goal_range(curricula.goal, config.curriculum))
+    lo, hi = np.asarray(goal_curriculum.goal_range(curricula.goal, config.goal_curriculum, rules.start))
     radius = np.linalg.norm(goals, axis=-1)
     assert np.all(radius >= lo - 1e-5) and np.all(radius <= hi + 1e-5)
     assert float(state.totals["episodes"]) == 4  # 2 envs x 2 finished episodes
@@ -228,7 +232,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
 
 
 def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
-    from train.trainer import train
+    from hsa_mjx_train.trainer import train
 
     config = tiny(num_timesteps=40, init_from=str(run_dir))  # the tiny run's programs: no new compile
     summary = train(config, tmp_path / "ft", quiet=True)
@@ -257,21 +261,25 @@ def load_payload(path):
 
 
 def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
-    from train.cli import main
-    from train.warm_start import read_init_from
+    from hsa_mjx_train.cli import main
+    from hsa_mjx_train.warm_start import read_init_from
 
-    heading = tcfg.from_dict(
-        tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["env.observation.heading=true", f"run.init_from={run_dir}"])
+    heading = hsa_mjx_train.config.from_dict(
+        hsa_mjx_train.config.apply_overrides(
+            json.loads(json.dumps(TINY)), ["env.observation.heading=true", f"run.init_from={run_dir}"]
+        )
     )
     with pytest.raises(ValueError, match="observation size"):
         read_init_from(heading)
-    wider = tcfg.from_dict(
-        tcfg.apply_overrides(json.loads(json.dumps(TINY)), ["ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"])
+    wider = hsa_mjx_train.config.from_dict(
+        hsa_mjx_train.config.apply_overrides(
+            json.loads(json.dumps(TINY)), ["ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"]
+        )
     )
     with pytest.raises(ValueError, match="policy_hidden_sizes"):
         read_init_from(wider)
-    other_task = tcfg.from_dict(
-        tcfg.apply_overrides(
+    other_task = hsa_mjx_train.config.from_dict(
+        hsa_mjx_train.config.apply_overrides(
             json.loads(json.dumps(TINY)),
             ["env.reward.forward=1.0", "ppo.learning_rate=0.0", f"run.init_from={run_dir}"],
         )

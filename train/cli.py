@@ -1,4 +1,5 @@
-"""Command line: ``python -m train --config configs/<task>.yaml [--set key=value ...] [--run-dir DIR] [--resume] [--init-from RUN]``.
+"""Command line: ``python -m train --config configs/<task>.yaml [--set key=value ...] [--run-dir DIR]
+[--resume] [--init-from RUN]`` (``hsa-train`` installed).
 
 Every problem with the config, the run directory or the checkpoint to resume is reported before
 anything is compiled. Ctrl-C (or SIGTERM) finishes the current epoch, writes a checkpoint and
@@ -16,8 +17,11 @@ import sys
 import time
 from pathlib import Path
 
-from train import config as tcfg
-from train import distributed
+import jax
+
+from hsa_mjx_train import checkpoint, distributed
+from hsa_mjx_train.config import TrainConfig, load
+from hsa_mjx_train.trainer import train
 
 CPU_CONFIG = "configs/train_quickstart_cpu.yaml"
 GPU_CONFIG = "configs/train_flat.yaml"
@@ -87,12 +91,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def default_config() -> str:
     """The full-size GPU config when JAX sees a GPU, else the CPU quickstart."""
-    import jax
-
     return GPU_CONFIG if jax.default_backend() == "gpu" else CPU_CONFIG
 
 
-def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
+def resolve(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     """The validated config and run dir (a resumed run reads its own saved config by default)."""
     if args.resume and args.run_dir is None:
         raise ValueError("--resume needs --run-dir (the run to continue)")
@@ -102,7 +104,7 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
         if args.resume and (Path(args.run_dir) / "config.yaml").is_file():
             config_path = Path(args.run_dir) / "config.yaml"  # a resumed run keeps its own config
     overrides = args.overrides + ([f"run.init_from={args.init_from}"] if args.init_from else [])
-    config = tcfg.load(config_path, overrides)
+    config = load(config_path, overrides)
     run_dir = (
         Path(args.run_dir) if args.run_dir else Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
     )
@@ -111,8 +113,6 @@ def resolve(args: argparse.Namespace) -> tuple[tcfg.TrainConfig, Path]:
 
 def interrupted_message(run_dir: str | Path) -> str:
     """What a hard stop leaves: the newest periodic checkpoint to ``--resume`` from, or none."""
-    from train import checkpoint
-
     found = checkpoint.list_checkpoints(run_dir)
     if not found:
         return f"interrupted before any checkpoint was written in {run_dir}"
@@ -127,8 +127,6 @@ def main(argv: list[str] | None = None) -> int:
         spec = distributed.resolve_spec(args.coordinator, args.num_processes, args.process_id)
         distributed.initialize(spec)  # before anything asks JAX for its devices
         config, run_dir = resolve(args)
-        from train.trainer import train  # imports JAX; config errors above come first
-
         if args.resume and args.overwrite:
             raise ValueError("--resume continues the run in --run-dir and --overwrite replaces it: give one")
         summary = train(config, run_dir, resume=args.resume, quiet=args.quiet, overwrite=args.overwrite)

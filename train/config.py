@@ -1,15 +1,18 @@
-"""Training configuration: the env, the curriculum, PPO hyperparameters and the run, from one YAML file.
+"""Training configuration: the env, both curricula, PPO hyperparameters and the run, from one YAML file.
 
-A training YAML has five sections, each optional (missing keys take the defaults below)::
+A training YAML has five sections, each optional (missing keys take the dataclass defaults below,
+the only defaults there are)::
 
-    env: {...}          # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
-    curriculum: {...}   # hsa_mjx.curricula.goal.CurriculumConfig (goal distances)
-    terrain_curriculum: {...}  # hsa_mjx.curricula.terrain.TerrainCurriculumConfig (terrain levels)
-    ppo: {...}          # PPOConfig
-    run: {...}          # RunConfig
+    env: {...}                 # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
+    goal_curriculum: {...}     # hsa_mjx.curricula.goal_curriculum.GoalCurriculumConfig (goal distances)
+    terrain_curriculum: {...}  # hsa_mjx.curricula.terrain_curriculum.TerrainCurriculumConfig (terrain levels)
+    ppo: {...}                 # PPOConfig
+    run: {...}                 # RunConfig
 
-Unknown keys, wrong types and incompatible values raise ``ValueError`` naming the key, before any
-compilation. ``--set section.key=value`` overrides use the same checks.
+Older keys (``curriculum:``, ``curriculum.initial_range``, ``run.multi_device``) are mapped by
+``hsa_mjx.migrations``. Unknown keys, wrong types and incompatible values raise ``ValueError``
+naming the key when the config is built, before any compilation; a built ``TrainConfig`` is valid
+(``__post_init__``), so nothing checks it again. ``--set section.key=value`` overrides use the same checks.
 """
 
 from __future__ import annotations
@@ -21,17 +24,18 @@ from typing import Any
 
 import yaml
 
-from hsa_mjx import config as env_config
-from hsa_mjx import resources
-from hsa_mjx.config import EnvConfig, build_section
-from hsa_mjx.curricula import goal as cur
-from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.deploy.policy import ACTIVATIONS
+import hsa_mjx.config
+from hsa_mjx import migrations, resources
+from hsa_mjx.config import EnvConfig
+from hsa_mjx.config_schema import build_section, plain
+from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.deploy.policy_file import ACTIVATIONS
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
-SECTIONS = ("env", "curriculum", "terrain_curriculum", "ppo", "run")
+SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
+COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (hsa_mjx_train.strategies)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +77,6 @@ class PPOConfig:
     privileged_critic: bool = False
 
 
-MULTI_DEVICE = ("auto", "pmap", "per_device")
-
-
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
     """Run length, batch, seed and the cadence of logs and checkpoints."""
@@ -88,9 +89,10 @@ class RunConfig:
     checkpoint_every: int = 1_000_000  # env steps between checkpoints
     keep_checkpoints: int = 3
     num_devices: int = 0  # local devices to use; 0 = all
-    # how several devices share the work: "pmap" (one pmapped epoch), "per_device" (one env
-    # collection per GPU, pmapped update; train/per_device.py), "auto" (per_device on 2+ GPUs)
-    multi_device: str = "auto"
+    # how the devices share an epoch (hsa_mjx_train.strategies): "one_device", "pmap" (one pmapped
+    # epoch), "thread_per_device" (one env collection per GPU, pmapped update), "auto" (one_device on
+    # one device, thread_per_device on 2+ GPUs, pmap otherwise)
+    collection: str = "auto"
     # a run dir or checkpoint dir whose policy, value network and observation statistics start this
     # run (fine-tuning; a fresh optimiser, curriculum and step count); ignored by --resume
     init_from: str = ""
@@ -104,11 +106,14 @@ class RunConfig:
 class TrainConfig:
     """Everything one training run needs."""
 
-    env: EnvConfig = env_config.PRESETS["flat_radial"]
-    curriculum: cur.CurriculumConfig = cur.CurriculumConfig()
-    terrain_curriculum: tcur.TerrainCurriculumConfig = tcur.TerrainCurriculumConfig()
+    env: EnvConfig = dataclasses.field(default_factory=lambda: hsa_mjx.config.get_preset(DEFAULT_ENV_PRESET))
+    goal_curriculum: goal_curriculum.GoalCurriculumConfig = goal_curriculum.GoalCurriculumConfig()
+    terrain_curriculum: terrain_curriculum.TerrainCurriculumConfig = terrain_curriculum.TerrainCurriculumConfig()
     ppo: PPOConfig = PPOConfig()
     run: RunConfig = RunConfig()
+
+    def __post_init__(self) -> None:
+        validate(self)  # every config is valid from the moment it is built: no later check repeats it
 
     @property
     def env_steps_per_iteration(self) -> int:
@@ -119,93 +124,40 @@ class TrainConfig:
 def _env_from(data: Any) -> EnvConfig:
     """Env section: keys over ``preset: NAME`` (default ``flat_radial``: curriculum goals)."""
     if data is None:
-        return env_config.PRESETS[DEFAULT_ENV_PRESET]
+        return hsa_mjx.config.PRESETS[DEFAULT_ENV_PRESET]
     if not isinstance(data, Mapping):
         raise ValueError(f"config section 'env' must be a mapping, got {data!r}")
     data = dict(data)
-    base = env_config.get_preset(data.pop("preset", DEFAULT_ENV_PRESET))
-    return env_config.from_dict(data, base=base)
-
-
-def _start_range_in_env(env: Any, curriculum: Any) -> tuple[Any, Any]:
-    """The goal curriculum starts from ``env.goal.radial_range``; older configs state that range again as
-    ``curriculum.initial_range``: with the curriculum on it becomes the env's range (refused where both
-    differ), with it off it had no effect and is dropped."""
-    if not (isinstance(curriculum, Mapping) and "initial_range" in curriculum):
-        return env, curriculum
-    curriculum = dict(curriculum)
-    start = list(curriculum.pop("initial_range"))
-    goal = env.get("goal") if isinstance(env, Mapping) else None
-    if (
-        not curriculum.get("enabled", True)
-        or not isinstance(env, (Mapping, type(None)))
-        or not isinstance(goal, (Mapping, type(None)))
-    ):
-        return env, curriculum  # off: it had no effect; a malformed section gets its own error later
-    goal = dict(goal or {})
-    if list(goal.setdefault("radial_range", start)) != start:
-        raise ValueError(
-            f"curriculum.initial_range {start} differs from env.goal.radial_range "
-            f"{list(goal['radial_range'])}: the curriculum starts from env.goal.radial_range; set it alone"
-        )
-    return {**(env or {}), "goal": goal}, curriculum
+    base = hsa_mjx.config.get_preset(data.pop("preset", DEFAULT_ENV_PRESET))
+    return hsa_mjx.config.from_dict(data, base=base)
 
 
 def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
-    """Build and validate a TrainConfig from nested mappings."""
-    data = dict(data or {})
+    """Build (and so validate) a TrainConfig from nested mappings, older keys mapped first."""
+    data = migrations.training_keys(dict(data or {}))
     unknown = sorted(set(data) - set(SECTIONS))
     if unknown:
         raise ValueError(f"unknown config section(s) {unknown}; valid sections: {list(SECTIONS)}")
-    env_data, curriculum_data = _start_range_in_env(data.get("env"), data.get("curriculum"))
-    env = _env_from(env_data)
-    curriculum = build_section(cur.CurriculumConfig, curriculum_data or {}, "curriculum")
-    config = TrainConfig(
-        env=env,
-        curriculum=dataclasses.replace(curriculum, initial_range=tuple(env.goal.radial_range)),
+    return TrainConfig(
+        env=_env_from(data.get("env")),
+        goal_curriculum=build_section(
+            goal_curriculum.GoalCurriculumConfig, data.get("goal_curriculum") or {}, "goal_curriculum"
+        ),
         terrain_curriculum=build_section(
-            tcur.TerrainCurriculumConfig, data.get("terrain_curriculum") or {}, "terrain_curriculum"
+            terrain_curriculum.TerrainCurriculumConfig, data.get("terrain_curriculum") or {}, "terrain_curriculum"
         ),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
         run=build_section(RunConfig, data.get("run") or {}, "run"),
     )
-    return validate(config)
 
 
-def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfig:
-    """Check the config's internal consistency (and the device split when ``device_count`` is given)."""
-    cur.validate(config.curriculum)
-    env = config.env
-    tcur.validate(config.terrain_curriculum, env.terrain, env.scene == "terrain" and env.terrain.per_env, env.goal.mode)
-    ppo, run = config.ppo, config.run
-    for key, choices in (
-        ("activation", ACTIVATIONS),
-        ("distribution_type", DISTRIBUTIONS),
-        ("noise_std_type", NOISE_STD_TYPES),
-    ):
-        if getattr(ppo, key) not in choices:
-            raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
+def validate(config: TrainConfig) -> TrainConfig:
+    """Check the config's internal consistency (``TrainConfig`` runs it when built); return it or raise ValueError."""
+    _validate_curricula(config)
+    _validate_ppo(config.ppo)
+    _validate_run(config.run)
     _validate_ranges(config)
-    if ppo.observation_clip < 0:
-        raise ValueError(f"config key 'ppo.observation_clip' must be >= 0 (0: no clip), got {ppo.observation_clip}")
-    for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
-        if getattr(ppo, key) < 1:
-            raise ValueError(f"config key 'ppo.{key}' must be >= 1, got {getattr(ppo, key)}")
-    for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
-        if getattr(run, key) < 1:
-            raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
-    if run.init_normalizer_count < 0:
-        raise ValueError(
-            f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
-            f"got {run.init_normalizer_count}"
-        )
-    if run.multi_device not in MULTI_DEVICE:
-        raise ValueError(f"config key 'run.multi_device' = {run.multi_device!r}; choose one of {list(MULTI_DEVICE)}")
-    if config.curriculum.enabled and config.env.goal.mode != "radial":
-        raise ValueError(
-            "curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum "
-            f"range), got {config.env.goal.mode!r}; set curriculum.enabled: false or env.goal.mode: radial"
-        )
+    ppo, run = config.ppo, config.run
     if (ppo.batch_size * ppo.num_minibatches) % run.num_envs:
         raise ValueError(
             f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
@@ -216,9 +168,50 @@ def validate(config: TrainConfig, device_count: int | None = None) -> TrainConfi
             f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
             f"PPO iteration ({config.env_steps_per_iteration})"
         )
-    if device_count is not None:
-        _validate_devices(config, device_count)
     return config
+
+
+def _validate_curricula(config: TrainConfig) -> None:
+    """Both curricula's settings, and how they fit the env (radial goals, per-env terrain)."""
+    env = config.env
+    goal_curriculum.validate(config.goal_curriculum, tuple(env.goal.radial_range))
+    per_env = env.scene == "terrain" and env.terrain.per_env
+    terrain_curriculum.validate(config.terrain_curriculum, env.terrain, per_env, env.goal.mode)
+    if config.goal_curriculum.enabled and env.goal.mode != "radial":
+        raise ValueError(
+            "goal_curriculum.enabled needs env goal.mode 'radial' (goals drawn from the curriculum's range), got "
+            f"{env.goal.mode!r}; set goal_curriculum.enabled: false or env.goal.mode: radial"
+        )
+
+
+def _validate_ppo(ppo: PPOConfig) -> None:
+    """Choices and counts of the ppo section."""
+    for key, choices in (
+        ("activation", ACTIVATIONS),
+        ("distribution_type", DISTRIBUTIONS),
+        ("noise_std_type", NOISE_STD_TYPES),
+    ):
+        if getattr(ppo, key) not in choices:
+            raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
+    if ppo.observation_clip < 0:
+        raise ValueError(f"config key 'ppo.observation_clip' must be >= 0 (0: no clip), got {ppo.observation_clip}")
+    for key in ("unroll_length", "batch_size", "num_minibatches", "num_updates_per_batch"):
+        if getattr(ppo, key) < 1:
+            raise ValueError(f"config key 'ppo.{key}' must be >= 1, got {getattr(ppo, key)}")
+
+
+def _validate_run(run: RunConfig) -> None:
+    """Choices and counts of the run section."""
+    for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
+        if getattr(run, key) < 1:
+            raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if run.init_normalizer_count < 0:
+        raise ValueError(
+            f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
+            f"got {run.init_normalizer_count}"
+        )
+    if run.collection not in COLLECTIONS:
+        raise ValueError(f"config key 'run.collection' = {run.collection!r}; choose one of {list(COLLECTIONS)}")
 
 
 # (section, key): (lowest, highest, whether the ends are allowed), checked before anything compiles
@@ -246,22 +239,28 @@ def _validate_ranges(config: TrainConfig) -> None:
             raise ValueError(f"config key '{section}.{key}' = {value!r} is out of range; it must lie in {span}")
 
 
-def _validate_devices(config: TrainConfig, devices: int) -> None:
-    """num_envs and minibatches must split evenly over ``devices``."""
+def validate_devices(config: TrainConfig, devices: int) -> TrainConfig:
+    """The run's split over ``devices`` (every process's): num_envs and minibatches must divide evenly,
+    and ``run.collection: one_device`` needs one. Checked before anything compiles; ValueError."""
+    if config.run.collection == "one_device" and devices != 1:
+        raise ValueError(f"run.collection one_device runs on one device, but {devices} are in use (run.num_devices)")
     if config.run.num_envs % devices:
         raise ValueError(f"run.num_envs = {config.run.num_envs} must be divisible by the {devices} devices in use")
     if config.ppo.batch_size % devices:
         raise ValueError(f"ppo.batch_size = {config.ppo.batch_size} must be divisible by the {devices} devices in use")
+    return config
 
 
 def apply_overrides(data: dict, assignments: list[str]) -> dict:
-    """Apply ``section.key=value`` strings (values parsed as YAML) to nested config data."""
-    data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in data.items()}
+    """Apply ``section.key=value`` strings (values parsed as YAML) to nested config data (its older keys
+    mapped first, so that an override and the file's key meet under one name)."""
+    data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in migrations.training_keys(data).items()}
     for item in assignments:
         if "=" not in item:
             raise ValueError(f"--set expects section.key=value, got {item!r}")
         dotted, raw = item.split("=", 1)
         parts = dotted.strip().split(".")
+        parts[0] = migrations.SECTION_NAMES.get(parts[0], parts[0])
         if len(parts) < 2 or parts[0] not in SECTIONS:
             raise ValueError(
                 f"--set key {dotted!r} must start with one of {list(SECTIONS)}, e.g. ppo.learning_rate=1e-4"
@@ -290,11 +289,10 @@ def read_yaml(path: str | Path) -> dict:
 
 
 def load(path: str | Path, overrides: list[str] | None = None) -> TrainConfig:
-    """Load a training config file and apply ``--set`` overrides."""
+    """Load a training config file and apply ``--set`` overrides (over the file's keys, older ones mapped)."""
     return from_dict(apply_overrides(read_yaml(path), overrides or []))
 
 
 def to_dict(config: TrainConfig) -> dict:
     """Plain nested dicts (YAML/JSON-ready); ``from_dict(to_dict(c)) == c``."""
-    plain = env_config.to_dict(config)  # handles nested dataclasses and tuples
-    return plain
+    return plain(config)

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import ctypes.util
-import os
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import mujoco
+import numpy as np
+from matplotlib.figure import Figure
+from PIL import Image
 
 SERVO_LABELS = ("1A", "2A", "3A", "4A", "1C", "2C", "3C", "4C")
 # Frames per GIF at most: offscreen rendering without a GPU (Mesa's llvmpipe) takes 0.3 s a frame on
@@ -29,7 +26,8 @@ def plot_actions(traces: dict, path: Path) -> Path:
     alive = traces["alive"].astype(bool)
     actions = traces["action"][alive]
     delta = np.abs(np.diff(traces["action"], axis=1))[alive[:, 1:]]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4), constrained_layout=True)
+    fig = Figure(figsize=(12, 4), layout="constrained")
+    axes = fig.subplots(1, 2)
     axes[0].violinplot([actions[:, i] for i in range(actions.shape[1])], showmeans=True)
     axes[0].set_xticks(range(1, actions.shape[1] + 1), SERVO_LABELS[: actions.shape[1]])
     axes[0].set_title("action distribution per servo")
@@ -37,7 +35,6 @@ def plot_actions(traces: dict, path: Path) -> Path:
     axes[1].set_xticks(range(1, delta.shape[1] + 1), SERVO_LABELS[: delta.shape[1]])
     axes[1].set_title(f"action smoothness |a_t - a_t-1| (mean {delta.mean():.3f})")
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 
@@ -45,7 +42,8 @@ def plot_joints(traces: dict, dt: float, path: Path) -> Path:
     """Actuated joint positions and velocities over time (first episode)."""
     pos, vel = _episode(traces, "joint_pos"), _episode(traces, "joint_vel")
     t = np.arange(len(pos)) * dt
-    fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True, constrained_layout=True)
+    fig = Figure(figsize=(11, 6), layout="constrained")
+    axes = fig.subplots(2, 1, sharex=True)
     for i in range(pos.shape[1]):
         axes[0].plot(t, pos[:, i], label=SERVO_LABELS[i], lw=0.9)
         axes[1].plot(t, vel[:, i], lw=0.9)
@@ -55,7 +53,6 @@ def plot_joints(traces: dict, dt: float, path: Path) -> Path:
     axes[0].legend(ncol=8, fontsize=7)
     axes[0].set_title("actuated joints, episode 0")
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 
@@ -63,7 +60,8 @@ def plot_constraint(traces: dict, pairs: np.ndarray, dt: float, path: Path) -> P
     """Paired-joint (A, C) angle differences against the pi limit (first episode)."""
     pos = _episode(traces, "joint_pos")
     t = np.arange(len(pos)) * dt
-    fig, ax = plt.subplots(figsize=(11, 3.5), constrained_layout=True)
+    fig = Figure(figsize=(11, 3.5), layout="constrained")
+    ax = fig.subplots()
     for unit, (a, c) in enumerate(pairs):
         ax.plot(t, np.abs(pos[:, a] - pos[:, c]), label=f"unit {unit + 1}", lw=0.9)
     ax.axhline(np.pi, color="k", ls="--", lw=0.8, label="pi")
@@ -72,13 +70,13 @@ def plot_constraint(traces: dict, pairs: np.ndarray, dt: float, path: Path) -> P
     ax.legend(ncol=5, fontsize=8)
     ax.set_title("paired-joint constraint difference, episode 0")
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 
 def plot_trajectories(traces: dict, path: Path) -> Path:
     """XY paths of every episode with start and goal (success in green, failure in red)."""
-    fig, ax = plt.subplots(figsize=(7, 7), constrained_layout=True)
+    fig = Figure(figsize=(7, 7), layout="constrained")
+    ax = fig.subplots()
     for e in range(traces["xy"].shape[0]):
         xy, goal = _episode(traces, "xy", e), _episode(traces, "goal", e)
         if len(xy) == 0:
@@ -91,7 +89,6 @@ def plot_trajectories(traces: dict, path: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.set_title("robot paths (green: reached goal) and goals (stars)")
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 
@@ -99,12 +96,8 @@ def render_gif(
     traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480), max_frames: int = GIF_FRAMES
 ) -> Path:
     """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
-    ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames."""
-    if ctypes.util.find_library("EGL"):  # offscreen; without the library mujoco's import would fail
-        os.environ.setdefault("MUJOCO_GL", "egl")
-    import mujoco
-    from PIL import Image
-
+    ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames (MuJoCo's
+    offscreen platform is the one chosen before it was imported: ``hsa_mjx_train.evaluate``)."""
     model = env.robot.mj_model
     data = mujoco.MjData(model)
     qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")

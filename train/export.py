@@ -1,9 +1,9 @@
 """Export a run's deterministic policy: ``python -m train.export RUN_DIR --format npz|onnx [--out DIR]``.
 
 Reads the run's latest checkpoint (or ``--checkpoint PATH``) and writes its deterministic policy,
-observation normaliser included, as a policy directory (``hsa_mjx/deploy/policy.py`` describes the format):
+observation normaliser included, as a policy directory (``hsa_mjx/deploy/policy_file.py`` describes the format):
 
-- ``--format npz``: ``policy.npz`` + ``policy.json``, run with ``hsa_mjx.deploy.policy.load_policy`` (numpy
+- ``--format npz``: ``policy.npz`` + ``policy.json``, run with ``hsa_mjx.deploy.policy_file.load_policy`` (numpy
   only) or ``python -m train.evaluate --policy DIR``; the format of the shipped ``policies/<task>/``.
 - ``--format onnx``: ``policy.onnx`` (input ``observation`` (batch, obs), output ``action``) + the
   same ``policy.json``; needs the ``onnx`` package (``pip install -e .[export]``).
@@ -20,17 +20,17 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from hsa_mjx.deploy import policy as pol
-from train import checkpoint
-from train import config as tcfg
+from hsa_mjx.deploy import policy_file
+from hsa_mjx.sim.model import SERVOS
+from hsa_mjx.task import observation
+from hsa_mjx_train import checkpoint, onnx_policy, run_state
+from hsa_mjx_train.config import TrainConfig, from_dict, to_dict
 
 FORMATS = ("npz", "onnx")
 ONNX_FILE = "policy.onnx"
 
 
-def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[tcfg.TrainConfig, Path, int]:
+def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[TrainConfig, Path, int]:
     """(config, checkpoint path, step) of a run's latest or given checkpoint; errors name the problem."""
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run directory not found: {run_dir}")
@@ -39,61 +39,18 @@ def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[tcfg.T
         raise FileNotFoundError(f"checkpoint directory not found: {path}")
     meta = checkpoint.read_meta(path)
     try:
-        config = tcfg.from_dict(meta["config"])
+        config = from_dict(meta["config"])
     except ValueError as err:
         raise ValueError(f"checkpoint {path} was written with a config this code cannot build: {err}") from err
     return config, path, int(meta["step"])
 
 
-def layer_paths(tree: dict) -> list[tuple[str, ...]]:
-    """Where each dense layer of a Brax policy's parameters sits, input first: one MLP for a
-    ``tanh_normal`` policy (its last layer outputs mean and scale), or for a ``normal`` one a hidden
-    MLP, then the mean layer (its std is a separate parameter)."""
-    if "MLP_0" in tree:
-        return [("MLP_0", f"hidden_{i}") for i in range(len(tree["MLP_0"]))] + [("Dense_0",)]
-    return [(f"hidden_{i}",) for i in range(len(tree))]
-
-
-def layer_at(tree: dict, path: tuple[str, ...]) -> dict:
-    """The layer dict (``kernel``, ``bias``) at ``path``."""
-    for part in path:
-        tree = tree[part]
-    return tree
-
-
-def policy_params(config: tcfg.TrainConfig, ts, action_size: int) -> dict:
-    """The deterministic policy's float32 arrays (normaliser as applied, dense layers) of a TrainingState."""
-    tree = ts.params.policy["params"]
-    dense = [dict(layer_at(tree, path)) for path in layer_paths(tree)]
-    # a tanh_normal policy's last layer also outputs the noise scale: the mean is its first action_size
-    dense[-1] = {
-        "kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
-        "bias": np.asarray(dense[-1]["bias"])[:action_size],
-    }
-    n_obs = np.asarray(dense[0]["kernel"]).shape[0]
-    if config.ppo.normalize_observations:
-        # the policy's own inputs only: a privileged critic's follow them in the statistics
-        mean, std = ts.normalizer.mean[:n_obs], ts.normalizer.std[:n_obs]
-    else:
-        mean, std = np.zeros(n_obs), np.ones(n_obs)
-    f32 = lambda x: np.asarray(x, np.float32)  # noqa: E731
-    return {
-        "obs_mean": f32(mean),
-        "obs_std": f32(std),
-        "kernels": tuple(f32(d["kernel"]) for d in dense),
-        "biases": tuple(f32(d["bias"]) for d in dense),
-    }
-
-
-def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPolicy:
+def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyPolicy:
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
-    from hsa_mjx.sim.model import SERVOS
-    from hsa_mjx.task import observation
-
     ppo = config.ppo
-    params = policy_params(config, ts, len(SERVOS))
-    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.ppo.make_networks
-    meta = pol.describe(
+    params = run_state.policy_arrays(config, ts, len(SERVOS))
+    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as hsa_mjx_train.networks.make_networks
+    meta = policy_file.describe(
         params,
         ppo.activation,
         ppo.distribution_type,
@@ -101,21 +58,19 @@ def to_numpy_policy(config: tcfg.TrainConfig, ts, source: dict) -> pol.NumpyPoli
         list(observation.observation_labels(config.env.observation)),
     )
     # the policy runs wherever it is loaded: the physics backend is picked there (the training's is in source)
-    config_dict = tcfg.to_dict(config)
+    config_dict = to_dict(config)
     config_dict["env"]["physics"]["backend"] = "auto"
     meta.update(config=config_dict, source=source)
-    pol.check(params, meta, Path(source.get("checkpoint", "")))
-    return pol.NumpyPolicy(params=params, meta=meta)
+    policy_file.check(params, meta, Path(source.get("checkpoint", "")))
+    return policy_file.NumpyPolicy(params=params, meta=meta)
 
 
-def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol.NumpyPolicy:
+def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> policy_file.NumpyPolicy:
     """The deterministic policy of a run's latest (or given) checkpoint, with its provenance."""
-    from hsa_mjx.sim.model import SERVOS
-    from hsa_mjx.task.observation import observation_size
-    from train.evaluate import load_training_state
-
     config, path, step = read_checkpoint(run_dir, checkpoint_path)
-    _, ts = load_training_state(config, path, observation_size(config.env.observation), len(SERVOS))
+    _, ts = run_state.load_training_state(
+        config, path, observation.observation_size(config.env.observation), len(SERVOS)
+    )
     trained_on = checkpoint.read_meta(path).get("physics_backend", config.env.physics.backend)
     source = {
         "run": str(run_dir),
@@ -128,24 +83,22 @@ def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol
     return to_numpy_policy(config, ts, source)
 
 
-def write(policy: pol.NumpyPolicy, out: Path, fmt: str) -> Path:
+def write(policy: policy_file.NumpyPolicy, out: Path, fmt: str) -> Path:
     """Write ``policy`` into directory ``out`` in format ``fmt`` (atomically)."""
     if fmt == "npz":
-        return pol.save_policy(out, policy.params, policy.meta)
-    from train import onnx_policy
-
+        return policy_file.save_policy(out, policy.params, policy.meta)
     model = onnx_policy.build(policy)
-    return pol.write_directory(
-        out, {ONNX_FILE: model.SerializeToString(), pol.META_FILE: json.dumps(policy.meta, indent=1).encode()}
+    return policy_file.write_directory(
+        out, {ONNX_FILE: model.SerializeToString(), policy_file.META_FILE: json.dumps(policy.meta, indent=1).encode()}
     )
 
 
 def check_output(out: Path, fmt: str) -> None:
     """Refuse an unusable output directory or a missing ONNX package before loading anything."""
-    pol.check_output(out)
+    policy_file.check_output(out)
     if fmt == "onnx":
         try:
-            import onnx  # noqa: F401
+            import onnx  # noqa: F401  (only whether it is installed)
         except ImportError as err:
             raise ValueError("--format onnx needs the onnx package: pip install -e .[export]") from err
 
@@ -172,10 +125,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else run_dir / f"export_{args.format}"
     try:
         check_output(out, args.format)
-        if (run_dir / pol.META_FILE).is_file():  # a policy directory: the same policy in another format
+        if (run_dir / policy_file.META_FILE).is_file():  # a policy directory: the same policy in another format
             if args.checkpoint:
                 raise ValueError("--checkpoint needs a run directory; a policy directory holds one policy")
-            policy = pol.load_policy(run_dir)
+            policy = policy_file.load_policy(run_dir)
             policy.meta["source"]["converted_from"] = str(run_dir)
         else:
             policy = load_numpy_policy(run_dir, Path(args.checkpoint) if args.checkpoint else None)

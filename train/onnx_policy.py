@@ -1,4 +1,4 @@
-"""The deterministic policy of ``hsa_mjx.deploy.policy`` as an ONNX graph (normaliser, clip, MLP, output squash).
+"""The deterministic policy of ``hsa_mjx.deploy.policy_file`` as an ONNX graph (normaliser, clip, MLP, output squash).
 
 Built with the ``onnx`` package's helper API from the same float32 arrays as ``policy.npz``
 (initializers named as the npz keys). Input ``observation`` (batch, obs), output ``action``
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import policy_file
 
 OPSET, IR_VERSION = 17, 8
 INPUT, OUTPUT = "observation", "action"
@@ -32,7 +32,7 @@ def _activation(nodes: list, x: str, name: str, prefix: str) -> str:
     elif name == "elu":
         nodes.append(helper.make_node("Elu", [x], [out], alpha=1.0))
     else:
-        raise ValueError(f"unknown activation {name!r}; choose one of {list(pol.ACTIVATIONS)}")
+        raise ValueError(f"unknown activation {name!r}; choose one of {list(policy_file.ACTIVATIONS)}")
     return out
 
 
@@ -52,7 +52,7 @@ def _normalizer(nodes: list, inits: dict, params: dict, clip: float) -> str:
     return "clipped"
 
 
-def build(policy: pol.NumpyPolicy):
+def build(policy: policy_file.NumpyPolicy):
     """The ONNX ``ModelProto`` computing ``policy``'s deterministic action (checked with onnx.checker)."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
@@ -61,7 +61,7 @@ def build(policy: pol.NumpyPolicy):
     nodes: list = []
     inits: dict[str, np.ndarray] = {}
     x = _normalizer(nodes, inits, params, float(net["observation_clip"]))
-    layers = pol.layer_names(len(params["kernels"]))
+    layers = policy_file.layer_names(len(params["kernels"]))
     for i, ((k, b), kernel, bias) in enumerate(zip(layers, params["kernels"], params["biases"])):
         inits[k], inits[b] = kernel, bias
         nodes += [

@@ -4,12 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from train.logger import read_jsonl  # noqa: E402
+from hsa_mjx_train.logger import read_jsonl
 
 PANELS = (
     ("episode/return", "episode return"),
@@ -36,9 +33,9 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
         return None
     steps = [r["step"] for r in records]
     panels = [p for p in PANELS if not p[0].startswith("terrain/") or any(p[0] in r for r in records)]
-    fig, axes = plt.subplots(
-        3, (len(panels) + 2) // 3, figsize=(4.4 * ((len(panels) + 2) // 3), 10), constrained_layout=True
-    )
+    columns = (len(panels) + 2) // 3
+    fig = Figure(figsize=(4.4 * columns, 10), layout="constrained")
+    axes = fig.subplots(3, columns)
     for ax in axes.flat[len(panels) :]:
         ax.axis("off")
     for ax, (key, label) in zip(axes.flat, panels):
@@ -54,7 +51,6 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
     fig.suptitle(title or str(Path(metrics_path).parent.name))
     out_path = Path(out_path)
     fig.savefig(out_path, dpi=100)
-    plt.close(fig)
     return out_path
 
 
@@ -63,7 +59,8 @@ def terrain_grid(rows: list[dict], out_path: str | Path) -> Path:
     types = list(dict.fromkeys(r["type"] for r in rows))
     levels = sorted({r["difficulty"] for r in rows})
     cell = {(r["type"], r["difficulty"]): r for r in rows}
-    fig, axes = plt.subplots(1, 2, figsize=(4 + 1.6 * len(levels), 1.5 + 0.45 * len(types)), constrained_layout=True)
+    fig = Figure(figsize=(4 + 1.6 * len(levels), 1.5 + 0.45 * len(types)), layout="constrained")
+    axes = fig.subplots(1, 2)
     for ax, (key, label, fmt) in zip(
         axes, (("success_rate", "success rate", "{:.0%}"), ("mean_progress_m", "net progress (m)", "{:.2f}"))
     ):
@@ -85,5 +82,4 @@ def terrain_grid(rows: list[dict], out_path: str | Path) -> Path:
         fig.colorbar(image, ax=ax)
     out_path = Path(out_path)
     fig.savefig(out_path, dpi=100)
-    plt.close(fig)
     return out_path

@@ -24,6 +24,7 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.task import termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
+from hsa_mjx_train.plots import terrain_grid
 
 TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral
 
@@ -168,8 +169,6 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 def write(rows: list[dict[str, Any]], header: dict[str, Any], out: Path) -> list[Path]:
     """``terrain_eval.json`` and ``terrain_eval.png`` (success rate and progress per type and difficulty)."""
-    from train.plots import terrain_grid
-
     out.mkdir(parents=True, exist_ok=True)
     path = out / "terrain_eval.json"
     path.write_text(json.dumps({**header, "rows": rows}, indent=1))

@@ -19,21 +19,20 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx.curricula import goal as cur
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import policy_file
 from hsa_mjx.task.observation import observation_size
-from train import checkpoint
-from train import config as tcfg
-from train.ppo import TrainingState, privileged_size
+from hsa_mjx_train import checkpoint, run_state
+from hsa_mjx_train.config import TrainConfig, from_dict
+from hsa_mjx_train.networks import TrainingState, privileged_size
 
 POLICY_NORMALIZER_COUNT = 100_000  # samples the shipped statistics count as when a run starts from a policy file
 
 
-def read_init_from(config: tcfg.TrainConfig) -> dict | None:
+def read_init_from(config: TrainConfig) -> dict | None:
     """What ``run.init_from`` names, checked against this config's networks (before any compile)."""
     if not config.run.init_from:
         return None
-    directory = pol.find(config.run.init_from)
+    directory = policy_file.find(config.run.init_from)
     if directory is not None:
         return _read_policy(config, directory)
     source = Path(config.run.init_from)
@@ -44,7 +43,7 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
         )
     path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
     meta = checkpoint.read_meta(path)
-    src = tcfg.from_dict(meta["config"])
+    src = from_dict(meta["config"])
     bad = [
         f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
         for k in checkpoint.COMPATIBLE_PPO_KEYS
@@ -61,7 +60,7 @@ def read_init_from(config: tcfg.TrainConfig) -> dict | None:
     return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
 
 
-def _observation_mismatch(size: int, config: tcfg.TrainConfig) -> list[str]:
+def _observation_mismatch(size: int, config: TrainConfig) -> list[str]:
     """A complaint when a source's observation size differs from this config's."""
     own = observation_size(config.env.observation)
     if size == own:
@@ -72,9 +71,9 @@ def _observation_mismatch(size: int, config: tcfg.TrainConfig) -> list[str]:
     ]
 
 
-def _read_policy(config: tcfg.TrainConfig, directory: Path) -> dict:
+def _read_policy(config: TrainConfig, directory: Path) -> dict:
     """A policy directory as a warm start: loaded and checked against the config's policy network."""
-    policy = pol.load_policy(directory)
+    policy = policy_file.load_policy(directory)
     net, ppo = policy.meta["network"], config.ppo
     hidden = [int(layer["out"]) for layer in net["layers"][:-1]]
     bad = _observation_mismatch(policy.observation_size, config)
@@ -101,32 +100,38 @@ def _read_policy(config: tcfg.TrainConfig, directory: Path) -> dict:
     }
 
 
-def warm_start(ts: TrainingState, init: dict, key: jax.Array) -> TrainingState:
+def describe(init: dict) -> str:
+    """The line a run prints when it starts from ``init`` (from :func:`read_init_from`)."""
+    policy = "policy" in init
+    what = (
+        "the policy network and observation statistics of the policy file"
+        if policy
+        else "networks and observation statistics from"
+    )
+    return (
+        f"starting from {what} {init['path']} (trained for {init['step']:,} env steps)"
+        + (f", statistics' count restarted at {init['count']:,}" if init["count"] else "")
+        + ("; the value network starts fresh" if policy else "")
+    )
+
+
+def warm_start(ts: TrainingState, init: dict) -> TrainingState:
     """``ts`` with the networks and observation statistics ``init`` (from :func:`read_init_from`) names."""
     if "policy" in init:
         return _from_policy(ts, init["policy"], init["count"])
-    template = {"training_state": ts, "curriculum": cur.init(init["source"].curriculum), "rng": key}
-    restored = jax.tree.map(jnp.asarray, checkpoint.load(init["path"], template)["training_state"])
+    restored = run_state.restore_training_state(init["path"], ts, init["source"])
     # Adam's initial state does not depend on the parameter values: the fresh one stays valid
     normalizer = restart_count(restored.normalizer, init["count"]) if init.get("count") else restored.normalizer
     return ts.replace(params=restored.params, normalizer=normalizer)
 
 
-def _from_policy(ts: TrainingState, policy: pol.NumpyPolicy, count: int) -> TrainingState:
+def _from_policy(ts: TrainingState, policy: policy_file.NumpyPolicy, count: int) -> TrainingState:
     """The policy file's layers and normaliser in ``ts``; the value network and noise scale stay fresh."""
-    from train.export import layer_at, layer_paths
-
-    new = jax.tree.map(lambda x: x, ts.params.policy["params"])  # fresh containers to write into
-    for path, kernel, bias in zip(layer_paths(new), policy.params["kernels"], policy.params["biases"]):
-        layer = layer_at(new, path)
-        out = kernel.shape[1]  # the last tanh_normal layer also outputs the noise scale: that part stays fresh
-        layer["kernel"] = jnp.asarray(layer["kernel"]).at[:, :out].set(kernel)
-        layer["bias"] = jnp.asarray(layer["bias"]).at[:out].set(bias)
-    params = ts.params.replace(policy={**ts.params.policy, "params": new})
-    return ts.replace(params=params, normalizer=_statistics(ts.normalizer, policy, count))
+    ts = run_state.with_policy_layers(ts, policy.params["kernels"], policy.params["biases"])
+    return ts.replace(normalizer=_statistics(ts.normalizer, policy, count))
 
 
-def _statistics(stats: Any, policy: pol.NumpyPolicy, count: int) -> Any:
+def _statistics(stats: Any, policy: policy_file.NumpyPolicy, count: int) -> Any:
     """Running statistics with the policy file's mean and std, as if from ``count`` samples."""
     mean, std = (jnp.asarray(policy.params[k], jnp.float32) for k in ("obs_mean", "obs_std"))
     size = stats.mean.shape[0]  # a privileged critic's inputs follow the policy's: their statistics stay fresh

@@ -13,7 +13,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from hsa_mjx.curricula import terrain as tcur
+from hsa_mjx.curricula import terrain_curriculum
+from hsa_mjx.curricula.state import EpisodeEnds
 from hsa_mjx.sim import backend
 from hsa_mjx.task import reward, termination
 from hsa_mjx.task.env import HSAEnv
@@ -72,7 +73,7 @@ class AutoResetEnv:
     ``params`` (``EnvParams`` with a leading batch axis) are the parameters of the episodes that
     start: at ``reset`` for every env, at ``step`` for the envs whose episode ended.
     ``advance`` and ``reset_done`` are the two halves of ``step``, for a caller that updates its
-    curricula from the episodes that ended before the envs reset (``train.ppo``).
+    curricula from the episodes that ended before the envs reset (the trainer's learner).
     """
 
     def __init__(self, env: HSAEnv):
@@ -129,7 +130,10 @@ class AutoResetEnv:
             terms={k: v + nxt.metrics[f"reward/{k}"] for k, v in state.episode.terms.items()},
         )
         totals = self._add_totals(state.totals, nxt, episode, done)
-        keep = lambda x: jnp.where(done, jnp.zeros_like(x), x)  # noqa: E731
+
+        def keep(x):
+            return jnp.where(done, jnp.zeros_like(x), x)
+
         running = EpisodeAccumulator(
             ret=keep(episode.ret), length=keep(episode.length), terms={k: keep(v) for k, v in episode.terms.items()}
         )
@@ -175,6 +179,20 @@ class AutoResetEnv:
         add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
         add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
         return {**totals, **{k: totals[k] + add[k] for k in add}}
+
+    def episode_ends(self, state: BatchState) -> EpisodeEnds:
+        """What an advanced (not yet reset) batch tells the terrain curriculum: which episodes ended,
+        which reached their goal, and the share of their start distance to the goal they covered."""
+        env = state.env
+        start = jnp.linalg.norm(env.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
+        progress = 1.0 - env.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
+        return EpisodeEnds(done=env.done, success=env.metrics["termination/goal_reached"], progress=progress)
+
+    @staticmethod
+    def env_keys(state: BatchState) -> jax.Array:
+        """Every env's PRNG key of this step, (B, 2): the stream its next reset draws from (a caller
+        folds in a salt of its own before drawing from it)."""
+        return state.env.pipeline_state.task.rng
 
     def drain(self, state: BatchState) -> tuple[BatchState, dict[str, jax.Array]]:
         """Return the totals and the state with them zeroed (between jitted chunks)."""
@@ -222,7 +240,7 @@ def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
             "step/checkpoint_index": totals["step_checkpoint"] / steps,
         }
     )
-    out.update(tcur.summarize(totals, levels))
+    out.update(terrain_curriculum.summarize(totals, levels))
     episodes = totals["episodes"]
     if episodes <= 0:
         return out

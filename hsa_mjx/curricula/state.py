@@ -1,10 +1,12 @@
 """Both curricula as one state the training loop owns, and the episode parameters they choose.
 
-The batch env reports episode ends; :class:`CurriculumRules` turns them into the next
-:class:`~hsa_mjx.task.params.EnvParams` of every env: the goal curriculum's radial range (one range
-for all envs, moved per collection from every device's outcomes) and the terrain curriculum's cell
-of each env (moved where its episode ends, before the env resets). Nothing else holds curriculum
-state: the batch env and the Gymnasium vector env reset from the parameters they are given.
+The batch env reports episode ends (:class:`EpisodeEnds`); :class:`CurriculumRules` turns them into
+the next :class:`~hsa_mjx.task.params.EnvParams` of every env: the goal curriculum's radial range
+(one range for all envs, moved per collection from every device's outcomes) and the terrain
+curriculum's cell of each env (moved where its episode ends, before the env resets). The rules read
+nothing but their configs and the arrays they are given: no env state, no key of their own. Nothing
+else holds curriculum state: the batch env and the Gymnasium vector env reset from the parameters
+they are given.
 """
 
 from __future__ import annotations
@@ -13,64 +15,80 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from hsa_mjx.curricula import goal as cur
-from hsa_mjx.curricula import terrain as tcur
-from hsa_mjx.task.env import HSAEnv
+from hsa_mjx.config import EnvConfig
+from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
 from hsa_mjx.task.params import FREE_CELL, EnvParams
-from hsa_mjx.task.types import EnvState
 
 
 @struct.dataclass
 class Curricula:
     """The goal curriculum (shared by all envs) and each env's terrain cell, with per-cell episode sums."""
 
-    goal: cur.CurriculumState
-    terrain: tcur.TerrainLevels  # (B,) each; zeros without the terrain curriculum
+    goal: goal_curriculum.GoalCurriculumState
+    terrain: terrain_curriculum.TerrainLevels  # (B,) each; zeros without the terrain curriculum
     cell_totals: dict[str, jax.Array]  # per-cell episodes and successes since the last drain; empty without
+
+
+@struct.dataclass
+class EpisodeEnds:
+    """What one batch step tells the terrain curriculum, (B,) each: which episodes ended, which reached
+    their goal, and the share of their start distance to the goal they covered."""
+
+    done: jax.Array
+    success: jax.Array
+    progress: jax.Array
 
 
 class CurriculumRules:
     """The static side: which curricula run and how they map to episode parameters.
 
+    The configs are taken as built (a training config checks that they fit the env when it is built:
+    the goal curriculum needs radial goals, the terrain curriculum per-env terrain).
+
     Args:
-        env: the single env (its goal mode, terrain and spawn point).
-        goal: goal curriculum settings (needs ``goal.mode: radial`` when enabled).
-        terrain: terrain curriculum settings (needs per-env terrain when enabled).
+        env: the env's config (its goal range and terrain).
+        goal: goal curriculum settings (off when None).
+        terrain: terrain curriculum settings (off when None).
     """
 
     def __init__(
-        self, env: HSAEnv, goal: cur.CurriculumConfig | None = None, terrain: tcur.TerrainCurriculumConfig | None = None
+        self,
+        env: EnvConfig,
+        goal: goal_curriculum.GoalCurriculumConfig | None = None,
+        terrain: terrain_curriculum.TerrainCurriculumConfig | None = None,
     ):
         self.env = env
-        self.goal = goal or cur.CurriculumConfig(enabled=False)
-        if self.goal.enabled and env.config.goal.mode != "radial":
-            raise ValueError(f"the goal curriculum needs env goal.mode 'radial', got {env.config.goal.mode!r}")
-        self.terrain = tcur.validate(
-            terrain or tcur.TerrainCurriculumConfig(), env.config.terrain, env.world.per_env, env.config.goal.mode
-        )
-        self.cells = len(env.config.terrain.types) * env.config.terrain.levels
+        self.goal = goal or goal_curriculum.GoalCurriculumConfig(enabled=False)
+        self.terrain = terrain or terrain_curriculum.TerrainCurriculumConfig()
+        self.start = tuple(env.goal.radial_range)  # where the goal curriculum's range starts
+        self.cells = len(env.terrain.types) * env.terrain.levels
 
     def init(
-        self, keys: jax.Array, goal: cur.CurriculumState | None = None, levels: tcur.TerrainLevels | None = None
+        self,
+        keys: jax.Array,
+        goal: goal_curriculum.GoalCurriculumState | None = None,
+        levels: terrain_curriculum.TerrainLevels | None = None,
     ) -> Curricula:
         """Start states for a batch (one key per env); a given goal state or levels are kept (resume)."""
-        goal = goal if goal is not None else cur.init(self.goal)
+        goal = goal if goal is not None else goal_curriculum.init(self.goal, self.start)
         if levels is None:
             levels = (
-                tcur.init(keys, self.terrain, self.env.config.terrain)
+                terrain_curriculum.init(keys, self.terrain, self.env.terrain)
                 if self.terrain.enabled
-                else tcur.placeholder(keys.shape[0])
+                else terrain_curriculum.placeholder(keys.shape[0])
             )
-        sums = {k: jnp.zeros((self.cells,), jnp.float32) for k in tcur.OUTCOME_KEYS} if self.terrain.enabled else {}
+        sums = {}
+        if self.terrain.enabled:
+            sums = {k: jnp.zeros((self.cells,), jnp.float32) for k in terrain_curriculum.OUTCOME_KEYS}
         return Curricula(goal=goal, terrain=levels, cell_totals=sums)
 
     def params(self, state: Curricula) -> EnvParams:
         """Every env's parameters for its next episode, (B,) leading axis."""
         batch = state.terrain.level.shape[0]
         goal_range = (
-            cur.goal_range(state.goal, self.goal)
+            goal_curriculum.goal_range(state.goal, self.goal, self.start)
             if self.goal.enabled
-            else jnp.asarray(self.env.config.goal.radial_range, jnp.float32)
+            else jnp.asarray(self.start, jnp.float32)
         )
         cells = (
             state.terrain.cells()
@@ -79,32 +97,41 @@ class CurriculumRules:
         )
         return EnvParams(goal_range=jnp.broadcast_to(goal_range, (batch, 2)), terrain_cell=cells)
 
-    def after_step(self, state: Curricula, stepped: EnvState) -> Curricula:
-        """Count the episodes that ended in the cell they ran on, then move those envs up or down a level."""
+    def after_step(self, state: Curricula, ends: EpisodeEnds, keys: jax.Array) -> Curricula:
+        """Count the episodes that ended in the cell they ran on, then move those envs up or down a level.
+
+        ``keys``: one PRNG key per env, for the level of an env promoted from the top (``top_redraw``).
+        """
         if not self.terrain.enabled:
             return state
-        done, success = stepped.done > 0, stepped.metrics["termination/goal_reached"] > 0
-        levels = self.env.config.terrain.levels
-        outcomes = tcur.cell_outcomes(state.terrain, done, success, self.cells, levels)
-        start = jnp.linalg.norm(stepped.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
-        progress = 1.0 - stepped.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
-        terrain = tcur.update(
-            state.terrain, done, success, progress, self.terrain, levels, stepped.pipeline_state.task.rng
-        )
-        return state.replace(terrain=terrain, cell_totals={k: v + outcomes[k] for k, v in state.cell_totals.items()})
+        done, success = ends.done > 0, ends.success > 0
+        levels = self.env.terrain.levels
+        outcomes = terrain_curriculum.cell_outcomes(state.terrain, done, success, self.cells, levels)
+        terrain = terrain_curriculum.update(state.terrain, done, success, ends.progress, self.terrain, levels, keys)
+        totals = {k: v + outcomes[k] for k, v in state.cell_totals.items()}
+        return state.replace(terrain=terrain, cell_totals=totals)
 
-    def after_collection(self, goal: cur.CurriculumState, success: jax.Array, done: jax.Array) -> cur.CurriculumState:
+    def after_collection(
+        self, goal: goal_curriculum.GoalCurriculumState, success: jax.Array, done: jax.Array
+    ) -> goal_curriculum.GoalCurriculumState:
         """The goal curriculum fed with episode ends, (steps, all envs) in step order."""
         if not self.goal.enabled:
             return goal
-        update = lambda c, sd: (cur.update(c, sd[0], sd[1], self.goal), None)  # noqa: E731
+
+        def update(state, outcome):
+            return goal_curriculum.update(state, outcome[0], outcome[1], self.goal, self.start), None
+
         return jax.lax.scan(update, goal, (success, done))[0]
+
+    def goal_metrics(self, goal: goal_curriculum.GoalCurriculumState) -> dict[str, jax.Array]:
+        """The goal curriculum's ``curriculum/*`` log keys."""
+        return goal_curriculum.metrics(goal, self.goal, self.start)
 
     def drain(self, state: Curricula) -> tuple[Curricula, dict[str, jax.Array]]:
         """The per-cell sums by name and the levels' snapshot (logs), and the state with the sums zeroed."""
         if not self.terrain.enabled:
             return state, {}
-        terrain = self.env.config.terrain
-        totals = tcur.totals(state.terrain, tuple(terrain.types), terrain.levels)
-        totals.update(tcur.name_outcomes(state.cell_totals, tuple(terrain.types), terrain.levels))
+        types, levels = tuple(self.env.terrain.types), self.env.terrain.levels
+        totals = terrain_curriculum.totals(state.terrain, types, levels)
+        totals.update(terrain_curriculum.name_outcomes(state.cell_totals, types, levels))
         return state.replace(cell_totals=jax.tree.map(jnp.zeros_like, state.cell_totals)), totals

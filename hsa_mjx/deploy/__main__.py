@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hsa_mjx.deploy import loop
-from hsa_mjx.deploy import policy as pol
+from hsa_mjx.deploy import loop, policy_file
 
 ONNX_FILE = "policy.onnx"
 
@@ -39,7 +38,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def load_network(directory: Path, onnx: bool):
     """``obs -> action`` for one observation: the numpy network, or the ONNX graph through onnxruntime."""
     if not onnx:
-        return pol.load_policy(directory)
+        return policy_file.load_policy(directory)
     path = directory / ONNX_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: write it with python -m train.export {directory} --format onnx")
@@ -67,8 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m hsa_mjx.deploy``."""
     args = parse_args(argv)
     try:
-        directory = pol.locate(args.policy)
-        meta = pol.read_meta(directory)
+        directory = policy_file.locate(args.policy)
+        meta = policy_file.read_meta(directory)
         network = load_network(directory, args.onnx)
         config, labels, goal_range = loop.policy_env(meta)
         latency = loop.latency_steps(args.latency_ms, config.dt)

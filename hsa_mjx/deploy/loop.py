@@ -201,7 +201,7 @@ def run(
     goal_xy = np.asarray(goal_xy, np.float64)
     start = robot.read().block_positions[:, :2].mean(axis=0)
     path = [start]
-    for step in range(1, max_steps + 1):
+    for step in range(1, max_steps + 1):  # noqa: B007  (the count of ticks taken, read after the loop)
         robot.command(controller.act(robot.read(), goal_xy))
         robot.wait()
         path.append(robot.read().block_positions[:, :2].mean(axis=0))

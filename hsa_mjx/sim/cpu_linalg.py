@@ -1,21 +1,16 @@
-"""Work around a deadlock of batched LAPACK calls in jaxlib's CPU backend.
+"""CPU lowerings of ``cholesky`` and ``triangular_solve`` that cannot deadlock on a small thread pool.
 
-On the CPU, JAX lowers ``cholesky`` and ``triangular_solve`` to LAPACK custom calls that split a
-batch over XLA's intra-op thread pool and block until the pieces finish. When two such calls run
-at once and the pool is small (the 2-core CI machine), both wait for work that no free thread can
-pick up: a vmapped MJX step over a large batch (44 or more envs: jaxlib splits a batch once it exceeds
-2e5 FLOP, i.e. 44 of the 24 x 24 Cholesky factorizations) hangs forever at 0 % CPU (seen with gdb:
-two threads in ``jax::ParallelBatchMap`` -> ``BlockingCounter::Wait`` under ``lapack_spotrf_ffi``;
-jaxlib 0.10.2). MJX calls Cholesky for the mass matrix and in the Newton solver of every step.
+JAX lowers both to LAPACK custom calls that split a large batch over XLA's intra-op thread pool and
+block until the pieces finish; two such calls at once on a small pool can wait forever for each
+other, and MJX calls Cholesky in every step. ``use_xla_linalg_on_cpu()`` registers CPU lowerings
+(through JAX's public ``jax.interpreters.mlir``, ``jax.ffi`` and ``jax.extend.mlir`` APIs and
+jaxlib's LAPACK target names) that emit XLA's own ops, plain loops with no pool, for batches above
+``LAPACK_MAX_BATCH`` matrices; smaller batches, never split, keep the faster LAPACK kernels, a failed
+factorisation giving NaN as in JAX. GPU code is untouched; results agree with LAPACK to float32
+rounding. Where it was seen, and the measurements behind the batch limit: docs/speed.md.
 
-``use_xla_linalg_on_cpu()`` registers CPU lowerings (through JAX's public ``jax.interpreters.mlir``,
-``jax.ffi`` and ``jax.extend.mlir`` APIs, and jaxlib's LAPACK target names) that emit XLA's own Cholesky and triangular-solve ops,
-which XLA expands into plain loops with no such pool, for batches above ``LAPACK_MAX_BATCH``
-matrices; smaller batches (never split over the pool, and about 3x faster with LAPACK: 19 vs 64 ms
-per step of 4 envs) call the same LAPACK kernels JAX calls, a failed factorisation giving NaN as in
-JAX. Only the CPU lowering changes, never GPU code; results agree with LAPACK to float32 rounding.
-``hsa_mjx.sim.model`` (which every MJX path imports) applies it on import; set
-``HSA_MJX_CPU_LAPACK=1`` to keep JAX's default.
+Importing this module changes nothing: ``hsa_mjx.sim.model.load_robot``, which builds every env,
+calls ``use_xla_linalg_on_cpu()`` (once per process); ``HSA_MJX_CPU_LAPACK=1`` keeps JAX's default.
 """
 
 from __future__ import annotations
@@ -32,7 +27,7 @@ from jax.interpreters import mlir
 from jax.lax import linalg
 from jaxlib import lapack  # the LAPACK kernels' names, loaded on first use as JAX's own lowering does
 
-LAPACK_MAX_BATCH = 32  # below the 44-matrix split point of jaxlib's LAPACK kernels
+LAPACK_MAX_BATCH = 32  # below the batch at which jaxlib's LAPACK kernels split over the pool (docs/speed.md)
 _LAPACK_TYPES = (np.dtype(np.float32), np.dtype(np.float64))  # real types: what MJX uses
 _installed = False
 
@@ -93,14 +88,20 @@ def _lapack_triangular_solve(a, b, *, left_side, lower, transpose_a, unit_diagon
 def _triangular_solve_rule(ctx, a, b, *, left_side, lower, transpose_a, conjugate_a, unit_diagonal, **params):
     """LAPACK for small real batches, XLA's op otherwise (conjugation applies to complex ``a`` only)."""
     if _uses_lapack(ctx.avals_in[0]) and _uses_lapack(ctx.avals_in[1]):
-        solve = lambda a, b: _lapack_triangular_solve(  # noqa: E731
-            a, b, left_side=left_side, lower=lower, transpose_a=transpose_a, unit_diagonal=unit_diagonal
-        )
+
+        def solve(a, b):
+            return _lapack_triangular_solve(
+                a, b, left_side=left_side, lower=lower, transpose_a=transpose_a, unit_diagonal=unit_diagonal
+            )
+
         return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
     if conjugate_a and not transpose_a:  # only complex types: conjugate first, then solve plainly
-        solve = lambda a, b: linalg.triangular_solve(  # noqa: E731
-            jnp.conj(a), b, left_side=left_side, lower=lower, unit_diagonal=unit_diagonal
-        )
+
+        def solve(a, b):
+            return linalg.triangular_solve(
+                jnp.conj(a), b, left_side=left_side, lower=lower, unit_diagonal=unit_diagonal
+            )
+
         return mlir.lower_fun(solve, multiple_results=False)(ctx, a, b)
     transpose = ("ADJOINT" if conjugate_a else "TRANSPOSE") if transpose_a else "NO_TRANSPOSE"
     return [

@@ -23,9 +23,6 @@ from hsa_mjx.sim.cpu_linalg import use_xla_linalg_on_cpu
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.grid import HFIELD_NAME, Grid
 
-use_xla_linalg_on_cpu()  # large vmapped batches would deadlock in jaxlib's CPU LAPACK calls
-
-
 # Action / observation slot order of the original (1A, 2A, 3A, 4A, 1C, 2C, 3C, 4C).
 ACTUATED_JOINTS = (
     "cw_cont_1a_top",
@@ -208,7 +205,13 @@ def local_device() -> jax.Device:
 
 
 def load_robot(config: EnvConfig, asset_dir: Path | None = None) -> RobotModel:
-    """Load the asset for ``config`` once, resolve every name and put it on the configured backend."""
+    """Load the asset for ``config`` once, resolve every name and put it on the configured backend.
+
+    Every env is built through here, so this is where the CPU's large batched Cholesky and triangular
+    solves are lowered to XLA's own ops (``hsa_mjx.sim.cpu_linalg``: jaxlib's LAPACK calls deadlock on a
+    small thread pool); it changes JAX's CPU lowering for the whole process, once.
+    """
+    use_xla_linalg_on_cpu()
     device = local_device()
     impl = backend.resolve(config.physics.backend, device)
     mj_model, pool = load_scene(config, asset_dir)

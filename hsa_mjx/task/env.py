@@ -11,12 +11,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from brax.envs.base import Env as BraxEnv  # noqa: I001
+from brax.envs.base import Env as BraxEnv
 
 from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim import backend, physics
-from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
+from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
 from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
 from hsa_mjx.task import control, goals, observation, privileged, randomization, reward, termination
@@ -125,7 +125,7 @@ class HSAEnv(BraxEnv):
 
     @property
     def spawn_xy(self) -> jax.Array:
-        """Where the robot starts an episode (its position at the spawn pose), (2,): goals' distances count from here."""
+        """Where the robot starts an episode (its position at the spawn pose), (2,): goal distances count from here."""
         return self._origin
 
     @property
@@ -169,10 +169,10 @@ class HSAEnv(BraxEnv):
         if self.world.per_env:  # only then: plane scenes keep their key stream
             rng, terrain_key = jax.random.split(rng)
         tile, terrain_id = self.world.draw(terrain_key, params.terrain_cell)
-        realism = randomization.nominal_state(self.config.randomization, self.action_size)
+        drawn = randomization.nominal_state(self.config.randomization, self.action_size)
         if self.config.randomization.draws:  # static: without randomization the key stream stays as it was
-            rng, realism_key = jax.random.split(rng)
-            realism = randomization.reset_state(realism_key, self.config.randomization, self.action_size, self.dt)
+            rng, draw_key = jax.random.split(rng)
+            drawn = randomization.reset_state(draw_key, self.config.randomization, self.action_size, self.dt)
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)
@@ -197,7 +197,7 @@ class HSAEnv(BraxEnv):
             rng=rng,
             tile=tile,
             terrain_id=terrain_id,
-            realism=realism,
+            randomization=drawn,
         )
         obs, critic, task = self._observe(data, task)
         metrics = self._metrics(
@@ -238,12 +238,13 @@ class HSAEnv(BraxEnv):
         one env on a CPU); control, observation, reward and termination are this env's own."""
         cfg, idx = self.config, self.index
         action, bad_action = control.sanitize_action(jnp.asarray(action, jnp.float32))
-        state, data, applied = self._realism_before_physics(state, action)
+        state, data, applied = self._randomize_before_physics(state, action)
         start = data.ctrl[idx.servo_ids]
         end = control.next_targets(start, applied, cfg.control.max_increment, cfg.control.servo_target_limit)
         targets = control.substep_targets(start, end, cfg.control.frame_skip, cfg.control.smooth_positions)
         before = (observation.robot_xy(data, idx), observation.heading(data, idx))
-        fields = randomization.model_fields(self._nominal, state.pipeline_state.task.realism.physics, cfg.randomization)
+        scales = state.pipeline_state.task.randomization.physics
+        fields = randomization.model_fields(self._nominal, scales, cfg.randomization)
         new_data, stats = simulate(data, targets, fields)
         return self._outcome(state, action, bad_action, before, new_data, stats)
 
@@ -254,19 +255,20 @@ class HSAEnv(BraxEnv):
             return self._host(data, targets, fields)
         return physics.simulate(self.robot.mjx_model.replace(**fields), data, targets, self.index)
 
-    def _realism_before_physics(self, state: EnvState, action: jax.Array) -> tuple[EnvState, mjx.Data, jax.Array]:
+    def _randomize_before_physics(self, state: EnvState, action: jax.Array) -> tuple[EnvState, mjx.Data, jax.Array]:
         """The delayed action the servos see and a push when one is due (state with the queue and key)."""
         cfg, sim = self.config.randomization, state.pipeline_state
         task, data, applied = sim.task, sim.physics, action
         if cfg.max_latency > 0:
-            applied, queue = randomization.delay(task.realism.action_queue, action, task.realism.latency)
-            task = task.replace(realism=task.realism.replace(action_queue=queue))
+            drawn = task.randomization
+            applied, queue = randomization.delay(drawn.action_queue, action, drawn.latency)
+            task = task.replace(randomization=drawn.replace(action_queue=queue))
         if cfg.pushes:
             rng, key = jax.random.split(task.rng)
-            qvel, realism = randomization.apply_push(
-                key, task.realism, data.qvel, task.step_count, cfg, self.config.dt, self.index.block_qvel
+            qvel, drawn = randomization.apply_push(
+                key, task.randomization, data.qvel, task.step_count, cfg, self.config.dt, self.index.block_qvel
             )
-            task, data = task.replace(rng=rng, realism=realism), data.replace(qvel=qvel)
+            task, data = task.replace(rng=rng, randomization=drawn), data.replace(qvel=qvel)
         return state.replace(pipeline_state=SimState(data, task)), data, applied
 
     def _outcome(

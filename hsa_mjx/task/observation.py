@@ -13,10 +13,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+import hsa_mjx.terrain.height_scan
 from hsa_mjx.config import ObservationConfig
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
-from hsa_mjx.terrain import height_scan as scan_module
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
@@ -44,7 +44,7 @@ def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
         + (HEADING_LABELS if config.heading else ())
         + (SERVO_TARGET_LABELS if config.servo_targets else ())
         + (CLOCK_LABELS if config.clock_period_s > 0 else ())
-        + scan_module.labels(config.height_scan)
+        + hsa_mjx.terrain.height_scan.labels(config.height_scan)
     )
 
 

@@ -1,7 +1,7 @@
 """Per-env physical randomisation, action latency, pushes and observation noise (pure JAX).
 
 Each env draws its physical scales from its reset key (:func:`draw`) and keeps them for the episode
-(``TaskState.realism``); every step writes them into the model fields below (:func:`model_fields`)
+(``TaskState.randomization``); every step writes them into the model fields below (:func:`model_fields`)
 before the substeps, the same dict for MJX's JAX and Warp implementations (``mjx.Model.replace``:
 both batch these fields per world) and for C MuJoCo substeps (set on the C model). Only the fields
 of scales whose range differs from [1, 1] are written; the others stay the asset's.
@@ -143,7 +143,7 @@ def model_fields(nominal: NominalModel, scales: PhysicsScales, config: Randomiza
 
 # ----- latency and pushes ---------------------------------------------------------------------
 @struct.dataclass
-class RealismState:
+class RandomizationState:
     """This episode's sim-to-real draws (``randomization``): physical scales, action latency, pushes."""
 
     physics: PhysicsScales  # the model's scales this episode (nominal when nothing is randomised)
@@ -155,9 +155,9 @@ class RealismState:
 NEVER = np.iinfo(np.int32).max  # next_push without pushes
 
 
-def nominal_state(config: RandomizationConfig, action_size: int) -> RealismState:
+def nominal_state(config: RandomizationConfig, action_size: int) -> RandomizationState:
     """An episode without draws: the asset's model, no latency, no pushes (the queue sized for the config)."""
-    return RealismState(
+    return RandomizationState(
         physics=PhysicsScales.nominal(),
         action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
         latency=jnp.zeros((), jnp.int32),
@@ -165,14 +165,14 @@ def nominal_state(config: RandomizationConfig, action_size: int) -> RealismState
     )
 
 
-def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, dt: float) -> RealismState:
+def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, dt: float) -> RandomizationState:
     """An episode's draws from ``key``: scales, latency (uniform in ``latency_steps``), first push."""
     k_physics, k_latency, k_push = jax.random.split(key, 3)
     physics = draw(k_physics, config) if config.physical else PhysicsScales.nominal()
     lo, hi = config.latency_steps
     latency = jax.random.randint(k_latency, (), lo, hi + 1, jnp.int32)
     next_push = push_interval_steps(k_push, config, dt) if config.pushes else jnp.asarray(NEVER, jnp.int32)
-    return RealismState(
+    return RandomizationState(
         physics=physics,
         action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
         latency=latency,
@@ -182,19 +182,19 @@ def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, d
 
 def apply_push(
     key: jax.Array,
-    realism: RealismState,
+    state: RandomizationState,
     qvel: jax.Array,
     step_count: jax.Array,
     config: RandomizationConfig,
     dt: float,
     block_qvel: np.ndarray,
-) -> tuple[jax.Array, RealismState]:
+) -> tuple[jax.Array, RandomizationState]:
     """Push both blocks when this step is the push's (and draw the next one); qvel and the new state."""
     k_velocity, k_next = jax.random.split(key)
-    due = step_count >= realism.next_push
+    due = step_count >= state.next_push
     qvel = jnp.where(due, pushed(qvel, push_velocity(k_velocity, config.push_speed), block_qvel), qvel)
-    next_push = jnp.where(due, step_count + push_interval_steps(k_next, config, dt), realism.next_push)
-    return qvel, realism.replace(next_push=next_push)
+    next_push = jnp.where(due, step_count + push_interval_steps(k_next, config, dt), state.next_push)
+    return qvel, state.replace(next_push=next_push)
 
 
 def delay(queue: jax.Array, action: jax.Array, latency: jax.Array) -> tuple[jax.Array, jax.Array]:

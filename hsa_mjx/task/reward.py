@@ -8,6 +8,8 @@ Quirks of the original that are fixed here are listed in ``docs/environment.md``
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -23,35 +25,34 @@ JOINT_VEL_CLIP, JOINT_VEL_CAP = 50.0, 50.0
 CONSTRAINT_LIMIT = jnp.pi  # |qA - qC| must stay below pi (minus the margin)
 
 
+# The one table of reward weights and per-term parameters is RewardConfig: every float field of it is
+# traced here, under the same name (the bool and int fields are static settings of the terms).
+WEIGHT_NAMES = tuple(f.name for f in dataclasses.fields(RewardConfig) if f.type in (float, "float"))
+
+
 @struct.dataclass
 class RewardWeights:
-    """Reward weights and per-term parameters as traced float32 scalars (may differ per env)."""
+    """RewardConfig's float fields as traced float32 scalars (may differ per env), read as attributes."""
 
-    forward: jax.Array
-    lateral: jax.Array
-    ctrl: jax.Array
-    contact: jax.Array
-    contact_force_threshold: jax.Array
-    constraint: jax.Array
-    constraint_margin: jax.Array
-    constraint_bonus: jax.Array
-    acceleration: jax.Array
-    joint_velocity: jax.Array
-    distance: jax.Array
-    stagnation: jax.Array
-    stagnation_threshold: jax.Array
-    alive: jax.Array
-    goal_bonus: jax.Array
-    checkpoint: jax.Array
-    spiral_completion: jax.Array
-    termination: jax.Array
-    heading_alignment: jax.Array
+    values: dict[str, jax.Array]
+
+    def __getattr__(self, name: str) -> jax.Array:
+        values = self.__dict__.get("values")
+        if values is None or name not in values:
+            raise AttributeError(f"RewardWeights has no weight {name!r}; weights: {list(WEIGHT_NAMES)}")
+        return values[name]
 
     @classmethod
     def from_config(cls, config: RewardConfig) -> RewardWeights:
-        """Take every numeric field of ``config`` that is a weight or term parameter."""
-        names = [f for f in cls.__dataclass_fields__]
-        return cls(**{n: jnp.asarray(getattr(config, n), jnp.float32) for n in names})
+        """Every float field of ``config``."""
+        return cls(values={n: jnp.asarray(getattr(config, n), jnp.float32) for n in WEIGHT_NAMES})
+
+    def with_weights(self, **weights: float | jax.Array) -> RewardWeights:
+        """These weights with some replaced (ValueError naming an unknown one)."""
+        unknown = sorted(set(weights) - set(self.values))
+        if unknown:
+            raise ValueError(f"unknown reward weight(s) {unknown}; weights: {list(WEIGHT_NAMES)}")
+        return RewardWeights(values={**self.values, **{k: jnp.asarray(v, jnp.float32) for k, v in weights.items()}})
 
 
 @struct.dataclass

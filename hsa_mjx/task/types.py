@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import jax
-from brax.envs.base import State as BraxState  # noqa: I001
+from brax.envs.base import State as BraxState
 from flax import struct
 
-from hsa_mjx.sim.backend import mjx  # first: Brax imports MJX, which prints "Failed to import warp" without Warp
-from hsa_mjx.task.randomization import RealismState
+from hsa_mjx.sim.backend import mjx
+from hsa_mjx.task.randomization import RandomizationState
 
 
 @struct.dataclass
@@ -27,7 +27,7 @@ class TaskState:
     rng: jax.Array  # PRNG key of this env
     tile: jax.Array  # () int32, this episode's tile of the run's terrain atlas (0 on a plane or shared terrain)
     terrain_id: jax.Array  # () int32, this env's terrain type (index into hsa_mjx.terrain.TERRAIN_TYPES)
-    realism: RealismState  # this episode's physical scales, latency and next push
+    randomization: RandomizationState  # this episode's physical scales, latency and next push
 
 
 @struct.dataclass

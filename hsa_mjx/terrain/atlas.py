@@ -5,8 +5,9 @@ both MJX implementations, so envs cannot each carry their own heightfield. Inste
 pool of terrains once (per difficulty level, ``tiles_per_type`` of each random type and one of each
 deterministic type; or a single shared one), lays them out as tiles of one large heightfield, and
 each env, at every reset, draws a tile and moves the floor's mocap body (``terrain_frame``) so that
-its tile's centre lies under the world origin. The robot, its goals and every height query stay in the tile's own coordinates,
-exactly those of the original 10 x 10 m field: the same code serves a plane, one terrain, or a pool.
+its tile's centre lies under the world origin. The robot, its goals and every height query stay in the
+tile's own coordinates, exactly those of the original 10 x 10 m field: the same code serves a plane,
+one terrain, or a pool.
 
 Layout: one row of tiles per configured type (rows along world y); along a row (x) the tiles of level
 0, then those of level 1, and so on. Tiles do not share vertices (a 1-cell seam joins neighbours),

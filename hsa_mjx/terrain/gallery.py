@@ -16,17 +16,14 @@ import dataclasses
 from pathlib import Path
 
 import jax
-import matplotlib
+import mujoco
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hsa_mjx.resources import scene_path  # noqa: E402
-from hsa_mjx.terrain.grid import Grid  # noqa: E402
-from hsa_mjx.terrain.params import TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig  # noqa: E402
-from hsa_mjx.terrain.sampler import TerrainSampler  # noqa: E402
+from hsa_mjx.resources import scene_path
+from hsa_mjx.terrain.grid import Grid
+from hsa_mjx.terrain.params import TERRAIN_TYPES, FlatSpawnConfig, TerrainConfig
+from hsa_mjx.terrain.sampler import TerrainSampler
 
 OUTPUT = Path("docs") / "terrains.png"  # relative to where it runs: the checkout root redraws the README figure
 NO_SPAWN_ZONE = ("corridor", "spiral")  # their task configs disable it
@@ -42,7 +39,7 @@ def terrain_heights(terrain_type: str, grid: Grid, seed: int) -> np.ndarray:
     return np.asarray(data).reshape(grid.nrow, grid.ncol) * grid.z_scale
 
 
-def _draw(fig: plt.Figure, spec, terrain_type: str, grid: Grid, heights: np.ndarray) -> None:
+def _draw(fig: Figure, spec, terrain_type: str, grid: Grid, heights: np.ndarray) -> None:
     """One type: height map (left) and 3-D surface (right), sharing the colour scale."""
     extent = (-grid.half_x, grid.half_x, -grid.half_y, grid.half_y)
     top = max(float(heights.max()), 1e-3)
@@ -68,7 +65,7 @@ def render_gallery(out: Path, seed: int = 0) -> Path:
     model = mujoco.MjModel.from_xml_path(str(scene_path("terrain")))
     grid = Grid.from_model(model)
     rows = -(-len(TERRAIN_TYPES) // COLUMNS)
-    fig = plt.figure(figsize=(6.6 * COLUMNS, 3.0 * rows))
+    fig = Figure(figsize=(6.6 * COLUMNS, 3.0 * rows))
     outer = fig.add_gridspec(rows, COLUMNS, hspace=0.35, wspace=0.15)
     for i, terrain_type in enumerate(TERRAIN_TYPES):
         spec = outer[i // COLUMNS, i % COLUMNS].subgridspec(1, 2, width_ratios=(1.0, 1.4), wspace=0.0)
@@ -76,7 +73,6 @@ def render_gallery(out: Path, seed: int = 0) -> Path:
     fig.suptitle("The eleven terrain generators (world axes; red: the robot at its spawn)", fontsize=13)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=80, bbox_inches="tight")
-    plt.close(fig)
     return out
 
 

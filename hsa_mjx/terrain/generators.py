@@ -194,7 +194,8 @@ def poles(
 def flat_with_incline(
     key: jax.Array, p: FlatWithInclineParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
 ) -> jax.Array:
-    """Flat ground; inside the rectangle a slope (``difficulty x angle``) rising from 0 at its start edge, then a drop."""
+    """Flat ground; inside the rectangle a slope (``difficulty x angle``) rising from 0 at its start edge,
+    then a drop."""
     x0, x1 = (grid.fraction_to_x(f) for f in p.x_range)
     y0, y1 = (grid.fraction_to_y(f) for f in p.y_range)
     inside = (x >= x0) & (x < x1) & (y >= y0) & (y < y1)

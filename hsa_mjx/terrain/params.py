@@ -313,60 +313,10 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     return config
 
 
-SPIRAL_GOAL_KEYS = {
-    "spiral_start_radius": "start_radius",
-    "spiral_end_radius": "end_radius",
-    "spiral_turns": "turns",
-}  # goal keys of older configs -> terrain.spiral keys
-
-
-def upgrade_keys(data: dict, mixed: str) -> dict:
-    """Map keys that older configs, policy files and checkpoints hold onto the current ones.
-
-    ``terrain_type: X`` is a shorthand for ``terrain.types: [X]`` (with ``terrain.types`` given it must
-    name the same types, ``mixed`` for several); ``goal.spiral_start_radius`` / ``spiral_end_radius`` /
-    ``spiral_turns`` are ``terrain.spiral``'s ``start_radius`` / ``end_radius`` / ``turns`` (the
-    checkpoints lie on the track). ``terrain.types`` without ``proportions`` get uniform ones.
-    """
-    data = dict(data)
+def with_default_proportions(data: dict) -> dict:
+    """An env config mapping whose ``terrain.types`` without ``proportions`` get equal shares."""
     section = data.get("terrain")
-    section = dict(section) if isinstance(section, Mapping) else ({} if section is None else section)
-    if "terrain_type" in data:
-        _terrain_type_into(data.pop("terrain_type"), section, mixed)
-    goal = data.get("goal")
-    if isinstance(goal, Mapping) and isinstance(section, dict) and any(k in goal for k in SPIRAL_GOAL_KEYS):
-        goal, spiral = dict(goal), dict(section.get("spiral") or {})
-        for old, new in SPIRAL_GOAL_KEYS.items():
-            if old in goal:
-                value = goal.pop(old)
-                if new in spiral and spiral[new] != value:
-                    raise ValueError(
-                        f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
-                        f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)"
-                    )
-                spiral[new] = value
-        data["goal"], section["spiral"] = goal, spiral
-    if isinstance(section, dict) and isinstance(section.get("types"), (list, tuple)) and section["types"]:
-        section.setdefault("proportions", [1.0 / len(section["types"])] * len(section["types"]))
-    if section != {} or "terrain" in data:
-        data["terrain"] = section
+    if isinstance(section, Mapping) and isinstance(section.get("types"), (list, tuple)) and section["types"]:
+        types = section["types"]
+        data = {**data, "terrain": {"proportions": [1.0 / len(types)] * len(types), **section}}
     return data
-
-
-def _terrain_type_into(kind: Any, section: dict, mixed: str) -> None:
-    """Put the ``terrain_type`` shorthand into the terrain section (checked against its types)."""
-    if kind != mixed and kind not in TERRAIN_TYPES:
-        raise ValueError(
-            f"config key 'terrain_type' = {kind!r} is not valid; choose one of "
-            f"{list(TERRAIN_TYPES) + [mixed]} (a shorthand for terrain.types: [TYPE])"
-        )
-    types = section.get("types") if isinstance(section, dict) else None
-    if types is None:
-        if kind == mixed:
-            raise ValueError(f"terrain_type '{mixed}' needs 'terrain.types' (the types to draw from)")
-        section.update(types=[kind], proportions=[1.0])
-    elif (list(types) != [kind]) if kind != mixed else len(types) < 2:
-        raise ValueError(
-            f"config key 'terrain_type' = {kind!r} does not match 'terrain.types' = {list(types)}; "
-            f"set 'terrain.types' alone"
-        )

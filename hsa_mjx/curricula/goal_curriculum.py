@@ -12,7 +12,7 @@ Differences from the original, deliberately:
 - Under ``pmap`` the outcomes of all devices are gathered first, so every device applies the same
   update and the curriculum stays identical everywhere (the original's workers each had their own
   manager, and its resume never restored the workers' state).
-- ``progress`` is 1.0 when the initial and target maxima coincide (the original divided by zero).
+- ``progress`` is 1.0 when the start and target maxima coincide (the original divided by zero).
 """
 
 from __future__ import annotations
@@ -25,12 +25,11 @@ from flax import struct
 
 
 @dataclasses.dataclass(frozen=True)
-class CurriculumConfig:
-    """Static curriculum settings (the original's shipped values as defaults)."""
+class GoalCurriculumConfig:
+    """Static settings (the original's shipped values as defaults). The range starts where the env's
+    goals start, ``env.goal.radial_range``: every function takes that ``start`` range as an argument."""
 
     enabled: bool = True
-    # where the range starts: the training config sets it to env.goal.radial_range (not a key of its own)
-    initial_range: tuple[float, float] = (1.5, 1.8)
     target_range: tuple[float, float] = (1.5, 4.5)
     success_threshold: float = 0.75
     failure_threshold: float = 0.30
@@ -39,46 +38,48 @@ class CurriculumConfig:
     min_episodes: int = 100
     dead_zone_radius: float = 1.2
 
-    @property
-    def min_distance(self) -> float:
-        """Fixed lower end of the goal distance range."""
-        return max(self.initial_range[0], self.dead_zone_radius)
+
+Range = tuple[float, float]
 
 
-def validate(config: CurriculumConfig) -> CurriculumConfig:
+def min_distance(config: GoalCurriculumConfig, start: Range) -> float:
+    """Fixed lower end of the goal distance range."""
+    return max(start[0], config.dead_zone_radius)
+
+
+def validate(config: GoalCurriculumConfig, start: Range) -> GoalCurriculumConfig:
     """Raise ValueError (naming the key) on inconsistent settings; return the config."""
-    (i_lo, i_hi), (t_lo, t_hi) = config.initial_range, config.target_range
+    (i_lo, i_hi), (t_lo, t_hi) = start, config.target_range
     if not 0 <= i_lo <= i_hi:
         raise ValueError(
-            f"the curriculum's initial_range (env.goal.radial_range) must satisfy 0 <= min <= max, "
-            f"got {config.initial_range}"
+            f"the goal curriculum's start (env.goal.radial_range) must satisfy 0 <= min <= max, got {start}"
         )
     if not 0 <= t_lo <= t_hi or t_hi < i_hi:
         raise ValueError(
-            f"curriculum.target_range must satisfy 0 <= min <= max and max >= initial max, "
-            f"got {config.target_range} (initial {config.initial_range})"
+            f"goal_curriculum.target_range must satisfy 0 <= min <= max and max >= the start's max, "
+            f"got {config.target_range} (start, env.goal.radial_range: {start})"
         )
     if not 0 <= config.failure_threshold <= config.success_threshold <= 1:
         raise ValueError(
-            "curriculum thresholds must satisfy 0 <= failure_threshold <= success_threshold <= 1, "
+            "goal_curriculum thresholds must satisfy 0 <= failure_threshold <= success_threshold <= 1, "
             f"got {config.failure_threshold}, {config.success_threshold}"
         )
     for key in ("window_size", "min_episodes"):
         if getattr(config, key) < 1:
-            raise ValueError(f"curriculum.{key} must be >= 1, got {getattr(config, key)}")
+            raise ValueError(f"goal_curriculum.{key} must be >= 1, got {getattr(config, key)}")
     if config.expansion_step <= 0 or config.dead_zone_radius < 0:
-        raise ValueError("curriculum.expansion_step must be > 0 and curriculum.dead_zone_radius >= 0")
-    if config.min_distance > i_hi:
+        raise ValueError("goal_curriculum.expansion_step must be > 0 and goal_curriculum.dead_zone_radius >= 0")
+    if min_distance(config, start) > i_hi:
         raise ValueError(
-            f"curriculum: max(initial_range[0], dead_zone_radius) = {config.min_distance} "
-            f"exceeds initial_range[1] = {i_hi} (initial_range: env.goal.radial_range)"
+            f"goal_curriculum: max(env.goal.radial_range[0], dead_zone_radius) = {min_distance(config, start)} "
+            f"exceeds env.goal.radial_range[1] = {i_hi}"
         )
     return config
 
 
 @struct.dataclass
-class CurriculumState:
-    """Curriculum state (all traced; identical on every device)."""
+class GoalCurriculumState:
+    """Goal curriculum state (all traced; identical on every device)."""
 
     max_distance: jax.Array  # () current upper end of the goal distance range (m)
     outcomes: jax.Array  # (window,) bool ring buffer of the latest episode outcomes
@@ -87,10 +88,10 @@ class CurriculumState:
     episodes_since_change: jax.Array  # () int32 episodes since the range last changed
 
 
-def init(config: CurriculumConfig) -> CurriculumState:
-    """The state at the start of training: the initial range, an empty window."""
-    return CurriculumState(
-        max_distance=jnp.asarray(config.initial_range[1], jnp.float32),
+def init(config: GoalCurriculumConfig, start: Range) -> GoalCurriculumState:
+    """The state at the start of training: the start range, an empty window."""
+    return GoalCurriculumState(
+        max_distance=jnp.asarray(start[1], jnp.float32),
         outcomes=jnp.zeros((config.window_size,), bool),
         filled=jnp.zeros((), jnp.int32),
         episode_count=jnp.zeros((), jnp.int32),
@@ -98,19 +99,19 @@ def init(config: CurriculumConfig) -> CurriculumState:
     )
 
 
-def goal_range(state: CurriculumState, config: CurriculumConfig) -> jax.Array:
+def goal_range(state: GoalCurriculumState, config: GoalCurriculumConfig, start: Range) -> jax.Array:
     """The (min, max) goal distance new episodes sample from, shape (2,)."""
-    return jnp.stack([jnp.asarray(config.min_distance, jnp.float32), state.max_distance])
+    return jnp.stack([jnp.asarray(min_distance(config, start), jnp.float32), state.max_distance])
 
 
-def success_rate(state: CurriculumState) -> jax.Array:
+def success_rate(state: GoalCurriculumState) -> jax.Array:
     """Mean outcome over the filled part of the window (0 when empty)."""
     window = state.outcomes.shape[0]
     count = jnp.minimum(state.filled, window)
     return jnp.where(count > 0, jnp.sum(state.outcomes) / jnp.maximum(count, 1), 0.0).astype(jnp.float32)
 
 
-def _insert(state: CurriculumState, success: jax.Array, done: jax.Array) -> CurriculumState:
+def _insert(state: GoalCurriculumState, success: jax.Array, done: jax.Array) -> GoalCurriculumState:
     """Write the outcomes of the finished episodes (``done``) into the ring, keeping the last ``window``."""
     window = state.outcomes.shape[0]
     done = done.astype(bool).reshape(-1)
@@ -127,13 +128,15 @@ def _insert(state: CurriculumState, success: jax.Array, done: jax.Array) -> Curr
     )
 
 
-def update(state: CurriculumState, success: jax.Array, done: jax.Array, config: CurriculumConfig) -> CurriculumState:
+def update(
+    state: GoalCurriculumState, success: jax.Array, done: jax.Array, config: GoalCurriculumConfig, start: Range
+) -> GoalCurriculumState:
     """Record a batch of episode ends and widen or narrow the range by the original's rule.
 
     ``success`` and ``done`` are boolean arrays of any (equal) shape; only entries with ``done``
     count. The rule fires once the window is full and ``min_episodes`` have passed since the last
     change: rate >= success_threshold widens by ``expansion_step`` (up to the target maximum), rate <
-    failure_threshold narrows (down to the initial maximum); a real change clears the window.
+    failure_threshold narrows (down to the start maximum); a real change clears the window.
     """
     if not config.enabled:
         return state
@@ -142,7 +145,7 @@ def update(state: CurriculumState, success: jax.Array, done: jax.Array, config: 
     ready = (state.episodes_since_change >= config.min_episodes) & (state.filled >= config.window_size)
     step = jnp.float32(config.expansion_step)
     wider = jnp.minimum(state.max_distance + step, config.target_range[1])
-    narrower = jnp.maximum(state.max_distance - step, config.initial_range[1])
+    narrower = jnp.maximum(state.max_distance - step, start[1])
     new_max = jnp.where(
         ready & (rate >= config.success_threshold),
         wider,
@@ -158,10 +161,10 @@ def update(state: CurriculumState, success: jax.Array, done: jax.Array, config: 
     )
 
 
-def metrics(state: CurriculumState, config: CurriculumConfig) -> dict[str, jax.Array]:
+def metrics(state: GoalCurriculumState, config: GoalCurriculumConfig, start: Range) -> dict[str, jax.Array]:
     """The original's ``curriculum/*`` log keys as arrays."""
-    span = config.target_range[1] - config.initial_range[1]
-    progress = (state.max_distance - config.initial_range[1]) / span if span > 0 else jnp.ones(())
+    span = config.target_range[1] - start[1]
+    progress = (state.max_distance - start[1]) / span if span > 0 else jnp.ones(())
     return {
         "curriculum/max_distance": state.max_distance,
         "curriculum/success_rate": success_rate(state),

@@ -10,7 +10,7 @@ every easy level at once instead of all envs starting on level ground.
 
 The state is one pytree of per-env arrays (:class:`TerrainLevels`) that travels with the env batch:
 updated inside the jitted step where an episode ends, sharded with the envs over devices, saved in
-checkpoints. It composes with the goal-distance curriculum (``hsa_mjx.curricula.goal``), which sets how
+checkpoints. It composes with the goal-distance curriculum (``hsa_mjx.curricula.goal_curriculum``), which sets how
 far the goals are; this one sets on which ground.
 """
 
@@ -27,7 +27,11 @@ from hsa_mjx.terrain.params import TerrainConfig
 
 REDRAW_SALT = 0x5EED  # folded into an env's key for its top-level re-draw (independent of its reset draws)
 START_SALT = 0x7E11  # folded into an env's key for its start level
-OUTCOME_KEYS = ("cell_episodes", "cell_success")  # per-cell sums in the batch totals (arrays)
+OUTCOME_KEYS = ("cell_episodes", "cell_success")
+FIELDS = (
+    "terrain_type",
+    "level",
+)  # of TerrainLevels, in the order of to_host's arrays  # per-cell sums in the batch totals (arrays)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,22 +73,23 @@ def validate(
 
 @struct.dataclass
 class TerrainLevels:
-    """Every env's terrain cell: its type (row of ``terrain.types``) and difficulty level, (B,) int32 each."""
+    """Every env's terrain cell: its terrain type (index into ``terrain.types``) and difficulty level,
+    (B,) int32 each."""
 
-    row: jax.Array
+    terrain_type: jax.Array
     level: jax.Array
 
     def cells(self) -> jax.Array:
-        """(B, 2) int32 (row, level) pairs, as ``HSAEnv.reset_with_goal_range`` takes them per env."""
-        return jnp.stack([self.row, self.level], axis=-1)
+        """(B, 2) int32 (terrain type, level) pairs: each env's ``EnvParams.terrain_cell``."""
+        return jnp.stack([self.terrain_type, self.level], axis=-1)
 
 
-def type_rows(batch: int, proportions: tuple[float, ...]) -> np.ndarray:
-    """Each env's type row, split over the batch in proportion (env i takes the type whose cumulative
+def type_indices(batch: int, proportions: tuple[float, ...]) -> np.ndarray:
+    """Each env's terrain type, split over the batch in proportion (env i takes the type whose cumulative
     share covers (i + 0.5) / batch), (batch,) int32."""
     edges = np.cumsum(np.asarray(proportions, np.float64))
-    rows = np.searchsorted(edges, (np.arange(batch) + 0.5) / batch, side="right")
-    return np.minimum(rows, len(proportions) - 1).astype(np.int32)
+    types = np.searchsorted(edges, (np.arange(batch) + 0.5) / batch, side="right")
+    return np.minimum(types, len(proportions) - 1).astype(np.int32)
 
 
 def initial_max_level(config: TerrainCurriculumConfig, levels: int) -> int:
@@ -97,13 +102,15 @@ def init(keys: jax.Array, config: TerrainCurriculumConfig, terrain: TerrainConfi
     batch = keys.shape[0]
     top = initial_max_level(config, terrain.levels)
     level = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, START_SALT), (), 0, top + 1))(keys)
-    return TerrainLevels(row=jnp.asarray(type_rows(batch, terrain.proportions)), level=level.astype(jnp.int32))
+    return TerrainLevels(
+        terrain_type=jnp.asarray(type_indices(batch, terrain.proportions)), level=level.astype(jnp.int32)
+    )
 
 
 def placeholder(batch: int) -> TerrainLevels:
     """Zeros in the state's shape, for batches without the curriculum (the pytree keeps one structure)."""
     zeros = jnp.zeros((batch,), jnp.int32)
-    return TerrainLevels(row=zeros, level=zeros)
+    return TerrainLevels(terrain_type=zeros, level=zeros)
 
 
 def update(
@@ -133,8 +140,8 @@ def update(
 
 
 def cell_index(state: TerrainLevels, levels: int) -> jax.Array:
-    """Each env's cell as one index, row x levels + level, (B,) int32 (the outcome arrays' layout)."""
-    return state.row * levels + state.level
+    """Each env's cell as one index, terrain type x levels + level, (B,) int32 (the outcome arrays' layout)."""
+    return state.terrain_type * levels + state.level
 
 
 def cell_outcomes(
@@ -164,7 +171,7 @@ def totals(state: TerrainLevels, types: tuple[str, ...], levels: int) -> dict[st
     out = {}
     top = state.level == levels - 1
     for i, name in enumerate(types):
-        mine = state.row == i
+        mine = state.terrain_type == i
         out[f"terrain_envs/{name}"] = jnp.sum(mine, dtype=jnp.float32)
         out[f"terrain_level_sum/{name}"] = jnp.sum(jnp.where(mine, state.level, 0), dtype=jnp.float32)
         out[f"terrain_top/{name}"] = jnp.sum(mine & top, dtype=jnp.float32)
@@ -202,16 +209,14 @@ def _cell_success(sums: dict[str, float]) -> dict[str, float]:
 
 def to_host(states: list[TerrainLevels]) -> dict[str, np.ndarray]:
     """One flat (envs,) array per field from per-device states (device order), for a checkpoint."""
-    return {
-        name: np.concatenate([np.asarray(getattr(s, name)).reshape(-1) for s in states]) for name in ("row", "level")
-    }
+    return {name: np.concatenate([np.asarray(getattr(s, name)).reshape(-1) for s in states]) for name in FIELDS}
 
 
 def from_host(saved: dict[str, np.ndarray], batch: int, seed: int = 0) -> TerrainLevels:
     """The saved levels for a batch of ``batch`` envs: as saved when the size matches, else each new env
     takes the cell of a randomly chosen saved env (the same distribution over types and levels)."""
-    row, level = (np.asarray(saved[k], np.int32).reshape(-1) for k in ("row", "level"))
-    if row.shape[0] != batch:
-        pick = np.random.default_rng(seed).integers(0, row.shape[0], batch)
-        row, level = row[pick], level[pick]
-    return TerrainLevels(row=jnp.asarray(row), level=jnp.asarray(level))
+    kind, level = (np.asarray(saved[k], np.int32).reshape(-1) for k in FIELDS)
+    if kind.shape[0] != batch:
+        pick = np.random.default_rng(seed).integers(0, kind.shape[0], batch)
+        kind, level = kind[pick], level[pick]
+    return TerrainLevels(terrain_type=jnp.asarray(kind), level=jnp.asarray(level))

@@ -1,0 +1,130 @@
+"""Every key that older configs, policy files and checkpoints hold, mapped onto today's keys.
+
+Configs are plain nested dicts here, before any dataclass is built, so that a file written by an
+earlier version loads as the config it meant. Each rule names what it maps; a value that contradicts
+today's key is refused (``ValueError``) rather than silently dropped.
+
+Env config (``env_keys``):
+
+- ``terrain_type: X`` is a shorthand for ``terrain.types: [X]`` (``mixed`` for several types, given
+  in ``terrain.types``);
+- ``goal.spiral_start_radius`` / ``spiral_end_radius`` / ``spiral_turns`` are ``terrain.spiral``'s
+  ``start_radius`` / ``end_radius`` / ``turns`` (the checkpoints lie on the track).
+
+Training config (``training_keys``), after ``env_keys`` on its ``env`` section:
+
+- ``curriculum:`` is ``goal_curriculum:`` (beside ``terrain_curriculum:``);
+- ``curriculum.initial_range`` stated the goal curriculum's start again: it is ``env.goal.radial_range``
+  (refused where both are given and differ; dropped with the curriculum off, where it did nothing);
+- ``run.multi_device`` is ``run.collection`` (``per_device`` is ``thread_per_device``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+MIXED = "mixed"  # terrain_type of a batch drawing from several types
+SPIRAL_GOAL_KEYS = {"spiral_start_radius": "start_radius", "spiral_end_radius": "end_radius", "spiral_turns": "turns"}
+SECTION_NAMES = {"curriculum": "goal_curriculum"}  # older training config section -> today's
+OLD_COLLECTION = {"auto": "auto", "pmap": "pmap", "per_device": "thread_per_device"}  # run.multi_device values
+
+
+def env_keys(data: Mapping[str, Any], terrain_types: tuple[str, ...]) -> dict:
+    """An env config mapping with older keys moved to today's (``terrain_types``: the valid type names)."""
+    data = dict(data)
+    section = data.get("terrain")
+    section = dict(section) if isinstance(section, Mapping) else ({} if section is None else section)
+    if "terrain_type" in data:
+        _terrain_type_into(data.pop("terrain_type"), section, terrain_types)
+    goal = data.get("goal")
+    if isinstance(goal, Mapping) and isinstance(section, dict) and any(k in goal for k in SPIRAL_GOAL_KEYS):
+        data["goal"], section["spiral"] = _spiral_keys(dict(goal), dict(section.get("spiral") or {}))
+    if section != {} or "terrain" in data:
+        data["terrain"] = section
+    return data
+
+
+def _spiral_keys(goal: dict, spiral: dict) -> tuple[dict, dict]:
+    """The goal section's old spiral keys moved into the terrain's spiral section."""
+    for old, new in SPIRAL_GOAL_KEYS.items():
+        if old in goal:
+            value = goal.pop(old)
+            if new in spiral and spiral[new] != value:
+                raise ValueError(
+                    f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
+                    f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)"
+                )
+            spiral[new] = value
+    return goal, spiral
+
+
+def _terrain_type_into(kind: Any, section: dict, terrain_types: tuple[str, ...]) -> None:
+    """Put the ``terrain_type`` shorthand into the terrain section (checked against its types)."""
+    if kind != MIXED and kind not in terrain_types:
+        raise ValueError(
+            f"config key 'terrain_type' = {kind!r} is not valid; choose one of "
+            f"{list(terrain_types) + [MIXED]} (a shorthand for terrain.types: [TYPE])"
+        )
+    types = section.get("types") if isinstance(section, dict) else None
+    if types is None:
+        if kind == MIXED:
+            raise ValueError(f"terrain_type '{MIXED}' needs 'terrain.types' (the types to draw from)")
+        section.update(types=[kind], proportions=[1.0])
+    elif (list(types) != [kind]) if kind != MIXED else len(types) < 2:
+        raise ValueError(
+            f"config key 'terrain_type' = {kind!r} does not match 'terrain.types' = {list(types)}; "
+            f"set 'terrain.types' alone"
+        )
+
+
+def training_keys(data: Mapping[str, Any]) -> dict:
+    """A training config mapping with older section and key names moved to today's (env keys untouched)."""
+    data = dict(data)
+    for old, new in SECTION_NAMES.items():
+        if old in data:
+            if new in data:
+                raise ValueError(f"config sections '{old}' and '{new}' are the same: give '{new}'")
+            data[new] = data.pop(old)
+    data["env"], data["goal_curriculum"] = _start_range_in_env(data.get("env"), data.get("goal_curriculum"))
+    if data["goal_curriculum"] is None:
+        del data["goal_curriculum"]
+    if data["env"] is None:
+        del data["env"]
+    run = data.get("run")
+    if isinstance(run, Mapping) and "multi_device" in run:
+        data["run"] = _collection_key(dict(run))
+    return data
+
+
+def _start_range_in_env(env: Any, curriculum: Any) -> tuple[Any, Any]:
+    """``goal_curriculum.initial_range`` moved into ``env.goal.radial_range`` (see the module doc)."""
+    if not (isinstance(curriculum, Mapping) and "initial_range" in curriculum):
+        return env, curriculum
+    curriculum = dict(curriculum)
+    start = list(curriculum.pop("initial_range"))
+    goal = env.get("goal") if isinstance(env, Mapping) else None
+    malformed = not isinstance(env, (Mapping, type(None))) or not isinstance(goal, (Mapping, type(None)))
+    if not curriculum.get("enabled", True) or malformed:
+        return env, curriculum  # off: it had no effect; a malformed section gets its own error later
+    goal = dict(goal or {})
+    if list(goal.setdefault("radial_range", start)) != start:
+        raise ValueError(
+            f"curriculum.initial_range {start} differs from env.goal.radial_range "
+            f"{list(goal['radial_range'])}: the goal curriculum starts from env.goal.radial_range; set it alone"
+        )
+    return {**(env or {}), "goal": goal}, curriculum
+
+
+def _collection_key(run: dict) -> dict:
+    """``run.multi_device`` as ``run.collection``."""
+    old = run.pop("multi_device")
+    if old not in OLD_COLLECTION:
+        raise ValueError(f"config key 'run.multi_device' = {old!r}; choose one of {list(OLD_COLLECTION)}")
+    if "collection" in run and run["collection"] != OLD_COLLECTION[old]:
+        raise ValueError(
+            f"config keys 'run.multi_device' = {old!r} and 'run.collection' = {run['collection']!r} "
+            "differ: give 'run.collection' alone"
+        )
+    run["collection"] = OLD_COLLECTION[old]
+    return run

@@ -1,0 +1,234 @@
+"""What ``python -m train.evaluate`` does: its arguments, the run or policy they name, the episodes and files.
+
+The command itself is ``hsa_mjx_train.evaluate`` (it sets up offscreen rendering before this module,
+which imports MuJoCo, is imported). The episodes are played by ``hsa_mjx_train.rollout``, per terrain
+type and difficulty by ``hsa_mjx_train.terrain_eval``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hsa_mjx.config import BACKENDS
+from hsa_mjx.deploy import policy_file
+from hsa_mjx.sim.backend import for_one_env
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx_train import diagnostics, terrain_eval
+from hsa_mjx_train.config import TrainConfig
+from hsa_mjx_train.policy_sources import (
+    default_goal_range,
+    evaluation_env_config,
+    load_policy,
+    load_shipped_policy,
+)
+from hsa_mjx_train.rollout import rollout, summarize
+
+CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
+
+
+def parse_args(argv: list[str] | None, description: str | None = None) -> argparse.Namespace:
+    """The command line's arguments."""
+    parser = argparse.ArgumentParser(
+        prog="python -m train.evaluate", description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("run_dir", nargs="?", help="a run directory written by python -m train")
+    parser.add_argument(
+        "--policy",
+        default=None,
+        metavar="NAME_OR_DIR",
+        help="evaluate a policy directory instead: a folder name under policies/ or a path",
+    )
+    parser.add_argument(
+        "--episodes", type=int, default=None, help=f"episodes (default 16 for a run, {CPU_EPISODES} for --policy)"
+    )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="max steps per episode (default: the env's "
+        f"max_episode_steps for a run, at most {CPU_STEPS} for --policy)",
+    )
+    parser.add_argument(
+        "--goal-range",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("MIN", "MAX"),
+        help="radial goal distance range (default: the curriculum's target range, or "
+        "the env's goal.radial_range when the curriculum is off)",
+    )
+    parser.add_argument(
+        "--stochastic",
+        action="store_true",
+        help="sample actions from the policy as in training (default: its mean action; run directories only)",
+    )
+    parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
+    parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="env.KEY=VALUE",
+        help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
+        "not env.observation.*)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="auto",
+        help="physics to evaluate on (env.physics.backend): c, the substeps in C MuJoCo "
+        "(hsa_mjx.sim.host_physics), several times faster on a CPU; jax or warp, MJX's; "
+        "auto (default): c on a CPU, MJX on a GPU (Warp when installed)",
+    )
+    parser.add_argument(
+        "--terrain-types",
+        default=None,
+        metavar="all|T1,T2",
+        help="evaluate per terrain type: 'all' (the run's types) or a list (with --levels)",
+    )
+    parser.add_argument(
+        "--levels",
+        default=None,
+        metavar="D1,D2",
+        help="terrain difficulties in [0, 1] to evaluate each type at (default: the run's top)",
+    )
+    return parser.parse_args(argv)
+
+
+def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
+    """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
+    if (args.run_dir is None) == (args.policy is None):
+        raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
+    if args.episodes is not None and args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.policy is not None:
+        if args.stochastic:
+            raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
+        directory = policy_file.locate(args.policy)
+        config, env, policy, shipped = load_shipped_policy(
+            directory, args.backend, _episodes(args, True), tuple(args.overrides)
+        )
+        out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
+        header = {
+            "policy_dir": str(directory),
+            "source": shipped.meta.get("source", {}),
+            "step": shipped.meta.get("source", {}).get("env_steps"),
+            **({"env_overrides": args.overrides} if args.overrides else {}),
+        }
+        return config, env, policy, header, out
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"run directory not found: {run_dir}")
+    config, env, policy, path, step = load_policy(
+        run_dir,
+        deterministic=not args.stochastic,
+        backend=args.backend,
+        num_envs=_episodes(args, False),
+        overrides=tuple(args.overrides),
+    )
+    header = {"checkpoint": str(path), "step": step, **({"env_overrides": args.overrides} if args.overrides else {})}
+    return config, env, policy, header, Path(args.out) if args.out else run_dir / "eval"
+
+
+def check_goal_range(goal_range: list[float] | None, config: TrainConfig) -> None:
+    """A ValueError when ``--goal-range`` is out of order or the env's goals are not radial (it would be ignored)."""
+    if goal_range is None:
+        return
+    low, high = goal_range
+    if not 0.0 < low <= high:
+        raise ValueError(f"--goal-range MIN MAX must satisfy 0 < MIN <= MAX, got {low:g} {high:g}")
+    if config.env.goal.mode != "radial":
+        raise ValueError(
+            f"--goal-range sets radial goal distances, but this env's goals are "
+            f"{config.env.goal.mode!r} (env.goal.mode); add --set env.goal.mode=radial"
+        )
+
+
+def _episodes(args: argparse.Namespace, shipped: bool) -> int:
+    """Episodes to play: as asked, else 16 for a run and CPU_EPISODES for a shipped policy."""
+    return args.episodes or (CPU_EPISODES if shipped else 16)
+
+
+def run(argv: list[str] | None = None, description: str | None = None) -> int:
+    """``python -m train.evaluate``'s work, once the process is set up for rendering (``hsa_mjx_train.evaluate``)."""
+    args = parse_args(argv, description)
+    args.backend = for_one_env(args.backend)  # auto: C MuJoCo on a CPU, where MJX batches of one env are slow
+    try:
+        config, env, policy, header, out = load_subject(args)
+        check_goal_range(args.goal_range, config)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    shipped = args.policy is not None
+    if args.terrain_types is not None or args.levels is not None:
+        return by_terrain(args, config, policy, header, out)
+    episodes = _episodes(args, shipped)
+    steps = args.steps or (
+        min(CPU_STEPS, config.env.termination.max_episode_steps)
+        if shipped
+        else config.env.termination.max_episode_steps
+    )
+    goal_range = args.goal_range or default_goal_range(config)
+    keys = jax.random.split(jax.random.PRNGKey(args.seed), episodes)
+    traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
+    traces = {k: np.asarray(v) for k, v in traces.items()}
+    radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
+    result = {
+        **header,
+        "goal_range": list(goal_range) if radial else None,
+        "policy": "stochastic" if args.stochastic else "deterministic",
+        "max_steps": steps,
+        "physics": "c_mujoco" if env.physics_backend == "c" else f"mjx_{env.physics_backend}",
+        **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral"),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+
+    written = diagnostics.write_all(traces, env, out, video=args.video)
+    result["files"] = [str(p) for p in written]
+    (out / "eval.json").write_text(json.dumps(result, indent=1))
+    for key, value in result.items():
+        if key not in ("files", "source"):
+            print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
+    print(f"wrote {len(written)} files to {out}")
+    return 0
+
+
+def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: dict, out: Path) -> int:
+    """``--terrain-types`` / ``--levels``: the table of success and progress per terrain type and difficulty."""
+
+    try:
+        types = terrain_eval.parse_types(args.terrain_types or "all", config.env)
+        levels = terrain_eval.parse_levels(args.levels or str(config.env.terrain.difficulty))
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    episodes = _episodes(args, args.policy is not None)
+    steps = args.steps or config.env.termination.max_episode_steps
+    goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
+    env_config = evaluation_env_config(config.env, args.backend)
+
+    def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
+        return rollout(env, policy, keys, goal_range, steps, cells=cells)
+
+    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed)
+    print(terrain_eval.table(rows))
+    header = {
+        **header,
+        "goal_range": [float(v) for v in goal_range],
+        "max_steps": steps,
+        "policy": "stochastic" if args.stochastic else "deterministic",
+        "episodes_per_cell": episodes,
+    }
+    written = terrain_eval.write(rows, header, out)
+    print(f"wrote {len(written)} files to {out}")
+    return 0

@@ -1,0 +1,175 @@
+"""How the devices share a training epoch: the collection strategies of ``run.collection``.
+
+One learner (``hsa_mjx_train.learner.PPOLearner``: collect, learn, drain as pure functions) and one
+of these strategies, which place its state and call its functions:
+
+- ``one_device``: the epoch jitted for the one device, no collective at all;
+- ``pmap``: the epoch ``pmap``-ed over this process's devices (and every process's, with several
+  hosts): gradients, observation statistics and curriculum outcomes are reduced over all of them;
+- ``thread_per_device`` (``hsa_mjx_train.thread_per_device``): each GPU its own env copy and jitted
+  collection, called from one host thread per GPU, and the learning step ``pmap``-ed;
+- ``auto`` (the default): ``one_device`` for one device, ``thread_per_device`` for several local GPUs,
+  ``pmap`` otherwise (several CPU devices, or several hosts of one GPU each).
+
+Every strategy takes and returns the same things: the learner state as :meth:`place` lays it out,
+epoch outputs with a leading device axis (totals summed over devices, losses per device), host
+copies of the curricula. Why several: docs/scaling.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+
+from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.task.env import HSAEnv
+from hsa_mjx_train import compat
+from hsa_mjx_train.config import TrainConfig
+from hsa_mjx_train.learner import AXIS, LoopState, PPOLearner
+from hsa_mjx_train.networks import TrainingState
+from hsa_mjx_train.placement import check_env_size, first_copy, replicate
+from hsa_mjx_train.thread_per_device import ThreadPerDevice
+
+
+class OneDevice:
+    """The epoch jitted for one device; the learner runs without a device axis."""
+
+    name = "one_device"
+
+    def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
+        if len(devices) != 1 or jax.process_count() != 1:
+            raise ValueError(f"run.collection one_device needs one device, got {len(devices) * jax.process_count()}")
+        if learner.axis is not None:
+            raise ValueError("run.collection one_device needs a learner without a device axis (axis=None)")
+        check_env_size(learner, devices)
+        self.learner, self.devices = learner, list(devices)
+        donate = (0, 1) if devices[0].platform != "cpu" else ()  # the CPU client cannot reuse donated buffers
+        self._reset = jax.jit(learner.reset)
+        self._epoch = jax.jit(self._epoch_with_device_axis, donate_argnums=donate)
+        self._collect_epoch = jax.jit(learner.collect_epoch)
+
+    def _epoch_with_device_axis(self, ts: TrainingState, state: LoopState, key: jax.Array):
+        """The learner's epoch, its outputs given the leading device axis every strategy returns."""
+        ts, state, out = self.learner.epoch(ts, state, key)
+        return ts, state, jax.tree.map(lambda x: x[None], out)
+
+    def place(self, ts: TrainingState) -> TrainingState:
+        """The learner state on the device."""
+        return jax.device_put(ts, self.devices[0])
+
+    @staticmethod
+    def first(ts: TrainingState) -> TrainingState:
+        """The learner state (the one copy)."""
+        return ts
+
+    def reset(
+        self,
+        env_keys: jax.Array,
+        goal: goal_curriculum.GoalCurriculumState,
+        levels: terrain_curriculum.TerrainLevels | None = None,
+    ) -> LoopState:
+        """Fresh envs (``env_keys``: (1, envs, 2)) starting from ``goal`` and, when given, every env's
+        terrain levels ((envs,) arrays; resume)."""
+        device = self.devices[0]
+        return self._reset(*jax.device_put((env_keys[0], goal, levels), device))
+
+    def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
+        """``iterations_per_epoch`` PPO iterations (``keys``: (1, 2)); returns (ts, state, outputs)."""
+        return self._epoch(ts, state, keys[0])
+
+    def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
+        """The epoch's collections alone, no learning (for timing the update's share)."""
+        return self._collect_epoch(ts, state, keys[0])
+
+    @staticmethod
+    def terrain_levels(state: LoopState) -> dict:
+        """Every env's terrain type and level as host arrays (envs,)."""
+        return terrain_curriculum.to_host([jax.device_get(state.curricula.terrain)])
+
+    @staticmethod
+    def goal_curriculum(state: LoopState) -> goal_curriculum.GoalCurriculumState:
+        """The goal curriculum's state."""
+        return state.curricula.goal
+
+
+class Pmap:
+    """The epoch ``pmap``-ed over the devices; the learner reduces over its device axis."""
+
+    name = "pmap"
+
+    def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
+        if learner.axis != AXIS:
+            raise ValueError(f"run.collection pmap needs a learner with the device axis {AXIS!r}")
+        check_env_size(learner, devices)
+        self.learner, self.devices = learner, list(devices)
+        self._reset = jax.pmap(learner.reset, axis_name=AXIS)
+        self._epoch = jax.pmap(learner.epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self._collect_epoch = jax.pmap(learner.collect_epoch, axis_name=AXIS)
+
+    def place(self, ts: TrainingState) -> TrainingState:
+        """One copy of the learner state per device."""
+        return replicate(ts, self.devices)
+
+    @staticmethod
+    def first(ts: TrainingState) -> TrainingState:
+        """The first device's copy of the learner state (all are equal)."""
+        return first_copy(ts)
+
+    def reset(
+        self,
+        env_keys: jax.Array,
+        goal: goal_curriculum.GoalCurriculumState,
+        levels: terrain_curriculum.TerrainLevels | None = None,
+    ) -> LoopState:
+        """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``goal`` (one copy) and,
+        when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
+        if levels is not None:
+            levels = jax.tree.map(lambda x: jnp.reshape(x, env_keys.shape[:2]), levels)
+        return self._reset(jax.device_put(env_keys), compat.device_put_replicated(goal, self.devices), levels)
+
+    def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
+        """``iterations_per_epoch`` PPO iterations on every device (one key each); returns (ts, state, outputs)."""
+        return self._epoch(ts, state, keys)
+
+    def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
+        """The epoch's collections alone, no learning (for timing the update's share)."""
+        return self._collect_epoch(ts, state, keys)
+
+    @staticmethod
+    def terrain_levels(state: LoopState) -> dict:
+        """This process's envs' terrain types and levels as host arrays (envs,), in device order."""
+        return terrain_curriculum.to_host([jax.device_get(state.curricula.terrain)])
+
+    @staticmethod
+    def goal_curriculum(state: LoopState) -> goal_curriculum.GoalCurriculumState:
+        """The goal curriculum's state (the first device's copy; all are equal)."""
+        return first_copy(state.curricula.goal)
+
+
+def resolve_collection(config: TrainConfig, devices: Sequence[jax.Device]) -> str:
+    """The strategy ``run.collection`` names over ``devices`` (this process's), ``auto`` resolved."""
+    kind = config.run.collection
+    if kind != "auto":
+        return kind
+    if len(devices) * jax.process_count() == 1:
+        return "one_device"
+    if len(devices) > 1 and devices[0].platform == "gpu":
+        return "thread_per_device"
+    return "pmap"
+
+
+Strategy = OneDevice | Pmap | ThreadPerDevice
+STRATEGIES = {"one_device": OneDevice, "pmap": Pmap, "thread_per_device": ThreadPerDevice}
+
+
+def build(config: TrainConfig, devices: Sequence[jax.Device]) -> Strategy:
+    """The learner and the strategy ``run.collection`` asks for over ``devices`` (this process's share),
+    the env built for the batch each device steps (``run.num_envs`` over every process's devices): the
+    one place that sizes it (Warp's shared contact buffer)."""
+    kind = resolve_collection(config, devices)
+    count = len(devices) * jax.process_count()
+    env = HSAEnv(config.env, num_envs=config.run.num_envs // count, privileged=config.ppo.privileged_critic)
+    learner = PPOLearner(config, env, axis=None if kind == "one_device" else AXIS)
+    return STRATEGIES[kind](learner, devices)
