@@ -15,12 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_multi_device import TWO_DEVICE_CONFIG, run_scenario, write_config
 
 import hsa_mjx
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.sim import backend
-from hsa_mjx_train.logger import read_jsonl
 
 ENVS, REST, STEPS = 3, 8, 20  # envs, zero-action steps at rest, then gait steps
 # Terrain tiles: flat, stairs and craters; solver settings of the shipped heightfield configs.
@@ -151,6 +149,7 @@ def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
         num_envs=2,
         physics__backend="warp",
         termination__max_episode_steps=3,
+        physics__integrator="implicitfast",  # the flat task's settings: Warp's kernels of the shipped-policy test
         physics__iterations=4,
         physics__ls_iterations=8,
     )
@@ -165,13 +164,13 @@ def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
         batch.reset(jax.random.split(jax.random.PRNGKey(0), 3))
 
 
-def test_per_device_learner_trains_on_the_warp_backend(tmp_path):
-    """The multi-GPU path on MuJoCo Warp, here over two fake CPU devices (tests/test_multi_device.py's
-    scenario). Last in this file: the rollouts above have compiled Warp's CPU kernels into its cache."""
-    config, run_dir = write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
-    assert run_scenario("warp_per_device", config, str(run_dir))["rc"] == 0
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["physics_backend"] == "warp" and summary["env_steps"] == 80
-    last = read_jsonl(run_dir / "metrics.jsonl")[-1]
-    assert last["episodes"] == 8 and last["curriculum/episode_count"] == 8  # both devices' envs, as on JAX
-    assert last["terrain/levels"] == 3 and last["nonfinite/states"] == 0
+def test_a_shipped_policy_evaluates_on_the_warp_backend(tmp_path):
+    """``--backend warp`` runs a policy trained on any backend on MuJoCo Warp (checkpoints and policy files
+    hold no backend); on a CPU ``auto`` would pick C MuJoCo."""
+    from hsa_mjx_train.evaluate import main
+
+    out = tmp_path / "eval"
+    args = ["--policy", "flat", "--episodes", "2", "--steps", "12", "--backend", "warp", "--out", str(out)]
+    assert main(args) == 0
+    result = json.loads((out / "eval.json").read_text())
+    assert result["physics"] == "mjx_warp" and result["episodes"] == 2 and result["mean_episode_steps"] > 0

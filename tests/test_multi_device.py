@@ -9,6 +9,7 @@ cache configured in tests/conftest.py.
 
 from __future__ import annotations
 
+import dataclasses
 import faulthandler
 import json
 import os
@@ -48,7 +49,10 @@ TWO_DEVICE_CONFIG = {
 SAME_RUN_TOLERANCE = 1e-4
 # How late the second training process starts: more than Gloo's 30 s wait, which the barriers cover.
 PROCESS_1_LATE_S = 40
-# The resume on one device: 4 envs with TINY's minibatch, checkpoints every 40 steps, 240 -> 280 steps.
+# The resume on one device: 4 envs with TINY's minibatch, checkpoints every 40 steps, 240 -> 280 steps,
+# by the thread-per-device strategy, whose collection on device 0 then has the geometry of the two-device
+# run's (4 envs, 2 unrolls of 5): its compile is a cache hit. (A persistent cache entry of a process with
+# two CPU devices does not serve one with one: JAX keys it on the device topology.)
 ONE_DEVICE_RESUME = [
     f"--set={key}={value}"
     for key, value in (
@@ -249,8 +253,15 @@ def _curriculum_facts() -> dict:
 
 
 def scenario_two_devices(config_path: str, run_dir: str) -> dict:
-    """Train through the CLI on two devices of one process, resume, refusals, per-device facts."""
+    """Train through the CLI on two devices of one process, resume, refusals, per-device facts, the
+    thread-per-device strategy on the Warp backend last (``phase_s``: each part's seconds)."""
     compiles, saved = _compile_counter(), _record_saves()
+    clock, phases = time.perf_counter(), {}
+
+    def phase(name: str) -> None:
+        nonlocal clock
+        phases[name], clock = round(time.perf_counter() - clock, 1), time.perf_counter()
+
     from hsa_mjx_train.cli import main
     from hsa_mjx_train.strategies import Pmap
     from hsa_mjx_train.thread_per_device import ThreadPerDevice
@@ -258,10 +269,12 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     pmap_seen = _probe(Pmap, compiles)
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
     rc_train = main(args)
+    phase("pmap_train")
     saved_first = list(saved)
     learner = _learner_facts(pmap_seen)
     _fresh_traces()
     rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
+    phase("pmap_resume")
     facts = {
         "rc_train": rc_train,
         "rc_resume": rc_resume,
@@ -270,6 +283,7 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     }
     facts.update(learner)
     facts.update(_refusals(config_path, Path(run_dir).parent, compiles))
+    phase("refusals")
     # the same run (config, seed, keys) with one jitted collection per device: checkpoints and logs as pmap's
     per_device_dir = str(Path(run_dir).parent / "run_per_device")
     _fresh_traces()
@@ -277,50 +291,24 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     facts["rc_per_device"] = main(
         ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.collection=thread_per_device"]
     )
+    phase("thread_per_device_train")
     facts.update(
         _checkpoint_gap(run_dir, per_device_dir, 160),
         per_device_run_dir=per_device_dir,
         per_device_epoch_compiles=list(per_device_seen["epoch_compiles"]),
     )
-    # the two-device checkpoint resumed on one device by the per-device learner: its device-0 collection
-    # has the geometry of the run above (4 envs, 2 unrolls of 5), so its compile is a cache hit
+    # the two-device checkpoint resumed on one device by the thread-per-device strategy (see ONE_DEVICE_RESUME)
     _fresh_traces()
     before = len(saved)
     facts["rc_one_device"] = main(args + ["--resume", *ONE_DEVICE_RESUME])
     facts["saved_one_device"] = saved[before:]
+    phase("one_device_resume")
     facts.update(_curriculum_facts())
+    phase("curriculum")
     _fresh_traces()
-    facts["scaling_rows"] = _scaling_rows(config_path, Path(run_dir).parent / "scaling")
-    return facts
-
-
-def _scaling_rows(config_path: str, out_dir: Path) -> list[dict]:
-    """Rows of ``benchmarks.scaling`` on 2 devices, run in this process: its PPO epoch is the trainer's
-    (a cache hit); the speed-up arithmetic over device counts is tested on its own below."""
-    from benchmarks import scaling
-
-    scaling.main(
-        [
-            "--config",
-            config_path,
-            "--envs-per-device",
-            "4",
-            "--devices",
-            "2",
-            "--steps",
-            "2",
-            "--repeats",
-            "1",
-            "--epochs",
-            "1",
-            "--no-split",
-            "--tag",
-            "smoke",
-            "--out-dir",
-            str(out_dir),
-        ]
-    )
-    return json.loads((out_dir / "scaling_smoke.json").read_text())["rows"]
+    facts["rc_warp"] = _warp_thread_per_device(config_path, str(Path(run_dir).parent / "run_warp"))
+    phase("warp_thread_per_device")
+    return {**facts, "phase_s": phases}
 
 
 def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
@@ -354,36 +342,26 @@ def scenario_process(config_path: str, run_dir: str, port: str, process_id: str)
     return {"rc": rc, "saved": saved}
 
 
-def scenario_warp_per_device(config_path: str, run_dir: str) -> dict:
-    """The per-device learner (one env copy and one jitted collection per device) on the Warp backend."""
+def _warp_thread_per_device(config_path: str, run_dir: str) -> int:
+    """The thread-per-device strategy (one env copy and one jitted collection per device) on the Warp
+    backend, through the CLI: one epoch (10 steps per env) with 8-step episodes, so that every env ends
+    one episode (Warp runs slowly on a CPU). The physics settings of tests/test_backend.py's Warp rollouts,
+    which compile most of Warp's kernels for these ones (into Warp's cache) on the other worker before."""
     from hsa_mjx_train.cli import main
 
-    # one epoch (10 steps per env) with 8-step episodes: every env ends one episode (Warp runs slowly on a CPU)
-    rc = main(
-        [
-            "--config",
-            config_path,
-            "--run-dir",
-            run_dir,
-            "--quiet",
-            "--set",
-            "env.physics.backend=warp",
-            "--set",
-            "run.collection=thread_per_device",
-            "--set",
-            "run.num_timesteps=80",
-            "--set",
-            "env.termination.max_episode_steps=8",
-        ]
+    overrides = (
+        "env.physics.backend=warp",
+        "env.physics.integrator=implicitfast",
+        "env.physics.iterations=8",
+        "env.physics.ls_iterations=8",
+        "run.collection=thread_per_device",
+        "run.num_timesteps=80",
+        "env.termination.max_episode_steps=8",
     )
-    return {"rc": rc}
+    return main(["--config", config_path, "--run-dir", run_dir, "--quiet", *(f"--set={o}" for o in overrides)])
 
 
-SCENARIOS = {
-    "two_devices": scenario_two_devices,
-    "process": scenario_process,
-    "warp_per_device": scenario_warp_per_device,
-}
+SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process}
 
 
 # ----- the tests ------------------------------------------------------------------------------
@@ -441,18 +419,38 @@ def run_scenario(name: str, *args: str) -> dict:
     return _facts(_check(proc))
 
 
+@dataclasses.dataclass
+class Runs:
+    """What the module's tests read: the two-device scenario's facts and run dirs, and the two processes'."""
+
+    facts: dict
+    run_dir: Path
+    process_facts: list[dict]
+    process_run_dir: Path
+
+    def __iter__(self):  # facts, run_dir = two_devices
+        return iter((self.facts, self.run_dir))
+
+
 @pytest.fixture(scope="module")
 def two_devices(tmp_path_factory):
-    """Facts of the two-device scenario and its run dir."""
+    """The two-device scenario in one subprocess and, beside it, the same training run in two processes of
+    one device each (started first: their deliberate wait overlaps the scenario's compiles)."""
     tmp = tmp_path_factory.mktemp("two_devices")
-    return run_scenario(
-        "two_devices", write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG), str(tmp / "run")
-    ), tmp / "run"
+    config = write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
+    processes = _start_processes(
+        [sys.executable, __file__, "process", config, str(tmp / "processes"), str(_free_port())], 2
+    )
+    try:
+        facts = run_scenario("two_devices", config, str(tmp / "run"))
+    finally:
+        process_facts = _finish_processes(processes)
+    return Runs(facts, tmp / "run", process_facts, tmp / "processes")
 
 
-def _run_processes(command: list[str], count: int) -> list[dict]:
-    """Start ``command + [process id]`` ``count`` times at once (one CPU device each); their facts."""
-    procs = [
+def _start_processes(command: list[str], count: int) -> list[subprocess.Popen]:
+    """Start ``command + [process id]`` ``count`` times at once (one CPU device each)."""
+    return [
         subprocess.Popen(
             command + [str(i)],
             cwd=ROOT,
@@ -463,6 +461,10 @@ def _run_processes(command: list[str], count: int) -> list[dict]:
         )
         for i in range(count)
     ]
+
+
+def _finish_processes(procs: list[subprocess.Popen]) -> list[dict]:
+    """The facts of processes started by ``_start_processes`` (every failed one's output on failure)."""
     try:
         outs = [p.communicate(timeout=SUBPROCESS_TIMEOUT_S) for p in procs]
     finally:
@@ -588,8 +590,22 @@ def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
     assert "episode/return" in records[-1] and records[-1]["curriculum/episode_count"] == 8  # both devices' episodes
 
 
+def test_thread_per_device_trains_on_the_warp_backend(two_devices):
+    """The multi-GPU path on MuJoCo Warp, over the two fake CPU devices (last in the scenario: by then
+    tests/test_backend.py's rollouts, on the other worker, have compiled Warp's CPU kernels into its cache)."""
+    from hsa_mjx_train.logger import read_jsonl
+
+    assert two_devices.facts["rc_warp"] == 0
+    run_dir = two_devices.run_dir.parent / "run_warp"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["physics_backend"] == "warp" and summary["env_steps"] == 80
+    last = read_jsonl(run_dir / "metrics.jsonl")[-1]
+    assert last["episodes"] == 8 and last["curriculum/episode_count"] == 8  # both devices' envs, as on JAX
+    assert last["terrain/levels"] == 3 and last["nonfinite/states"] == 0
+
+
 def test_no_recompile_at_the_second_epoch(two_devices):
-    compiles = two_devices[0]["epoch_compiles"]  # the pmap learner's epochs in the first run
+    compiles = two_devices.facts["epoch_compiles"]  # the pmap learner's epochs in the first run
     assert len(compiles) == 2 and compiles[0] > 0 and compiles[1] == 0
 
 
@@ -600,18 +616,17 @@ def test_bad_device_split_refused_before_compile(two_devices):
     assert facts["refusal_compiles"] == 0 and facts["refusal_dirs"] == []
 
 
-def test_two_processes_train_like_two_devices(two_devices, tmp_path):
+def test_two_processes_train_like_two_devices(two_devices):
     from hsa_mjx_train import checkpoint
 
-    config, run_dir = write_config(tmp_path / "tiny.yaml", TWO_DEVICE_CONFIG), tmp_path / "run"
-    facts = _run_processes([sys.executable, __file__, "process", config, str(run_dir), str(_free_port())], 2)
+    facts, run_dir = two_devices.process_facts, two_devices.process_run_dir
     assert [f["rc"] for f in facts] == [0, 0]
     assert facts[0]["saved"] == [80, 160] and facts[1]["saved"] == []  # process 0 alone writes
     assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == ["step_000000000080", "step_000000000160"]
     records = _records(run_dir)
     assert [r["step"] for r in records] == [80, 160]
     # The same global env and epoch keys, the same reductions: what one process with two devices logged.
-    for mine, theirs in zip(records, _records(two_devices[1])):
+    for mine, theirs in zip(records, _records(two_devices.run_dir)):
         assert set(mine) == set(theirs)
         for key in (k for k in COMPARED_METRICS if k in theirs):
             assert mine[key] == pytest.approx(theirs[key], rel=1e-4, abs=1e-6), (mine["step"], key)
@@ -658,48 +673,6 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     ]
     assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
-
-
-def test_scaling_benchmark_smoke(two_devices):
-    rows = two_devices[0]["scaling_rows"]
-    assert [(r["devices"], r["num_envs"], r["batch_size"]) for r in rows] == [(2, 8, 8)]
-    row = rows[0]
-    for key in ("env_steps_per_s", "ppo_env_steps_per_s"):
-        assert row[key] > 0, key
-    assert row["gpu"] == "cpu" and row["versions"]["jax"]
-    assert row["collection"] == "pmap" and row["physics_backend"] == "jax"  # auto: pmap and JAX on CPUs
-    assert row["speedup_ppo_env_steps_per_s"] == 1.0  # the fewest devices measured are the base
-
-
-def test_scaling_speedups_are_relative_to_the_fewest_devices():
-    from benchmarks.scaling_report import with_speedups
-
-    rows = with_speedups(
-        [
-            {"devices": 1, "ppo_env_steps_per_s": 100.0, "env_steps_per_s": 50.0},
-            {"devices": 2, "ppo_env_steps_per_s": 180.0, "env_steps_per_s": None},
-            {"devices": 4, "ppo_env_steps_per_s": 300.0, "env_steps_per_s": 150.0},
-        ]
-    )
-    assert [r["speedup_ppo_env_steps_per_s"] for r in rows] == [1.0, 1.8, 3.0]
-    assert [r["efficiency_ppo_env_steps_per_s"] for r in rows] == [1.0, 0.9, 0.75]
-    assert "speedup_env_steps_per_s" not in rows[1]  # not measured there: no speed-up
-    assert rows[2]["speedup_env_steps_per_s"] == 3.0 and rows[2]["efficiency_env_steps_per_s"] == 0.75
-
-
-def test_scaling_device_counts_and_config():
-    import hsa_mjx_train.config
-    from benchmarks.scaling import device_counts, scaled_config
-
-    assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
-    flat = hsa_mjx_train.config.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
-    four = scaled_config(flat, 8192, 4, iterations=1)
-    assert (four.run.num_envs, four.run.num_devices, four.ppo.batch_size) == (32768, 4, 2048)
-    assert four.run.steps_per_epoch == 2048 * 32 * 20 and four.ppo.num_minibatches == 32
-    with pytest.raises(ValueError, match="not a whole number"):
-        scaled_config(flat, 100, 2, iterations=1)
-    with pytest.raises(ValueError, match="at least one device"):
-        device_counts(0)
 
 
 def test_cluster_spec_from_flags_or_environment():

@@ -87,3 +87,27 @@ def test_importing_the_packages_changes_nothing_and_make_env_sets_up_what_it_nee
     assert facts["yaml_reads"] == 0  # no config file is read on import
     assert facts["make_env_lowerings"] == ["cholesky", "triangular_solve"]  # explicit, when an env is built
     assert facts["make_env_gl"] == ("egl" if facts["egl"] else facts["make_env_gl"])  # headless: offscreen GL
+
+
+def test_import_hsa_mjx_alone_sets_only_what_gymnasium_sets():
+    """``import hsa_mjx`` by itself (it imports Gymnasium to register ``hsa_mjx/HSA-v0``) changes the
+    environment exactly as ``import gymnasium`` does, and registers the env."""
+    probe = (
+        "import json, os, sys\n"
+        "before = dict(os.environ)\n"
+        "import {module}\n"
+        "import gymnasium\n"
+        "changed = sorted(k for k in os.environ if before.get(k) != os.environ[k])\n"
+        "print(json.dumps([changed, 'hsa_mjx/HSA-v0' in gymnasium.registry, 'jax' in sys.modules]))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYGAME_HIDE_SUPPORT_PROMPT")}
+    outputs = {}
+    for module in ("hsa_mjx", "gymnasium"):
+        proc = subprocess.run(
+            [sys.executable, "-c", probe.format(module=module)], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        outputs[module] = json.loads(proc.stdout.splitlines()[-1])
+    assert outputs["hsa_mjx"][0] == outputs["gymnasium"][0]  # Gymnasium's own variable(s), nothing of hsa_mjx
+    assert outputs["hsa_mjx"][1] and not outputs["gymnasium"][1]  # registered by import hsa_mjx
+    assert not outputs["hsa_mjx"][2]  # and without importing JAX

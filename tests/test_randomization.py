@@ -147,7 +147,15 @@ def test_a_slicker_floor_slides_further(physics_env):
 
 
 def test_warp_batches_the_randomised_fields_per_world():
-    env = hsa_mjx.make_env("flat", physics__backend="warp", num_envs=2, randomization__friction=[0.5, 1.5])
+    env = hsa_mjx.make_env(  # the flat task's physics: Warp's kernels compiled for tests/test_backend.py
+        "flat",
+        physics__backend="warp",
+        num_envs=2,
+        randomization__friction=[0.5, 1.5],
+        physics__integrator="implicitfast",
+        physics__iterations=4,
+        physics__ls_iterations=8,
+    )
     slide = _slide(env, jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step)))
     assert slide[0] > 1.3 * slide[1] > 0, slide  # each world its own friction (0.073 and 0.034 m on a CPU)
 

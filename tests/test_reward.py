@@ -148,3 +148,22 @@ def test_heading_alignment_telescopes_over_a_full_spin():
         for a, b in zip(angles[:-1], angles[1:])
     )
     assert abs(total) < 1e-3
+
+
+def test_the_weights_are_one_table_the_config():
+    """The traced weights are RewardConfig's float fields under their names; every one is read by a term
+    (or, the termination penalty, by the env's non-finite guard) and no term reads another."""
+    import ast
+    import dataclasses
+    import inspect
+
+    floats = tuple(f.name for f in dataclasses.fields(RewardConfig) if f.type in (float, "float"))
+    assert hsa_mjx.task.reward.WEIGHT_NAMES == floats and set(W.values) == set(floats)
+    tree = ast.parse(inspect.getsource(hsa_mjx.task.reward))
+    read = {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute) and getattr(n.value, "id", None) == "w"}
+    assert read <= set(floats) and set(floats) <= read | {"termination"}
+    assert float(W.with_weights(forward=2.0).forward) == 2.0 and float(W.forward) == RewardConfig().forward
+    with pytest.raises(ValueError, match=r"unknown reward weight\(s\) \['speed'\]"):
+        W.with_weights(speed=1.0)
+    with pytest.raises(AttributeError, match="no weight 'speed'"):
+        _ = W.speed

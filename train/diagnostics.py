@@ -10,8 +10,8 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 SERVO_LABELS = ("1A", "2A", "3A", "4A", "1C", "2C", "3C", "4C")
-# Frames per GIF at most: offscreen rendering without a GPU (Mesa's llvmpipe) takes 0.3 s a frame on
-# a 2-core machine, so a 1,000-step episode at every 2nd step would take minutes (a 9th: 35 s).
+# Frames per GIF at most: offscreen rendering without a GPU (Mesa's llvmpipe) takes a good part of a
+# second a frame, so a 1,000-step episode at every 2nd step would take minutes to draw.
 GIF_FRAMES = 120
 
 

@@ -98,7 +98,7 @@ def evaluate(
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
-    (``train.evaluate.rollout`` with the policy bound).
+    (``hsa_mjx_train.rollout.rollout`` with the policy bound).
     """
     rows = []
     for group in level_groups(levels):

@@ -2,7 +2,8 @@
 
 - each GPU gets its own env copy (model and data on that GPU) and its own jitted collection
   (:meth:`PPOLearner.collect`); JAX's persistent compilation cache ignores which GPU a program is
-  for, so the copies after the first load from it;
+  for, so where one is set (``JAX_COMPILATION_CACHE_DIR``) each program's first call runs on the first
+  GPU alone and the others load what it compiled (at once, they would each compile it);
 - one host thread per GPU calls it, so that the GPUs collect at the same time (a solver's
   ``while_loop`` can hold its calling thread until the loop ends);
 - the learning step (observation statistics, goal curriculum over every GPU's outcomes in step order,
@@ -104,11 +105,22 @@ class ThreadPerDevice:
         self._learn = jax.pmap(learner.learn, axis_name=AXIS)
         self._sum = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
+        self._called: set[str] = set()  # the per-device programs called once already (compiled)
 
     def on_each(self, fn: Callable, *per_device: Sequence) -> list:
         """``fn(i, *args_i)`` for every device at once, one thread each; the results in device order."""
         futures = [self.pool.submit(fn, i, *(args[i] for args in per_device)) for i in range(len(self.devices))]
         return [f.result() for f in futures]
+
+    def _on_each_compiled_once(self, program: str, fn: Callable, *per_device: Sequence) -> list:
+        """``on_each``, except that with a persistent compilation cache the first call of ``program`` runs
+        on the first device before the others, which then load its compiled program from the cache."""
+        if program in self._called or not jax.config.jax_compilation_cache_dir or len(self.devices) == 1:
+            return self.on_each(fn, *per_device)
+        self._called.add(program)
+        first = fn(0, *(args[0] for args in per_device))
+        rest = [self.pool.submit(fn, i, *(args[i] for args in per_device)) for i in range(1, len(self.devices))]
+        return [first, *(f.result() for f in rest)]
 
     def _device_keys(self, keys: jax.Array) -> list[jax.Array]:
         """One key per device (leading axis 1), each made on its own device (no wait on another GPU)."""
@@ -158,16 +170,21 @@ class ThreadPerDevice:
                 jax.tree.map(lambda x, i=i: np.asarray(x).reshape(keys.shape[:2])[i], levels)
                 for i in range(len(self.devices))
             ]
-        envs = self.on_each(
-            lambda i, k, t: self._reset[i](*jax.device_put((k, host, t), self.devices[i])), keys, pieces
+        envs = self._on_each_compiled_once(
+            "reset", lambda i, k, t: self._reset[i](*jax.device_put((k, host, t), self.devices[i])), keys, pieces
         )
         goals = [jax.device_put(jax.tree.map(lambda x: np.asarray(x)[None], host), d) for d in self.devices]
         return DeviceStates(pieces=tuple(envs), goal=stack(goals, self.devices))
 
     def _collect_all(self, ts: TrainingState, goal: Any, envs: list, keys: list) -> tuple[list, list, list]:
         """Every GPU's collection at once: (env states, next keys, (data, SGD key) per GPU)."""
-        outs = self.on_each(
-            lambda i, *a: self._collect[i](*a), split(ts, self.devices), split(goal, self.devices), envs, keys
+        outs = self._on_each_compiled_once(
+            "collect",
+            lambda i, *a: self._collect[i](*a),
+            split(ts, self.devices),
+            split(goal, self.devices),
+            envs,
+            keys,
         )
         return [o[0] for o in outs], [o[1][1] for o in outs], [(o[1][0], o[1][2]) for o in outs]
 
@@ -181,7 +198,7 @@ class ThreadPerDevice:
             k_sgd = stack([c[1] for c in collected], self.devices)
             ts, goal, metrics = self._learn(ts, goal, data, k_sgd)
             losses.append(metrics)
-        drained = self.on_each(lambda i, s: self._drain[i](s), envs)
+        drained = self._on_each_compiled_once("drain", lambda i, s: self._drain[i](s), envs)
         totals = self._sum(stack([d[1] for d in drained], self.devices))
         losses = jax.tree.map(lambda *xs: np.mean(np.stack([np.asarray(x) for x in xs]), axis=0), *losses)
         states = DeviceStates(pieces=tuple(d[0] for d in drained), goal=goal)

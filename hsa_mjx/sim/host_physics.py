@@ -1,8 +1,8 @@
 """One env on a CPU: the physics substeps in C MuJoCo, everything else the env's own jitted code.
 
 MJX's JAX implementation is built for thousands of envs at once; one env on a CPU pays XLA's
-per-op cost on every substep (about 150 env steps/s on a 2-core machine). C MuJoCo steps the same
-compiled model about 15x faster. :class:`HostPhysics` runs the ``frame_skip`` substeps of
+per-op cost on every substep, and C MuJoCo steps the same compiled model several times faster
+(``python -m benchmarks.single_env``; docs/speed.md). :class:`HostPhysics` runs the ``frame_skip`` substeps of
 ``HSAEnv.step_with`` through ``jax.pure_callback`` on a C ``MjData``: the state goes in through
 public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, the solver warm start,
 ``time``) and comes back through the fields the env reads (positions, orientations, ``qacc``,

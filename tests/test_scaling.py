@@ -1,0 +1,60 @@
+"""The scaling benchmark (``python -m benchmarks.scaling``): end to end on this machine's one CPU device,
+with the tiny training config (its epoch is the shared tiny run's program), and its arithmetic over
+device counts. Its multi-device rows come from GPU runs (docs/scaling.md)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+from conftest import TINY_RUN
+
+
+def test_scaling_benchmark_runs_end_to_end(tmp_path):
+    from benchmarks import scaling
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(TINY_RUN))
+    args = ["--config", str(config), "--envs-per-device", "4", "--devices", "1", "--steps", "2", "--repeats", "1"]
+    assert scaling.main([*args, "--epochs", "1", "--no-split", "--tag", "smoke", "--out-dir", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "scaling_smoke.json").read_text())["rows"]
+    assert [(r["devices"], r["num_envs"], r["batch_size"]) for r in rows] == [(1, 4, 4)]
+    row = rows[0]
+    for key in ("env_steps_per_s", "ppo_env_steps_per_s"):
+        assert row[key] > 0, key
+    assert row["gpu"] == "cpu" and row["versions"]["jax"]
+    assert row["collection"] == "one_device" and row["physics_backend"] == "jax"  # auto on one CPU device
+    assert row["speedup_ppo_env_steps_per_s"] == 1.0  # the fewest devices measured are the base
+    assert (tmp_path / "scaling_smoke.md").is_file()
+
+
+def test_scaling_speedups_are_relative_to_the_fewest_devices():
+    from benchmarks.scaling_report import with_speedups
+
+    rows = with_speedups(
+        [
+            {"devices": 1, "ppo_env_steps_per_s": 100.0, "env_steps_per_s": 50.0},
+            {"devices": 2, "ppo_env_steps_per_s": 180.0, "env_steps_per_s": None},
+            {"devices": 4, "ppo_env_steps_per_s": 300.0, "env_steps_per_s": 150.0},
+        ]
+    )
+    assert [r["speedup_ppo_env_steps_per_s"] for r in rows] == [1.0, 1.8, 3.0]
+    assert [r["efficiency_ppo_env_steps_per_s"] for r in rows] == [1.0, 0.9, 0.75]
+    assert "speedup_env_steps_per_s" not in rows[1]  # not measured there: no speed-up
+    assert rows[2]["speedup_env_steps_per_s"] == 3.0 and rows[2]["efficiency_env_steps_per_s"] == 0.75
+
+
+def test_scaling_device_counts_and_config():
+    import hsa_mjx_train.config
+    from benchmarks.scaling import device_counts, scaled_config
+
+    assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
+    flat = hsa_mjx_train.config.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
+    four = scaled_config(flat, 8192, 4, iterations=1)
+    assert (four.run.num_envs, four.run.num_devices, four.ppo.batch_size) == (32768, 4, 2048)
+    assert four.run.steps_per_epoch == 2048 * 32 * 20 and four.ppo.num_minibatches == 32
+    with pytest.raises(ValueError, match="not a whole number"):
+        scaled_config(flat, 100, 2, iterations=1)
+    with pytest.raises(ValueError, match="at least one device"):
+        device_counts(0)
