@@ -439,7 +439,7 @@ def two_devices(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("two_devices")
     config = write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
     processes = _start_processes(
-        [sys.executable, __file__, "process", config, str(tmp / "processes"), str(_free_port())], 2
+        [sys.executable, __file__, "process", config, str(tmp / "processes"), str(_free_port())], 2, tmp
     )
     try:
         facts = run_scenario("two_devices", config, str(tmp / "run"))
@@ -448,33 +448,34 @@ def two_devices(tmp_path_factory):
     return Runs(facts, tmp / "run", process_facts, tmp / "processes")
 
 
-def _start_processes(command: list[str], count: int) -> list[subprocess.Popen]:
-    """Start ``command + [process id]`` ``count`` times at once (one CPU device each)."""
-    return [
-        subprocess.Popen(
-            command + [str(i)],
-            cwd=ROOT,
-            env=_subprocess_env(None),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for i in range(count)
-    ]
+def _start_processes(command: list[str], count: int, logs: Path) -> list[tuple[subprocess.Popen, Path]]:
+    """Start ``command + [process id]`` ``count`` times at once (one CPU device each), each writing its
+    output to files under ``logs`` (pipes read one process at a time could fill up and stall the others)."""
+    started = []
+    for i in range(count):
+        out = logs / f"process_{i}"
+        with open(f"{out}.out", "w") as stdout, open(f"{out}.err", "w") as stderr:
+            proc = subprocess.Popen(
+                command + [str(i)], cwd=ROOT, env=_subprocess_env(None), stdout=stdout, stderr=stderr, text=True
+            )
+        started.append((proc, out))
+    return started
 
 
-def _finish_processes(procs: list[subprocess.Popen]) -> list[dict]:
+def _finish_processes(started: list[tuple[subprocess.Popen, Path]]) -> list[dict]:
     """The facts of processes started by ``_start_processes`` (every failed one's output on failure)."""
     try:
-        outs = [p.communicate(timeout=SUBPROCESS_TIMEOUT_S) for p in procs]
+        for proc, _ in started:
+            proc.wait(timeout=SUBPROCESS_TIMEOUT_S)
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
+        for proc, _ in started:
+            if proc.poll() is None:
+                proc.kill()
+    outs = [(Path(f"{out}.out").read_text(), Path(f"{out}.err").read_text()) for _, out in started]
     failed = [
-        f"process {i}: exit {p.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
-        for i, (p, out) in enumerate(zip(procs, outs))
-        if p.returncode != 0
+        f"process {i}: exit {proc.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
+        for i, ((proc, _), out) in enumerate(zip(started, outs))
+        if proc.returncode != 0
     ]
     assert not failed, "\n\n".join(failed)  # every failed process's output: the first to fail may be another
     return [_facts(out[0]) for out in outs]

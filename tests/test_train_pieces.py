@@ -476,3 +476,18 @@ def test_goal_curriculum_starts_from_the_env_goal_range():
     )  # had no effect: dropped
     assert off.env.goal.radial_range == (1.5, 1.8)
     assert hsa_mjx_train.config.from_dict(hsa_mjx_train.config.to_dict(old)) == old  # a saved config reloads
+
+
+def test_progress_counts_to_the_last_whole_epoch():
+    import io
+
+    from hsa_mjx_train.logger import ProgressBar
+    from hsa_mjx_train.trainer import final_step
+
+    assert final_step(0, 1600, 640) == 1920  # whole epochs: 3 of 640 steps pass 1,600
+    assert final_step(1280, 1600, 640) == 1920 and final_step(1920, 1600, 640) == 1920  # resumed, or already done
+    assert final_step(0, 1280, 640) == 1280
+    bar = ProgressBar(final_step(0, 1600, 640), stream=io.StringIO())
+    bar.update(640, {})
+    assert bar.update(1920, {}).split(" | ")[0].endswith("1,920/1,920 100.0%")
+    assert "ETA 0:00:00" in bar.update(1920, {})  # never a negative ETA at the end

@@ -35,7 +35,7 @@ class ProgressBar:
         else:
             elapsed = now - self.first[0]
             rate = (step - self.first[1]) / elapsed if elapsed > 0 else 0.0
-            eta = (self.total - step) / rate if rate > 0 else math.inf
+            eta = max(0, self.total - step) / rate if rate > 0 else math.inf
         frac = min(step / self.total, 1.0) if self.total else 1.0
         bar = "#" * int(frac * self.width) + "-" * (self.width - int(frac * self.width))
         fields = " ".join(f"{k.split('/')[-1]} {v:.3g}" for k, v in extra.items())

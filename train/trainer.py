@@ -147,14 +147,19 @@ def _announce(config: TrainConfig, run_dir: Path, devices: list) -> str:
     )
 
 
+def final_step(step: int, num_timesteps: int, steps_per_epoch: int) -> int:
+    """The step a run from ``step`` ends at: whole epochs until ``num_timesteps`` is reached (or passed)."""
+    return step + max(0, -(-(num_timesteps - step) // steps_per_epoch)) * steps_per_epoch
+
+
 def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed: bool = False) -> dict:
     """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
     config, strategy, main = run.config, run.strategy, distributed.is_main()
     logger = MetricsLogger(run.run_dir, resume_step=step if resumed else None) if main else _NoLogger()
-    bar = ProgressBar(config.run.num_timesteps, start=step)
+    steps_per_epoch = strategy.learner.env_steps_per_epoch
+    bar = ProgressBar(final_step(step, config.run.num_timesteps, steps_per_epoch), start=step)
     t_start, last_ckpt, epoch, latest = time.perf_counter(), step, 0, {}  # latest: each headline key's last value
     first_epoch_s, stopped, totals = None, False, {}
-    steps_per_epoch = strategy.learner.env_steps_per_epoch
     with StopFlag() as stop:
         while step < config.run.num_timesteps and not (stopped := distributed.any_process(stop.raised)):
             key, k_epoch = jax.random.split(key)
