@@ -1,24 +1,28 @@
 """How a policy fares on models that differ from the one it trained on: ``python -m benchmarks.robustness POLICY``.
 
-The grid crosses floor friction x0.5 / x1 / x1.5, block masses -20 % / +20 %, HSA tendon stiffness
--30 % / +30 %, action latency 0 / 20 / 40 ms and observation noise off / on (``NOISE_ON``): 72 cells.
-Every cell plays ``--episodes`` episodes from the same starts and goals (the policy's training goal
-range) with the policy's mean action, for at most ``--steps`` steps; a cell's success rate, mean net
-progress towards the goal and how its failed episodes ended (each termination reason's share,
-``time_out`` at the env's episode limit, ``not_finished`` at a shorter ``--steps``) go into
-``robustness_<tag>.json``, a table (``.md``) and a heat map (``.png``) under ``--out-dir``.
-``--where FACTOR=VALUE`` (repeatable) keeps only the matching cells.
+``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (18 cells that
+go past it: each factor alone at both ends of its stress range, and three corners), described in
+``benchmarks/robustness_grids.py``. Every cell plays ``--episodes`` episodes from the same starts and
+goals (the policy's training goal range) with the policy's mean action, for at most ``--steps`` steps.
+A cell reports its success rate with a 95 % Wilson interval, its mean net progress towards the goal
+and how its failed episodes ended; the summary gives the lowest success, the lowest lower bound and
+the cells whose upper bound is below 90 %. Episodes end on simulator health (non-finite state, a
+block out of its height band, the velocity limit), on leaving the arena and at the goal; the
+original's joint-acceleration rule (``qacc_limit``) only with ``--qacc-rule on``.
 
-One compiled rollout serves every cell of a noise setting: the env randomises the four factors over
-the grid's span and each episode's draws are then set to its cell's values
-(``hsa_mjx.task.randomization``), so the cells differ only in those values.
+``--sim-to-sim``: the same cells (those without pushes) are played again on C MuJoCo through the
+deployment loop (``hsa_mjx.deploy``: the policy sees only sensor readings), with the same goals, and
+each cell's gap to the MJX figure is reported. Results: ``robustness_<tag>.json``, a table (``.md``)
+and a heat map (``.png``) under ``--out-dir``.
+
+One compiled rollout serves every cell of a noise setting: the env randomises the factors over the
+cells' span and each episode's draws are then set to its cell's values (``hsa_mjx.task.randomization``).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import itertools
 import json
 import sys
 from pathlib import Path
@@ -28,7 +32,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks import robustness_grids as grids
+from benchmarks import robustness_report as report
 from benchmarks.run_info import run_info
+from benchmarks.stats import wilson_interval
 from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.deploy.loop import latency_steps
@@ -39,94 +46,81 @@ from hsa_mjx_train.config import from_dict
 from hsa_mjx_train.policy_sources import default_goal_range, load_shipped_policy
 from hsa_mjx_train.rollout import rollout, summarize
 
-GRID = {
-    "friction": (0.5, 1.0, 1.5),
-    "block_mass": (0.8, 1.2),
-    "hsa_stiffness": (0.7, 1.3),
-    "latency_ms": (0, 20, 40),
-    "noise": (False, True),
-}
-# observation noise when a cell has it on: uniform +-value (about 1 degree on the hinge encoders,
-# 1 cm on the position tracker; configs/train_flat_dr.yaml trains with the same)
-NOISE_ON = {
-    "hinge_angles": 0.02,
-    "hinge_velocities": 0.2,
-    "position": 0.01,
-    "velocity": 0.02,
-    "goal": 0.01,
-    "heading": 0.02,
-}
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
+RESOLVING_EPISODES = 32  # a cell of 32 successes has its lower bound at 89 %: fewer cannot show 90 %
 
 
-def cells() -> list[dict[str, Any]]:
-    """Every combination of the grid's values, in a fixed order."""
-    return [dict(zip(GRID, values)) for values in itertools.product(*GRID.values())]
-
-
-def env_overrides(noise: bool, max_latency_steps: int) -> tuple[str, ...]:
-    """``env.KEY=VALUE`` overrides: the grid's span randomised, every other randomisation off, the noise setting.
-
-    Everything is set, not only the grid's factors, so that a policy trained with randomisation (whose
-    config carries its pushes, noise and other ranges) is scored on the cell's model alone."""
-    ranges = {
-        **dataclasses.asdict(RandomizationConfig()),  # the defaults: every randomisation off
-        **{name: [min(GRID[name]), max(GRID[name])] for name in ("friction", "block_mass", "hsa_stiffness")},
-        "latency_steps": [0, max_latency_steps],
-    }
-    out = [
-        f"env.randomization.{name}={json.dumps(list(value) if isinstance(value, tuple) else value)}"
-        for name, value in ranges.items()
-    ]
-    out += [f"env.observation.noise.{group}={value if noise else 0}" for group, value in NOISE_ON.items()]
+def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, ...]:
+    """``env.KEY=VALUE`` overrides: every randomisation off but the cells' span (so that a policy trained
+    with randomisation is scored on each cell's model alone), the group's noise, the qacc rule."""
+    ranges: dict[str, Any] = dataclasses.asdict(RandomizationConfig())
+    for name in grids.SCALES:
+        values = [c[name] for c in group]
+        if any(v != 1.0 for v in values):
+            ranges[name] = [min(values), max(values)]
+    limits = [c["servo_torque_limit"] for c in group if c["servo_torque_limit"] is not None]
+    if limits:
+        ranges["servo_force_limit"] = [min(limits), max(limits)]
+    ranges["latency_steps"] = [0, max(latency_steps(c["latency_ms"], dt) for c in group)]
+    if any(c["pushes"] for c in group):
+        ranges["push_interval_s"], ranges["push_speed"] = list(grids.PUSH_INTERVAL_S), grids.PUSH_SPEED
+    out = [f"env.randomization.{k}={json.dumps(list(v) if isinstance(v, tuple) else v)}" for k, v in ranges.items()]
+    out += [f"env.observation.noise.{k}={v if group[0]['noise'] else 0}" for k, v in grids.NOISE.items()]
+    if not qacc_rule:
+        out.append("env.termination.qacc_termination=false")
     return tuple(out)
 
 
 def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str, Any]:
-    """Each episode's physical scales and latency, (cells x episodes,) leading axis."""
+    """Each episode's physical scales, latency and pushes, (cells x episodes,) leading axis."""
 
-    def per_episode(name: str) -> jnp.ndarray:
-        return jnp.repeat(jnp.asarray([c[name] for c in group], jnp.float32), episodes)
+    def per_episode(name: str, dtype=jnp.float32) -> jnp.ndarray:
+        return jnp.repeat(jnp.asarray([c[name] for c in group], dtype), episodes)
 
-    nominal = PhysicsScales.nominal()
-    count = len(group) * episodes
-    physics = nominal.replace(
+    limits = [np.inf if c["servo_torque_limit"] is None else c["servo_torque_limit"] for c in group]
+    physics = PhysicsScales(
         friction=per_episode("friction"),
         block_mass=jnp.repeat(per_episode("block_mass")[:, None], 2, axis=1),
         hsa_stiffness=per_episode("hsa_stiffness"),
-        hsa_damping=jnp.ones(count),
-        servo_gain=jnp.ones(count),
-        servo_force_limit=jnp.full(count, jnp.inf),
+        hsa_damping=per_episode("hsa_damping"),
+        servo_gain=per_episode("servo_gain"),
+        servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
-    return {"physics": physics, "latency": latency}
+    return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}
 
 
-def run_group(
-    directory: Path, group: list[dict], episodes: int, steps: int | None, backend: str, seed: int
-) -> list[dict[str, Any]]:
-    """The cells of one noise setting in one rollout: a result row per cell."""
+def score(successes: int, episodes: int) -> dict[str, Any]:
+    """A cell's success count, rate and 95 % Wilson interval."""
+    low, high = wilson_interval(successes, episodes)
+    return {"successes": successes, "episodes": episodes, "success_rate": successes / episodes, "ci95": [low, high]}
+
+
+def run_group(directory: Path, group: list[dict], args: argparse.Namespace, backend: str) -> list[dict[str, Any]]:
+    """The cells of one noise setting in one rollout: a result row per cell (with its episodes' goals)."""
     dt = from_dict(policy_file.load_policy(directory).meta["config"]).env.dt
-    overrides = env_overrides(group[0]["noise"], max(latency_steps(c["latency_ms"], dt) for c in group))
+    overrides = env_overrides(group, dt, args.qacc_rule == "on")
+    episodes = args.episodes
     config, env, policy, _ = load_shipped_policy(directory, backend, len(group) * episodes, overrides)
-    steps = steps or config.env.termination.max_episode_steps
-    keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(group), 1))  # same episodes per cell
+    steps = args.steps or config.env.termination.max_episode_steps
+    keys = jnp.tile(jax.random.split(jax.random.PRNGKey(args.seed), episodes), (len(group), 1))  # same episodes
     goal_range = jnp.asarray(default_goal_range(config), jnp.float32)
     traces = jax.device_get(
         rollout(env, policy, keys, goal_range, steps, randomization=cell_randomization(group, episodes, env.dt))
     )
     rows = []
-    for i, cell in enumerate(group):
+    for i, c in enumerate(group):
         part = {k: np.asarray(v)[i * episodes : (i + 1) * episodes] for k, v in traces.items()}
         summary = summarize(part, env.dt)
         rows.append(
             {
-                **cell,
-                "success_rate": summary["success_rate"],
+                **c,
+                "label": grids.label(c),
+                **score(int(round(summary["success_rate"] * episodes)), episodes),
                 "mean_progress_m": summary["mean_progress_m"],
                 "mean_final_distance": summary["mean_final_distance"],
-                "episodes": episodes,
                 "failures": failures(summary),
+                "goals": part["goal"][:, 0].tolist(),
             }
         )
     return rows
@@ -144,71 +138,6 @@ def failures(summary: dict[str, Any]) -> dict[str, float]:
     return {k: v for k, v in {**ends, **timing}.items() if v > 0}
 
 
-def select(where: list[str]) -> list[dict[str, Any]]:
-    """The grid's cells whose factors match every ``KEY=VALUE`` (ValueError naming the valid keys and values)."""
-    chosen = cells()
-    for item in where:
-        key, _, text = item.partition("=")
-        if key not in GRID:
-            raise ValueError(f"--where {item!r}: unknown factor {key!r}; factors: {', '.join(GRID)}")
-        values = (
-            {"off": False, "false": False, "on": True, "true": True}
-            if key == "noise"
-            else {f"{v:g}": v for v in GRID[key]}
-        )
-        text = text.strip().lower()
-        try:
-            text = text if key == "noise" else f"{float(text):g}"
-        except ValueError:
-            pass
-        if text not in values:
-            raise ValueError(f"--where {item!r}: {key} takes one of {', '.join(values)}")
-        chosen = [c for c in chosen if c[key] == values[text]]
-    return chosen
-
-
-def table(rows: list[dict]) -> str:
-    """A markdown table: one row per cell."""
-    head = (
-        "| friction | block mass | HSA stiffness | latency (ms) | noise | success | progress (m) | failures ended by |"
-    )
-    lines = [head, "|" + "---|" * 8]
-    for r in rows:
-        ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
-        lines.append(
-            f"| x{r['friction']:g} | x{r['block_mass']:g} | x{r['hsa_stiffness']:g} | {r['latency_ms']:g} | "
-            f"{'on' if r['noise'] else 'off'} | {r['success_rate']:.0%} | {r['mean_progress_m']:.2f} | {ended} |"
-        )
-    return "\n".join(lines)
-
-
-def heat_map(rows: list[dict], path: Path, title: str) -> None:
-    """Success rate as a heat map: model (friction, mass, stiffness) down, sensing (latency, noise) across."""
-    from matplotlib.figure import Figure
-
-    models = list(dict.fromkeys((r["friction"], r["block_mass"], r["hsa_stiffness"]) for r in rows))
-    sensing = list(dict.fromkeys((r["latency_ms"], r["noise"]) for r in rows))
-    grid = np.full((len(models), len(sensing)), np.nan)
-    for r in rows:
-        grid[
-            models.index((r["friction"], r["block_mass"], r["hsa_stiffness"])),
-            sensing.index((r["latency_ms"], r["noise"])),
-        ] = r["success_rate"]
-    fig = Figure(figsize=(1.2 * len(sensing) + 3, 0.45 * len(models) + 1.5))
-    ax = fig.subplots()
-    image = ax.imshow(grid, vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
-    for (i, j), value in np.ndenumerate(grid):
-        ax.text(j, i, f"{value:.0%}", ha="center", va="center", fontsize=8)
-    ax.set_xticks(range(len(sensing)), [f"{ms:g} ms\nnoise {'on' if n else 'off'}" for ms, n in sensing], fontsize=8)
-    ax.set_yticks(
-        range(len(models)), [f"friction x{f:g}, mass x{m:g}, stiffness x{k:g}" for f, m, k in models], fontsize=8
-    )
-    ax.set_title(title, fontsize=10)
-    fig.colorbar(image, ax=ax, label="success rate")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-
-
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line's arguments."""
     parser = argparse.ArgumentParser(
@@ -217,7 +146,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("policy", metavar="NAME_OR_DIR", help="a shipped policy's name or a policy directory")
-    parser.add_argument("--episodes", type=int, default=16, help="episodes per cell (default 16)")
+    parser.add_argument("--grid", default="nominal", help=f"the cells: {' or '.join(grids.GRIDS)} (default nominal)")
+    parser.add_argument(
+        "--episodes", type=int, default=None, help=f"episodes per cell (default {RESOLVING_EPISODES}; 8 on C MuJoCo)"
+    )
     parser.add_argument("--steps", type=int, default=None, help="max steps per episode (default: the env's limit)")
     parser.add_argument(
         "--backend",
@@ -227,57 +159,64 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
-        "--where",
-        action="append",
-        default=[],
-        metavar="FACTOR=VALUE",
-        help="only the cells with this factor value, e.g. --where hsa_stiffness=1.3 (repeatable)",
+        "--where", action="append", default=[], metavar="FACTOR=VALUE", help="only the matching cells (repeatable)"
     )
-    parser.add_argument("--tag", default=None, help="file name tag (default: the policy folder's name)")
+    parser.add_argument("--qacc-rule", choices=("off", "on"), default="off", help="end episodes on qacc_limit too")
+    parser.add_argument("--sim-to-sim", action="store_true", help="also play the cells on C MuJoCo's deployment loop")
+    parser.add_argument("--workers", type=int, default=None, help="processes for --sim-to-sim (default: every CPU)")
+    parser.add_argument("--tag", default=None, help="file name tag (default: the policy folder's name and the grid)")
     parser.add_argument("--out-dir", default=str(RESULTS))
     return parser.parse_args(argv)
+
+
+def resolve(args: argparse.Namespace) -> tuple[Path, str, list[dict]]:
+    """(policy directory, backend, cells) of the command line; ValueError or FileNotFoundError before any compile."""
+    directory = policy_file.locate(args.policy)
+    backend = for_one_env(args.backend)
+    if args.episodes is None:
+        args.episodes = 8 if backend == "c" else RESOLVING_EPISODES
+    if args.episodes < 1 or (args.steps is not None and args.steps < 1):
+        raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    return directory, backend, grids.select(grids.grid(args.grid), args.where)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m benchmarks.robustness``."""
     args = parse_args(argv)
     try:
-        if args.episodes < 1 or (args.steps is not None and args.steps < 1):
-            raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
-        directory = policy_file.locate(args.policy)
-        backend = for_one_env(args.backend)
-        chosen = select(args.where)
+        directory, backend, chosen = resolve(args)
         rows = []
-        for noise in GRID["noise"]:
+        for noise in (False, True):
             group = [c for c in chosen if c["noise"] == noise]
-            rows += run_group(directory, group, args.episodes, args.steps, backend, args.seed) if group else []
+            rows += run_group(directory, group, args, backend) if group else []
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    tag = args.tag or directory.resolve().name
-    out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    worst = min(rows, key=lambda r: r["success_rate"])
+    sim_rows = []
+    if args.sim_to_sim:
+        from benchmarks.sim_to_sim import play_cells
+
+        sim_rows = play_cells(directory, rows, args.steps, args.qacc_rule == "on", args.workers)
+    tag = args.tag or f"{directory.resolve().name}_{args.grid}"
     result = {
         **run_info(),
         "policy": str(directory),
+        "grid": args.grid,
         "episodes_per_cell": args.episodes,
         "max_steps": args.steps,
         "physics_backend": backend,
+        "qacc_rule": args.qacc_rule,
         "where": args.where,
-        "noise_on": NOISE_ON,
+        "noise_on": grids.NOISE,
+        "pushes_on": {"interval_s": list(grids.PUSH_INTERVAL_S), "speed_m_per_s": grids.PUSH_SPEED},
+        **report.summary(rows, RESOLVING_EPISODES),
         "cells": rows,
-        "min_success_rate": worst["success_rate"],
-        "mean_success_rate": float(np.mean([r["success_rate"] for r in rows])),
+        "sim_to_sim": sim_rows,
     }
-    (out / f"robustness_{tag}.json").write_text(json.dumps(result, indent=1))
-    (out / f"robustness_{tag}.md").write_text(f"# {tag}: success per perturbed model\n\n{table(rows)}\n")
-    heat_map(rows, out / f"robustness_{tag}.png", f"{tag}: success rate per cell ({args.episodes} episodes each)")
-    print(table(rows))
-    print(
-        f"lowest success {worst['success_rate']:.0%} (cell { ({k: worst[k] for k in GRID}) }); "
-        f"mean {result['mean_success_rate']:.0%}; wrote {out}/robustness_{tag}.{{json,md,png}}"
-    )
+    for line in report.write(result, Path(args.out_dir), tag):
+        print(line)
     return 0
 
 

@@ -107,6 +107,10 @@ class TerminationConfig:
     # substep (also catches transient impacts of the light hinges, which are not blow-ups: qvel and
     # finiteness are always checked at every substep). See docs/training.md.
     qacc_every_substep: bool = False
+    # false: no joint-acceleration rule (the original's, a simulator-health check that stiffer springs
+    # trip on a sound gait); episodes then end on non-finite states, block heights, qvel_limit, leaving
+    # the arena and the goal. benchmarks.robustness scores that way by default (docs/robustness.md).
+    qacc_termination: bool = True
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # offscreen rendering without a display
+# Bytecode: the test command installs with ``pip install --no-compile`` (byte-compiling the 20,000-odd
+# modules of torch, JAX, SciPy and the rest takes half the install, and the tests import a fraction).
+# The test processes write the .pyc of what they import once, for every later process, even where
+# the machine sets PYTHONDONTWRITEBYTECODE (each process would compile them again: ~4 s each).
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+sys.dont_write_bytecode = False
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # XLA's CPU backend without LLVM optimisation and with its classic loop emitters instead of the fusion
 # emitters: the suite's time is mostly compiling MJX programs, which the two cut by about half (the flat

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -64,3 +66,61 @@ def test_deploy_reaches_goals_and_refuses_what_it_cannot_run(capsys, tmp_path):
     assert "policy.onnx not found" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main([])  # --policy is required
+
+
+def _captured_fields(env, state) -> dict:
+    """The model fields the env's step hands its physics for this episode (a physics that records them)."""
+    captured = {}
+
+    def record(data, targets, fields):
+        captured.update(jax.device_get(fields))
+        return env._simulate(data, targets, {})
+
+    env.step_with(record, state, np.zeros(8, np.float32))
+    return captured
+
+
+def test_simulated_robot_perturbation_writes_the_fields_the_env_randomises():
+    from hsa_mjx.deploy.perturbation import ModelPerturbation
+
+    perturbation = ModelPerturbation(
+        friction=0.3, block_mass=1.4, hsa_stiffness=0.5, hsa_damping=1.5, servo_gain=0.6, servo_torque_limit=0.5
+    )
+    config = loop.policy_env(policy_file.read_meta(policy_file.locate("flat")))[0]
+    mj_model, index = loop.load_model(config)
+    robot = loop.SimulatedRobot(mj_model, index, config, perturbation=perturbation)
+    # the env drawing exactly these values (every range [v, v]) on the same model
+    env = hsa_mjx.make_env(config, physics__backend="c", randomization=dataclasses.asdict(perturbation.randomization()))
+    expected = _captured_fields(env, env.reset(jax.random.PRNGKey(0)))
+    assert set(expected) == {
+        "geom_friction",
+        "pair_friction",
+        "body_mass",
+        "body_inertia",
+        "tendon_stiffness",
+        "tendon_damping",
+        "actuator_gainprm",
+        "actuator_biasprm",
+        "actuator_forcerange",
+    }
+    for name, value in expected.items():
+        np.testing.assert_allclose(getattr(robot.model, name), value, rtol=1e-6, err_msg=name)
+        assert not np.allclose(getattr(mj_model, name), value), name  # changed, and in a copy only
+    assert robot.model.actuator_forcelimited[index.servo_ids].all() and not mj_model.actuator_forcelimited.any()
+    np.testing.assert_allclose(robot.model.body_mass[index.block_body], 1.4 * mj_model.body_mass[index.block_body])
+    # the training model: the model itself
+    assert loop.SimulatedRobot(mj_model, index, config, perturbation=ModelPerturbation()).model is mj_model
+
+
+def test_deploy_runs_a_perturbed_robot_and_refuses_values_outside_the_ranges(capsys):
+    args = ["--policy", "flat_dr", "--goal", "1.5", "0.5", "--max-steps", "40"]
+    assert main([*args, "--friction", "0.3", "--servo-gain", "0.6", "--servo-torque-limit", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "a robot with friction x0.3, servo_gain x0.6, servo_torque_limit 0.5 N m" in out
+    for flag, value, message in (
+        ("--friction", "5", "friction must be in [0.1, 3], got 5.0"),
+        ("--block-mass", "0.1", "block_mass must be in [0.5, 2], got 0.1"),
+        ("--servo-torque-limit", "0", "servo_torque_limit must be in [0.05, 5], got 0.0"),
+    ):
+        assert main([*args, flag, value]) == 2
+        assert message in capsys.readouterr().err

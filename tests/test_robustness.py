@@ -1,81 +1,100 @@
-"""benchmarks.robustness: the grid, one model per cell, the written table and heat map."""
+"""benchmarks.robustness: the grids, one model per cell, the intervals, sim-to-sim, the written results."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
+import jax
+import jax.numpy as jnp
 import pytest
 
-from benchmarks import robustness
+from benchmarks import robustness, robustness_grids, stats
 
 
-def test_the_grid_crosses_every_factor():
-    cells = robustness.cells()
-    assert len(cells) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in cells})
-    assert {c["latency_ms"] for c in cells} == {0, 20, 40} and {c["noise"] for c in cells} == {False, True}
+def test_wilson_interval_matches_known_values_and_stays_in_range():
+    # reference values (Wilson 1927; e.g. statsmodels' proportion_confint(method="wilson"))
+    assert stats.wilson_interval(8, 8) == pytest.approx((0.6756, 1.0), abs=1e-4)
+    assert stats.wilson_interval(32, 32)[0] == pytest.approx(0.8928, abs=1e-4)
+    assert stats.wilson_interval(5, 8) == pytest.approx((0.3057, 0.8632), abs=1e-4)
+    assert stats.wilson_interval(0, 10) == pytest.approx((0.0, 0.2775), abs=1e-4)
+    low, high = stats.wilson_interval(50, 100)
+    assert low == pytest.approx(1 - high) and low < 0.5 < high  # symmetric about one half
+    for bad in ((3, 2), (-1, 4), (0, 0)):
+        with pytest.raises(ValueError, match="successes <= trials"):
+            stats.wilson_interval(*bad)
 
 
-def test_every_cell_runs_its_own_model_and_the_results_are_written(tmp_path):
-    assert (
-        robustness.main(
-            ["flat", "--episodes", "1", "--steps", "25", "--backend", "c", "--out-dir", str(tmp_path), "--tag", "smoke"]
-        )
-        == 0
-    )
-    result = json.loads((tmp_path / "robustness_smoke.json").read_text())
-    rows = result["cells"]
-    assert len(rows) == 72 and all(r["episodes"] == 1 for r in rows)
-    assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
-    # the same episode (start, goal, policy) on each friction, all else alike: three different outcomes
-    same = [
-        r for r in rows if (r["block_mass"], r["hsa_stiffness"], r["latency_ms"], r["noise"]) == (0.8, 0.7, 0, False)
-    ]
-    assert len({round(r["mean_final_distance"], 6) for r in same}) == 3
-    lagged = [
-        r for r in rows if (r["friction"], r["block_mass"], r["hsa_stiffness"], r["noise"]) == (1.0, 0.8, 0.7, False)
-    ]
-    assert len({round(r["mean_final_distance"], 6) for r in lagged}) == 3  # latency 0, 20, 40 ms differ too
-    assert "| x0.5 | x0.8 | x0.7 | 0 | off |" in (tmp_path / "robustness_smoke.md").read_text()
-    # every episode reached its goal or ended one way: the failure shares and the success rate add up to 1
-    assert all(abs(r["success_rate"] + sum(r["failures"].values()) - 1) < 1e-6 for r in rows)
-    assert any(r["failures"].get("not_finished") for r in rows)  # 25 steps end most episodes short
+def test_the_grids_cells():
+    nominal, stress = robustness_grids.grid("nominal"), robustness_grids.grid("stress")
+    assert len(nominal) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in nominal})
+    assert {c["latency_ms"] for c in nominal} == {0, 20, 40} and not any(c["pushes"] for c in nominal)
+    assert len(stress) == 18 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    for name, ends in robustness_grids.STRESS_ENDS.items():  # each end alone, every other factor as trained
+        for value in ends:
+            assert robustness_grids.cell(**{name: value}) in stress
+    assert min(c["friction"] for c in stress) == 0.3 and max(c["latency_ms"] for c in stress) == 60
+    assert {robustness_grids.label(c) for c in stress} >= {"training model", "friction x0.3", "60 ms", "pushes"}
+    with pytest.raises(ValueError, match="grids: nominal, stress"):
+        robustness_grids.grid("hard")
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"friction": 0.05}, r"friction must be in \[0.1, 3\]"),
+        ({"block_mass": 2.5}, r"block_mass must be in \[0.5, 2\]"),
+        ({"hsa_stiffness": 0.0}, r"hsa_stiffness must be in \[0.25, 2\]"),
+        ({"servo_gain": -1.0}, r"servo_gain must be in"),
+        ({"servo_torque_limit": 0.0}, r"servo_torque_limit must be in \[0.05, 5\]"),
+        ({"latency_ms": 500}, r"latency_ms must be in \[0, 200\]"),
+        ({"pushes": "yes"}, "pushes must be true or false"),
+        ({"gravity": 2.0}, "unknown factors"),
+    ],
+)
+def test_invalid_stress_values_are_refused(change, message):
+    with pytest.raises(ValueError, match=message):
+        robustness_grids.cell(**change)
 
 
 def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values():
-    chosen = robustness.select(["hsa_stiffness=1.3", "block_mass=0.8", "noise=off"])
-    assert len(chosen) == 9 and all(
-        (c["hsa_stiffness"], c["block_mass"], c["noise"]) == (1.3, 0.8, False) for c in chosen
-    )
-    assert robustness.select(["latency_ms=20.0"]) == [c for c in robustness.cells() if c["latency_ms"] == 20]
+    nominal = robustness_grids.grid("nominal")
+    chosen = robustness_grids.select(nominal, ["hsa_stiffness=1.3", "block_mass=0.8", "noise=off"])
+    assert len(chosen) == 9
+    assert all((c["hsa_stiffness"], c["block_mass"], c["noise"]) == (1.3, 0.8, False) for c in chosen)
+    assert robustness_grids.select(nominal, ["latency_ms=20.0"]) == [c for c in nominal if c["latency_ms"] == 20]
+    stress = robustness_grids.grid("stress")
+    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 14
     with pytest.raises(ValueError, match="factors: friction"):
-        robustness.select(["mass=0.8"])
-    with pytest.raises(ValueError, match="0.5, 1, 1.5"):
-        robustness.select(["friction=2"])
+        robustness_grids.select(nominal, ["mass=0.8"])
+    with pytest.raises(ValueError, match="values here: 0.5, 1.0, 1.5"):
+        robustness_grids.select(nominal, ["friction=2"])
     assert robustness.main(["flat", "--where", "noise=maybe"]) == 2
+    assert robustness.main(["flat", "--grid", "hard"]) == 2
 
 
-def test_the_randomised_training_config_covers_the_grid():
-    import hsa_mjx_train.config
+def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path):
+    args = ["flat", "--grid", "stress", "--episodes", "1", "--steps", "30", "--backend", "c", "--sim-to-sim"]
+    assert robustness.main([*args, "--workers", "1", "--out-dir", str(tmp_path), "--tag", "smoke"]) == 0
+    result = json.loads((tmp_path / "robustness_smoke.json").read_text())
+    rows = result["cells"]
+    assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
+    assert len(rows) == 18 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
+    # the same episode (start, goal, policy) on every model: each factor alone moves the robot elsewhere
+    trained = rows[0]["mean_final_distance"]
+    alone = [r for r in rows[1:11]]  # the five scales at both ends
+    assert all(round(r["mean_final_distance"], 6) != round(trained, 6) for r in alone), [r["label"] for r in alone]
+    # every episode reached its goal or ended one way: the failure shares and the success rate add up to 1
+    assert all(abs(r["success_rate"] + sum(r["failures"].values()) - 1) < 1e-6 for r in rows)
+    assert "1 episodes a cell" in result["note"]  # too few episodes: the minimum is noise
+    sim = result["sim_to_sim"]
+    assert len(sim) == sum(not r["pushes"] for r in rows) and all(r["physics"] == "c_mujoco" for r in sim)
+    assert all(r["gap"] == r["success_rate"] - r["mjx_success_rate"] for r in sim)
+    assert "## Sim-to-sim" in (tmp_path / "robustness_smoke.md").read_text()
 
-    dr, flat = (
-        hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat_dr.yaml")),
-        hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat.yaml")),
-    )
-    ranges = dr["env"].pop("randomization")
-    assert dr["env"]["observation"].pop("noise") == robustness.NOISE_ON
-    flat["env"].pop("randomization"), flat["env"]["observation"].pop("noise")
-    # the flat task at its final goal range, continued from the shipped flat policy
-    assert dr["env"]["goal"].pop("radial_range") == flat["goal_curriculum"]["target_range"]
-    flat["env"]["goal"].pop("radial_range")
-    assert dr["env"] == flat["env"] and dr["run"]["init_from"] == "flat" and not dr["goal_curriculum"]["enabled"]
-    for name in ("friction", "block_mass", "hsa_stiffness"):
-        assert ranges[name] == [min(robustness.GRID[name]), max(robustness.GRID[name])]
-    assert ranges["latency_steps"] == [0, max(robustness.GRID["latency_ms"]) // 20]
 
-
-def test_a_randomised_policy_is_scored_on_the_cells_model_alone():
-    import dataclasses
-
+def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
     import hsa_mjx_train.config
     from hsa_mjx.deploy import policy_file
     from hsa_mjx.randomization_config import RandomizationConfig
@@ -83,19 +102,34 @@ def test_a_randomised_policy_is_scored_on_the_cells_model_alone():
 
     trained = policy_file.load_policy(policy_file.locate("flat_dr")).meta["config"]
     assert trained["env"]["randomization"]["push_speed"] > 0  # it trained with pushes and noise
-    overridden = {
-        o.split("=")[0].rsplit(".", 1)[1] for o in robustness.env_overrides(False, 2) if ".randomization." in o
-    }
+    nominal = robustness_grids.grid("nominal")
+    overrides = robustness.env_overrides(nominal[:36], 0.02, qacc_rule=False)
+    overridden = {o.split("=")[0].rsplit(".", 1)[1] for o in overrides if ".randomization." in o}
     assert overridden == {f.name for f in dataclasses.fields(RandomizationConfig)}  # no training range leaks in
-    for noise in (False, True):
-        env = hsa_mjx_train.config.from_dict(
-            policy_sources.env_overrides(trained, robustness.env_overrides(noise, 2))
-        ).env
-        assert env.randomization.push_speed == 0 and env.randomization.hsa_damping == env.randomization.servo_gain == (
-            1,
-            1,
-        )
-        assert env.randomization.hsa_stiffness == (0.7, 1.3) and env.randomization.latency_steps == (0, 2)
-        assert dataclasses.asdict(env.observation.noise) == {
-            k: (v if noise else 0) for k, v in robustness.NOISE_ON.items()
-        }
+    env = hsa_mjx_train.config.from_dict(policy_sources.env_overrides(trained, overrides)).env
+    assert env.randomization.push_speed == 0 and env.randomization.hsa_damping == env.randomization.servo_gain == (1, 1)
+    assert env.randomization.hsa_stiffness == (0.7, 1.3) and env.randomization.latency_steps == (0, 2)
+    assert not env.termination.qacc_termination  # simulator health and task failure only
+    assert not any(dataclasses.asdict(env.observation.noise).values())
+    stress = [c for c in robustness_grids.grid("stress") if c["noise"]]
+    env = hsa_mjx_train.config.from_dict(
+        policy_sources.env_overrides(trained, robustness.env_overrides(stress, 0.02, qacc_rule=True))
+    ).env
+    assert dataclasses.asdict(env.observation.noise) == robustness_grids.NOISE and env.termination.qacc_termination
+    assert env.randomization.push_speed == robustness_grids.PUSH_SPEED  # the corner with pushes
+
+
+def test_a_cell_without_pushes_is_never_pushed():
+    import hsa_mjx
+    from hsa_mjx.task.randomization import NEVER
+    from hsa_mjx_train.rollout import with_randomization
+
+    env = hsa_mjx.make_env("flat", randomization__push_speed=0.3, randomization__push_interval_s=[2.0, 4.0])
+    state = env.reset(jax.random.PRNGKey(0))
+    drawn = state.pipeline_state.task.randomization
+    assert 100 <= int(drawn.next_push) <= 200  # 2-4 s of 20 ms steps
+    physics, latency = drawn.physics, jnp.zeros((), jnp.int32)
+    pushed = with_randomization(state, physics, latency, jnp.asarray(True)).pipeline_state.task.randomization
+    assert int(pushed.next_push) == int(drawn.next_push)
+    kept = with_randomization(state, physics, latency, jnp.asarray(False)).pipeline_state.task.randomization
+    assert int(kept.next_push) == NEVER

@@ -121,9 +121,9 @@ def test_device_split_checked():
 
 
 def test_set_overrides():
-    data = hsa_mjx_train.config.apply_overrides(
-        {"ppo": {"learning_rate": 1.0}}, ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"]
-    )
+    given = {"ppo": {"learning_rate": 1.0}, "env": {"reward": {"forward": 6.0}}}
+    data = hsa_mjx_train.config.apply_overrides(given, ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"])
+    assert given == {"ppo": {"learning_rate": 1.0}, "env": {"reward": {"forward": 6.0}}}  # the caller's data kept
     config = hsa_mjx_train.config.from_dict(data)
     assert config.ppo.learning_rate == pytest.approx(2e-4)
     assert config.env.reward.forward == 3.0 and config.run.seed == 7

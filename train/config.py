@@ -17,6 +17,7 @@ naming the key when the config is built, before any compilation; a built ``Train
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
@@ -253,8 +254,8 @@ def validate_devices(config: TrainConfig, devices: int) -> TrainConfig:
 
 def apply_overrides(data: dict, assignments: list[str]) -> dict:
     """Apply ``section.key=value`` strings (values parsed as YAML) to nested config data (its older keys
-    mapped first, so that an override and the file's key meet under one name)."""
-    data = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in migrations.training_keys(data).items()}
+    mapped first, so that an override and the file's key meet under one name); ``data`` is left as it is."""
+    data = copy.deepcopy(dict(migrations.training_keys(data)))
     for item in assignments:
         if "=" not in item:
             raise ValueError(f"--set expects section.key=value, got {item!r}")

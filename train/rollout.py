@@ -18,6 +18,7 @@ from hsa_mjx.sim import backend
 from hsa_mjx.task import observation, termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import FREE_CELL, EnvParams
+from hsa_mjx.task.randomization import NEVER
 
 
 def rollout(
@@ -39,8 +40,8 @@ def rollout(
     ``env.step_with`` (e.g. ``hsa_mjx.sim.host_physics.HostPhysics``); default the env's MJX step.
     ``cells``: each episode's terrain cell (type row, level), (N, 2) int32; default a free draw.
     ``randomization``: each episode's physical scales and latency instead of the env's draws,
-    ``{"physics": PhysicsScales, "latency": int32}`` with a leading episode axis (the env must
-    randomise the scales it sets, and allow the latency).
+    ``{"physics": PhysicsScales, "latency": int32, "pushes": bool (optional)}`` with a leading episode
+    axis (the env must randomise the scales it sets, allow the latency and, for pushes, push).
     """
     idx = env.index
     env_step = env.step if simulate is None else functools.partial(env.step_with, simulate)
@@ -49,7 +50,7 @@ def rollout(
         act = policy if params is None else functools.partial(policy, p)
         state = env.reset(key, EnvParams.make(goal_range, FREE_CELL if cell is None else cell))
         if fixed is not None:
-            state = with_randomization(state, fixed["physics"], fixed["latency"])
+            state = with_randomization(state, fixed["physics"], fixed["latency"], fixed.get("pushes"))
 
         def step(carry, k_act):
             s, alive = carry
@@ -83,10 +84,14 @@ def rollout(
     return jax.jit(jax.vmap(one, in_axes=in_axes))(keys, params, cells, randomization)
 
 
-def with_randomization(state: Any, physics: Any, latency: jax.Array) -> Any:
-    """An env state whose episode runs with these physical scales and this action latency."""
+def with_randomization(state: Any, physics: Any, latency: jax.Array, pushes: jax.Array | None = None) -> Any:
+    """An env state whose episode runs with these physical scales and this action latency, and without
+    the env's pushes where ``pushes`` is false (its drawn push times where true)."""
     sim = state.pipeline_state
-    randomization = sim.task.randomization.replace(physics=physics, latency=jnp.asarray(latency, jnp.int32))
+    drawn = sim.task.randomization
+    randomization = drawn.replace(physics=physics, latency=jnp.asarray(latency, jnp.int32))
+    if pushes is not None:
+        randomization = randomization.replace(next_push=jnp.where(pushes, drawn.next_push, NEVER))
     return state.replace(pipeline_state=sim.replace(task=sim.task.replace(randomization=randomization)))
 
 

@@ -2,8 +2,11 @@
 
 The policy (numpy ``policy.npz``, or ``--onnx`` for the folder's ``policy.onnx`` through onnxruntime)
 drives the C MuJoCo model of its env at the control rate, seeing only what the robot's sensors give
-(``hsa_mjx.deploy.loop``), with ``--latency-ms`` of action delay. Goals: ``--goal X Y``, or
-``--episodes`` goals drawn from the policy's training goal range. Prints each episode and a summary.
+(``hsa_mjx.deploy.loop``), with ``--latency-ms`` of action delay, on the training model or on a robot
+unlike it (``--friction``, ``--block-mass``, ``--hsa-stiffness``, ``--hsa-damping``, ``--servo-gain``:
+scales of the model's values; ``--servo-torque-limit`` in N m; values outside the valid ranges are
+refused). Goals: ``--goal X Y``, or ``--episodes`` goals drawn from the policy's training goal range.
+Prints each episode and a summary.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from hsa_mjx.deploy import loop, policy_file
+from hsa_mjx.deploy.perturbation import LIMITS, ModelPerturbation
 
 ONNX_FILE = "policy.onnx"
 
@@ -31,6 +35,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--max-steps", type=int, default=None, help="control ticks per goal (default: the env's)")
     parser.add_argument("--latency-ms", type=float, default=0.0, help="action delay, a whole number of ticks")
     parser.add_argument("--realtime", action="store_true", help="tick at the control rate in wall time")
+    for name, (lo, hi) in LIMITS.items():
+        what = "N m, the servos' torque limit" if name == "servo_torque_limit" else "scale of the model's value"
+        parser.add_argument(
+            f"--{name.replace('_', '-')}", type=float, default=None, help=f"{what}, in [{lo:g}, {hi:g}]"
+        )
     parser.add_argument("--seed", type=int, default=0)
     return parser.parse_args(argv)
 
@@ -62,6 +71,13 @@ def goals(args: argparse.Namespace, radial_range: tuple[float, float]) -> np.nda
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
 
 
+def _changes(perturbation: ModelPerturbation) -> str:
+    """What a perturbation changes, in words."""
+    default = ModelPerturbation()
+    changed = {k: getattr(perturbation, k) for k in LIMITS if getattr(perturbation, k) != getattr(default, k)}
+    return ", ".join(f"{k} {v:g} N m" if k == "servo_torque_limit" else f"{k} x{v:g}" for k, v in changed.items())
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``python -m hsa_mjx.deploy``."""
     args = parse_args(argv)
@@ -72,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         config, labels, goal_range = loop.policy_env(meta)
         latency = loop.latency_steps(args.latency_ms, config.dt)
         targets = goals(args, goal_range)
+        perturbation = ModelPerturbation(**{k: getattr(args, k) for k in LIMITS if getattr(args, k) is not None})
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
@@ -80,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     results = []
     for goal in targets:
         controller = loop.Controller(network, labels, config, int(meta["action"]["size"]), latency)
-        robot = loop.SimulatedRobot(mj_model, index, config, realtime=args.realtime)
+        robot = loop.SimulatedRobot(mj_model, index, config, realtime=args.realtime, perturbation=perturbation)
         result = loop.run(controller, robot, goal, max_steps, config.goal.success_radius)
         results.append(result)
         print(
@@ -88,9 +105,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{result['seconds']:.1f} s, {result['start_distance']:.2f} -> {result['final_distance']:.2f} m"
         )
     reached = sum(r["reached"] for r in results)
+    model = "the training model" if perturbation.nominal else f"a robot with {_changes(perturbation)}"
     print(
         f"{reached} of {len(results)} goals reached ({'onnx' if args.onnx else 'numpy'} policy, "
-        f"latency {latency} ticks of {config.dt * 1000:g} ms, C MuJoCo)"
+        f"latency {latency} ticks of {config.dt * 1000:g} ms, C MuJoCo, {model})"
     )
     return 0
 

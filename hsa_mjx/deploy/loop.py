@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from hsa_mjx.config import EnvConfig
+from hsa_mjx.deploy.perturbation import ModelPerturbation, perturbed_model
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.task.control import next_targets, substep_targets
 from hsa_mjx.task.observation import GOAL_EPS, HEADING_EPS
@@ -57,10 +58,22 @@ class SimulatedRobot:
         index: its name index.
         config: the env config (spawn height, control settings).
         realtime: sleep so that each tick lasts ``config.dt`` of wall time (as on hardware).
+        perturbation: a robot unlike the model (friction, masses, springs, servo gain and torque limit),
+            written into a copy of ``mj_model`` (``hsa_mjx.deploy.perturbation``); None: the model as it is.
     """
 
-    def __init__(self, mj_model: mujoco.MjModel, index: RobotIndex, config: EnvConfig, realtime: bool = False):
+    def __init__(
+        self,
+        mj_model: mujoco.MjModel,
+        index: RobotIndex,
+        config: EnvConfig,
+        realtime: bool = False,
+        perturbation: ModelPerturbation | None = None,
+    ):
+        if perturbation is not None and not perturbation.nominal:
+            mj_model = perturbed_model(mj_model, index, perturbation)
         self.model, self.index, self.config, self.realtime = mj_model, index, config, realtime
+        self.perturbation = perturbation or ModelPerturbation()
         self.data = mujoco.MjData(mj_model)
         self.data.qpos[index.block_z] = config.spawn_height
         mujoco.mj_forward(mj_model, self.data)

@@ -1,0 +1,155 @@
+"""The robustness benchmark's grids: the cells a policy is scored on and what each cell changes.
+
+A cell is a dict of every factor in ``FACTORS`` (the training model's value where the cell leaves one
+alone), so both grids run through one code path:
+
+- ``nominal``: floor friction x0.5 / x1 / x1.5, block masses x0.8 / x1.2, HSA stiffness x0.7 / x1.3,
+  latency 0 / 20 / 40 ms, observation noise off / on (``NOISE``): 72 cells, all within the span
+  that ``configs/train_flat_dr.yaml`` trains on;
+- ``stress``: the training model, each factor alone at both ends of its stress range (friction x0.3
+  and x2, masses x0.6 and x1.4, HSA stiffness and damping x0.5 and x1.5, servo gain x0.6 and x1.2,
+  a servo torque limit, 60 ms latency, pushes, observation noise), and three corners where they
+  combine: 18 cells. ``docs/robustness.md`` justifies each range from what varies on a real robot.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+from hsa_mjx.deploy.perturbation import ModelPerturbation
+
+SCALES = ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")
+FACTORS = (*SCALES, "servo_torque_limit", "latency_ms", "pushes", "noise")
+TRAINING = {**dict.fromkeys(SCALES, 1.0), "servo_torque_limit": None, "latency_ms": 0, "pushes": False, "noise": False}
+MAX_LATENCY_MS = 200
+# observation noise of a cell with noise on: uniform +-value (about 1 degree on the hinge encoders,
+# 1 cm on the position tracker; configs/train_flat_dr.yaml trains with the same)
+NOISE = {
+    "hinge_angles": 0.02,
+    "hinge_velocities": 0.2,
+    "position": 0.01,
+    "velocity": 0.02,
+    "goal": 0.01,
+    "heading": 0.02,
+}
+# pushes of a cell with pushes on: every 2-4 s, a horizontal velocity of up to 0.3 m/s added to both
+# blocks (about four times the robot's crawling speed; configs/train_flat_dr.yaml trains with 0.1 m/s)
+PUSH_INTERVAL_S = (2.0, 4.0)
+PUSH_SPEED = 0.3
+# the stress grid's servo torque limit (N m): about a third of the largest servo torque the flat
+# policy's gait asks for (docs/robustness.md)
+STRESS_TORQUE_LIMIT = 1.0
+
+
+def cell(**changes: Any) -> dict[str, Any]:
+    """The training model with ``changes``, checked (ValueError naming the factor and its range)."""
+    unknown = set(changes) - set(FACTORS)
+    if unknown:
+        raise ValueError(f"unknown factors {sorted(unknown)}; factors: {', '.join(FACTORS)}")
+    out = {**TRAINING, **changes}
+    check(out)
+    return out
+
+
+def check(c: dict[str, Any]) -> None:
+    """ValueError unless every factor of cell ``c`` is in its valid range."""
+    ModelPerturbation(**{name: c[name] for name in (*SCALES, "servo_torque_limit")})  # the scales and the limit
+    if not (isinstance(c["latency_ms"], int | float) and 0 <= c["latency_ms"] <= MAX_LATENCY_MS):
+        raise ValueError(f"latency_ms must be in [0, {MAX_LATENCY_MS}], got {c['latency_ms']!r}")
+    for name in ("pushes", "noise"):
+        if not isinstance(c[name], bool):
+            raise ValueError(f"{name} must be true or false, got {c[name]!r}")
+
+
+def nominal_grid() -> list[dict[str, Any]]:
+    """The 72 cells within the randomised training span."""
+    values = {
+        "friction": (0.5, 1.0, 1.5),
+        "block_mass": (0.8, 1.2),
+        "hsa_stiffness": (0.7, 1.3),
+        "latency_ms": (0, 20, 40),
+        "noise": (False, True),
+    }
+    return [cell(**dict(zip(values, combo))) for combo in itertools.product(*values.values())]
+
+
+STRESS_ENDS = {
+    "friction": (0.3, 2.0),
+    "block_mass": (0.6, 1.4),
+    "hsa_stiffness": (0.5, 1.5),
+    "hsa_damping": (0.5, 1.5),
+    "servo_gain": (0.6, 1.2),
+}
+
+
+def stress_grid() -> list[dict[str, Any]]:
+    """The training model, each factor alone at each end of its stress range, and three corners."""
+    alone = [cell(**{name: value}) for name, ends in STRESS_ENDS.items() for value in ends]
+    alone += [
+        cell(servo_torque_limit=STRESS_TORQUE_LIMIT),
+        cell(latency_ms=60),
+        cell(pushes=True),
+        cell(noise=True),
+    ]
+    corners = [
+        # a slick floor under a stiff, heavy robot with weak, late servos
+        cell(friction=0.3, block_mass=1.4, hsa_stiffness=1.5, servo_gain=0.6, latency_ms=60),
+        # a grippy floor under a light, soft robot with strong servos, pushed and sensed noisily
+        cell(friction=2.0, block_mass=0.6, hsa_stiffness=0.5, hsa_damping=0.5, servo_gain=1.2, pushes=True, noise=True),
+        # torque-limited and late on a slick floor, with pushes
+        cell(friction=0.3, servo_torque_limit=STRESS_TORQUE_LIMIT, latency_ms=60, pushes=True),
+    ]
+    return [cell(), *alone, *corners]
+
+
+GRIDS = {"nominal": nominal_grid, "stress": stress_grid}
+
+
+def grid(name: str) -> list[dict[str, Any]]:
+    """The cells of grid ``name`` (ValueError naming the grids)."""
+    if name not in GRIDS:
+        raise ValueError(f"unknown grid {name!r}; grids: {', '.join(GRIDS)}")
+    return GRIDS[name]()
+
+
+def label(c: dict[str, Any]) -> str:
+    """A short name of what cell ``c`` changes ("training model" when nothing)."""
+    parts = [f"{name} x{c[name]:g}" for name in SCALES if c[name] != 1.0]
+    if c["servo_torque_limit"] is not None:
+        parts.append(f"torque <= {c['servo_torque_limit']:g} N m")
+    if c["latency_ms"]:
+        parts.append(f"{c['latency_ms']:g} ms")
+    parts += [name for name in ("pushes", "noise") if c[name]]
+    return ", ".join(parts) or "training model"
+
+
+def _parse(name: str, text: str) -> Any:
+    """A ``--where`` value of factor ``name`` in the cells' type."""
+    text = text.strip().lower()
+    if name in ("pushes", "noise"):
+        flags = {"on": True, "true": True, "off": False, "false": False}
+        if text not in flags:
+            raise ValueError(f"{name} takes on or off, got {text!r}")
+        return flags[text]
+    if name == "servo_torque_limit" and text in ("none", "off"):
+        return None
+    try:
+        return float(text)
+    except ValueError as err:
+        raise ValueError(f"{name} takes a number, got {text!r}") from err
+
+
+def select(cells: list[dict[str, Any]], where: list[str]) -> list[dict[str, Any]]:
+    """The cells matching every ``FACTOR=VALUE`` (ValueError naming the factors, or the values there are)."""
+    for item in where:
+        name, _, text = item.partition("=")
+        if name not in FACTORS:
+            raise ValueError(f"--where {item!r}: unknown factor {name!r}; factors: {', '.join(FACTORS)}")
+        value = _parse(name, text)
+        matching = [c for c in cells if c[name] == value]
+        if not matching:
+            there = sorted({str(c[name]) for c in cells})
+            raise ValueError(f"--where {item!r}: no cell has {name} = {text}; values here: {', '.join(there)}")
+        cells = matching
+    return cells

@@ -1,0 +1,140 @@
+"""What ``benchmarks.robustness`` writes: the summary over cells, the markdown table, the heat map."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+TARGET = 0.9  # a cell "below 90 %" when its whole interval is
+
+
+def summary(rows: list[dict], resolving_episodes: int) -> dict[str, Any]:
+    """Lowest success and lowest lower bound (with their cells), the mean, the cells whose upper bound is
+    below 90 %, and a note when too few episodes make the minimum mostly sampling noise."""
+    worst = min(rows, key=lambda r: r["success_rate"])
+    lowest = min(rows, key=lambda r: r["ci95"][0])
+    episodes = min(r["episodes"] for r in rows)
+    out = {
+        "min_success_rate": worst["success_rate"],
+        "min_success_cell": worst["label"],
+        "lowest_lower_bound": lowest["ci95"][0],
+        "lowest_lower_bound_cell": lowest["label"],
+        "mean_success_rate": float(np.mean([r["success_rate"] for r in rows])),
+        "cell_count": len(rows),
+        "cells_upper_bound_below_90": sum(r["ci95"][1] < TARGET for r in rows),
+    }
+    if episodes < resolving_episodes:
+        out["note"] = (
+            f"{episodes} episodes a cell: the minimum over {len(rows)} cells is dominated by sampling noise "
+            f"(one failure in {episodes} is {1 / episodes:.0%}); use {resolving_episodes} episodes on a GPU"
+        )
+    return out
+
+
+def _factors(r: dict) -> str:
+    limit = "-" if r["servo_torque_limit"] is None else f"{r['servo_torque_limit']:g}"
+    scales = " | ".join(f"x{r[k]:g}" for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain"))
+    flags = " | ".join("on" if r[k] else "off" for k in ("pushes", "noise"))
+    return f"{scales} | {limit} | {r['latency_ms']:g} | {flags}"
+
+
+def _rate(r: dict) -> str:
+    low, high = r["ci95"]
+    return f"{r['success_rate']:.0%} ({low:.0%}-{high:.0%})"
+
+
+def table(rows: list[dict]) -> str:
+    """A markdown table: one row per cell, its success with the 95 % interval."""
+    head = (
+        "| friction | block mass | HSA stiffness | HSA damping | servo gain | torque limit (N m) | latency (ms) "
+        "| pushes | noise | success (95 % CI) | progress (m) | failures ended by |"
+    )
+    lines = [head, "|" + "---|" * 12]
+    for r in rows:
+        ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
+        lines.append(f"| {_factors(r)} | {_rate(r)} | {r['mean_progress_m']:.2f} | {ended} |")
+    return "\n".join(lines)
+
+
+def sim_table(rows: list[dict]) -> str:
+    """Sim-to-sim: each cell's MJX and C MuJoCo success and the gap."""
+    lines = ["| cell | MJX (95 % CI) | C MuJoCo, deployment loop (95 % CI) | gap (points) |", "|---|---|---|---|"]
+    for r in rows:
+        mjx = {"success_rate": r["mjx_success_rate"], "ci95": r["mjx_ci95"]}
+        lines.append(f"| {r['label']} | {_rate(mjx)} | {_rate(r)} | {100 * r['gap']:+.0f} |")
+    return "\n".join(lines)
+
+
+def heat_map(rows: list[dict], path: Path, title: str) -> None:
+    """Success rate as a heat map: the model down, sensing and disturbance (latency, pushes, noise) across."""
+    from matplotlib.figure import Figure
+
+    def model(r):
+        return tuple(r[k] for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")) + (
+            r["servo_torque_limit"],
+        )
+
+    def sensing(r):
+        return r["latency_ms"], r["pushes"], r["noise"]
+
+    models, senses = list(dict.fromkeys(map(model, rows))), list(dict.fromkeys(map(sensing, rows)))
+    grid = np.full((len(models), len(senses)), np.nan)
+    for r in rows:
+        grid[models.index(model(r)), senses.index(sensing(r))] = r["success_rate"]
+    fig = Figure(figsize=(1.3 * len(senses) + 4, 0.45 * len(models) + 1.5))
+    ax = fig.subplots()
+    image = ax.imshow(grid, vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
+    for (i, j), value in np.ndenumerate(grid):
+        if np.isfinite(value):
+            ax.text(j, i, f"{value:.0%}", ha="center", va="center", fontsize=8)
+    ax.set_xticks(
+        range(len(senses)),
+        [f"{ms:g} ms" + (", pushes" if p else "") + (", noise" if n else "") for ms, p, n in senses],
+        fontsize=8,
+        rotation=30,
+    )
+    names = ("friction", "mass", "stiffness", "damping", "gain")
+    ax.set_yticks(
+        range(len(models)),
+        [
+            ", ".join(f"{n} x{v:g}" for n, v in zip(names, m[:5]) if v != 1.0)
+            + (f", torque <= {m[5]:g}" if m[5] is not None else "")
+            or "training model"
+            for m in models
+        ],
+        fontsize=8,
+    )
+    ax.set_title(title, fontsize=10)
+    fig.colorbar(image, ax=ax, label="success rate")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def write(result: dict, out: Path, tag: str) -> list[str]:
+    """Write ``robustness_<tag>.{json,md,png}`` under ``out``; the lines to print."""
+    out.mkdir(parents=True, exist_ok=True)
+    rows = result["cells"]
+    for r in rows:
+        r.pop("goals", None)
+    (out / f"robustness_{tag}.json").write_text(json.dumps(result, indent=1))
+    text = f"# {tag}: success per cell ({result['physics_backend']} physics)\n\n{table(rows)}\n"
+    if result["sim_to_sim"]:
+        text += f"\n## Sim-to-sim: the same cells on C MuJoCo's deployment loop\n\n{sim_table(result['sim_to_sim'])}\n"
+    (out / f"robustness_{tag}.md").write_text(text)
+    title = f"{tag}: success per cell ({result['episodes_per_cell']} episodes each, {result['physics_backend']})"
+    heat_map(rows, out / f"robustness_{tag}.png", title)
+    lines = [table(rows)]
+    if result["sim_to_sim"]:
+        lines.append(sim_table(result["sim_to_sim"]))
+    lines.append(
+        f"lowest success {result['min_success_rate']:.0%} ({result['min_success_cell']}); lowest lower bound "
+        f"{result['lowest_lower_bound']:.0%} ({result['lowest_lower_bound_cell']}); mean "
+        f"{result['mean_success_rate']:.0%}; {result['cells_upper_bound_below_90']} of {result['cell_count']} cells "
+        f"below 90 % with 95 % confidence; wrote {out}/robustness_{tag}.{{json,md,png}}"
+    )
+    if "note" in result:
+        lines.append(f"note: {result['note']}")
+    return lines

@@ -1,0 +1,108 @@
+"""Sim-to-sim: a policy scored by ``benchmarks.robustness`` on MJX, played again on C MuJoCo.
+
+Each cell's episodes run through the deployment loop (``hsa_mjx.deploy.loop``: the policy sees only
+sensor readings, actions go through the control law after the cell's latency) against a
+``SimulatedRobot`` carrying the cell's model (``ModelPerturbation``) and its observation noise, to the
+goals the MJX episodes had. Cells with pushes are left out (the loop has no pushes). An episode ends
+at the goal or after the step limit; with ``--qacc-rule off`` the MJX episodes also end only on
+simulator health, which a stable C simulation does not trip. Episodes run in worker processes (one C
+MuJoCo model each).
+"""
+
+from __future__ import annotations
+
+import functools
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks import robustness_grids as grids
+from benchmarks.stats import wilson_interval
+
+PHYSICS = "c_mujoco"
+
+
+def perturbation_of(cell: dict[str, Any]):
+    """The cell's model as a ``ModelPerturbation``."""
+    from hsa_mjx.deploy.perturbation import ModelPerturbation
+
+    return ModelPerturbation(**{name: cell[name] for name in (*grids.SCALES, "servo_torque_limit")})
+
+
+def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_steps: int | None, seed: int) -> bool:
+    """One episode of the deployment loop on the cell's robot; whether it reached the goal."""
+    from hsa_mjx.deploy import loop
+    from hsa_mjx.randomization_config import ObservationNoiseConfig
+    from hsa_mjx.task.randomization import noise_scales
+
+    policy, config, labels, (mj_model, index) = _loaded(directory)
+    noise = None
+    if cell["noise"]:
+        scales, rng = noise_scales(tuple(labels), ObservationNoiseConfig(**grids.NOISE)), np.random.default_rng(seed)
+        noise = lambda obs: obs + scales * rng.uniform(-1.0, 1.0, obs.shape).astype(np.float32)  # noqa: E731
+    latency = loop.latency_steps(cell["latency_ms"], config.dt)
+    controller = loop.Controller(policy, labels, config, policy.action_size, latency, noise)
+    robot = loop.SimulatedRobot(mj_model, index, config, perturbation=perturbation_of(cell))
+    steps = max_steps or config.termination.max_episode_steps
+    return bool(loop.run(controller, robot, np.asarray(goal), steps, config.goal.success_radius)["reached"])
+
+
+@functools.lru_cache(maxsize=2)
+def _loaded(directory: str) -> tuple:
+    """(policy, env config, observation labels, (C model, index)) of a policy directory, once per worker."""
+    from hsa_mjx.deploy import loop, policy_file
+
+    policy = policy_file.load_policy(Path(directory))
+    config, labels, _ = loop.policy_env(policy.meta)
+    return policy, config, labels, loop.load_model(config)
+
+
+def play_cells(
+    directory: Path, rows: list[dict], max_steps: int | None, qacc_rule: bool, workers: int | None
+) -> list[dict[str, Any]]:
+    """Each MJX row's episodes (no pushes) on C MuJoCo, to the same goals: a sim-to-sim row per cell."""
+    chosen = [r for r in rows if not r["pushes"]]
+    jobs = [(str(directory), _cell(r), goal, max_steps, i) for r in chosen for i, goal in enumerate(r["goals"])]
+    context = multiprocessing.get_context("spawn")  # a clean interpreter: no JAX or GPU state inherited
+    with ProcessPoolExecutor(workers or os.cpu_count(), mp_context=context, initializer=_on_the_cpu) as pool:
+        reached = list(pool.map(play_episode, *zip(*jobs), chunksize=4))
+    out, start = [], 0
+    for r in chosen:
+        n = len(r["goals"])
+        successes = int(sum(reached[start : start + n]))
+        start += n
+        low, high = wilson_interval(successes, n)
+        out.append(
+            {
+                **_cell(r),
+                "label": r["label"],
+                "physics": PHYSICS,
+                "qacc_rule": "on" if qacc_rule else "off",
+                "successes": successes,
+                "episodes": n,
+                "success_rate": successes / n,
+                "ci95": [low, high],
+                "mjx_success_rate": r["success_rate"],
+                "mjx_ci95": r["ci95"],
+                "gap": successes / n - r["success_rate"],
+            }
+        )
+    return out
+
+
+def _on_the_cpu() -> None:
+    """A worker's JAX on the CPU: the loop's few JAX calls (the perturbed model fields) need no GPU, and
+    sixteen workers each taking a GPU context would fill its memory."""
+    os.environ["JAX_PLATFORMS"] = "cpu"
+    import jax
+
+    jax.config.update("jax_platforms", "cpu")
+
+
+def _cell(row: dict[str, Any]) -> dict[str, Any]:
+    """The factors of a result row."""
+    return {name: row[name] for name in grids.FACTORS}
