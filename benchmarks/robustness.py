@@ -1,7 +1,7 @@
 """How a policy fares on models that differ from the one it trained on: ``python -m benchmarks.robustness POLICY``.
 
-``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (18 cells that
-go past it: each factor alone at both ends of its stress range, and three corners), described in
+``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (19 cells that
+go past it: each factor alone at both ends of its stress range, and four corners), described in
 ``benchmarks/robustness_grids.py``. Every cell plays ``--episodes`` episodes from the same starts and
 goals (the policy's training goal range) with the policy's mean action, for at most ``--steps`` steps.
 A cell reports its success rate with a 95 % Wilson interval, its mean net progress towards the goal

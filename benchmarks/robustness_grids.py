@@ -8,8 +8,8 @@ alone), so both grids run through one code path:
   that ``configs/train_flat_dr.yaml`` trains on;
 - ``stress``: the training model, each factor alone at both ends of its stress range (friction x0.3
   and x2, masses x0.6 and x1.4, HSA stiffness and damping x0.5 and x1.5, servo gain x0.6 and x1.2,
-  a servo torque limit, 60 ms latency, pushes, observation noise), and three corners where they
-  combine: 18 cells. ``docs/robustness.md`` justifies each range from what varies on a real robot.
+  a servo torque limit, 60 ms latency, pushes, observation noise), and four corners where they
+  combine: 19 cells. ``docs/robustness.md`` justifies each range from what varies on a real robot.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ STRESS_ENDS = {
 
 
 def stress_grid() -> list[dict[str, Any]]:
-    """The training model, each factor alone at each end of its stress range, and three corners."""
+    """The training model, each factor alone at each end of its stress range, and four corners."""
     alone = [cell(**{name: value}) for name, ends in STRESS_ENDS.items() for value in ends]
     alone += [
         cell(servo_torque_limit=STRESS_TORQUE_LIMIT),
@@ -99,6 +99,18 @@ def stress_grid() -> list[dict[str, Any]]:
         cell(friction=2.0, block_mass=0.6, hsa_stiffness=0.5, hsa_damping=0.5, servo_gain=1.2, pushes=True, noise=True),
         # torque-limited and late on a slick floor, with pushes
         cell(friction=0.3, servo_torque_limit=STRESS_TORQUE_LIMIT, latency_ms=60, pushes=True),
+        # every factor at its harder end at once
+        cell(
+            friction=0.3,
+            block_mass=1.4,
+            hsa_stiffness=1.5,
+            hsa_damping=1.5,
+            servo_gain=0.6,
+            servo_torque_limit=STRESS_TORQUE_LIMIT,
+            latency_ms=60,
+            pushes=True,
+            noise=True,
+        ),
     ]
     return [cell(), *alone, *corners]
 

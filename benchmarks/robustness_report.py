@@ -96,21 +96,19 @@ def heat_map(rows: list[dict], path: Path, title: str) -> None:
         fontsize=8,
         rotation=30,
     )
-    names = ("friction", "mass", "stiffness", "damping", "gain")
-    ax.set_yticks(
-        range(len(models)),
-        [
-            ", ".join(f"{n} x{v:g}" for n, v in zip(names, m[:5]) if v != 1.0)
-            + (f", torque <= {m[5]:g}" if m[5] is not None else "")
-            or "training model"
-            for m in models
-        ],
-        fontsize=8,
-    )
+    ax.set_yticks(range(len(models)), [_model_label(m) for m in models], fontsize=8)
     ax.set_title(title, fontsize=10)
     fig.colorbar(image, ax=ax, label="success rate")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def _model_label(model: tuple) -> str:
+    """A heat map row's name: the scales off 1 and the torque limit ("training model" when none)."""
+    names = ("friction", "mass", "stiffness", "damping", "gain")
+    parts = [f"{n} x{v:g}" for n, v in zip(names, model[:5]) if v != 1.0]
+    parts += [f"torque <= {model[5]:g} N m"] if model[5] is not None else []
+    return ", ".join(parts) or "training model"
 
 
 def write(result: dict, out: Path, tag: str) -> list[str]:

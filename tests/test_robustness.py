@@ -29,7 +29,7 @@ def test_the_grids_cells():
     nominal, stress = robustness_grids.grid("nominal"), robustness_grids.grid("stress")
     assert len(nominal) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in nominal})
     assert {c["latency_ms"] for c in nominal} == {0, 20, 40} and not any(c["pushes"] for c in nominal)
-    assert len(stress) == 18 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    assert len(stress) == 19 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
     for name, ends in robustness_grids.STRESS_ENDS.items():  # each end alone, every other factor as trained
         for value in ends:
             assert robustness_grids.cell(**{name: value}) in stress
@@ -79,7 +79,7 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     result = json.loads((tmp_path / "robustness_smoke.json").read_text())
     rows = result["cells"]
     assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
-    assert len(rows) == 18 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert len(rows) == 19 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
     assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
     # the same episode (start, goal, policy) on every model: each factor alone moves the robot elsewhere
     trained = rows[0]["mean_final_distance"]
