@@ -163,7 +163,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--qacc-rule", choices=("off", "on"), default="off", help="end episodes on qacc_limit too")
     parser.add_argument("--sim-to-sim", action="store_true", help="also play the cells on C MuJoCo's deployment loop")
-    parser.add_argument("--workers", type=int, default=None, help="processes for --sim-to-sim (default: every CPU)")
+    parser.add_argument("--workers", type=int, default=None, help="--sim-to-sim processes (default: all CPUs)")
     parser.add_argument("--tag", default=None, help="file name tag (default: the policy folder's name and the grid)")
     parser.add_argument("--out-dir", default=str(RESULTS))
     return parser.parse_args(argv)

@@ -6,7 +6,7 @@ sensor readings, actions go through the control law after the cell's latency) ag
 goals the MJX episodes had. Cells with pushes are left out (the loop has no pushes). An episode ends
 at the goal or after the step limit; with ``--qacc-rule off`` the MJX episodes also end only on
 simulator health, which a stable C simulation does not trip. Episodes run in worker processes (one C
-MuJoCo model each).
+MuJoCo model each; ``--workers 1``: in this process).
 """
 
 from __future__ import annotations
@@ -67,9 +67,12 @@ def play_cells(
     """Each MJX row's episodes (no pushes) on C MuJoCo, to the same goals: a sim-to-sim row per cell."""
     chosen = [r for r in rows if not r["pushes"]]
     jobs = [(str(directory), _cell(r), goal, max_steps, i) for r in chosen for i, goal in enumerate(r["goals"])]
-    context = multiprocessing.get_context("spawn")  # a clean interpreter: no JAX or GPU state inherited
-    with ProcessPoolExecutor(workers or os.cpu_count(), mp_context=context, initializer=_on_the_cpu) as pool:
-        reached = list(pool.map(play_episode, *zip(*jobs), chunksize=4))
+    if workers == 1:  # in this process: no interpreter to start
+        reached = [play_episode(*job) for job in jobs]
+    else:
+        context = multiprocessing.get_context("spawn")  # a clean interpreter: no JAX or GPU state inherited
+        with ProcessPoolExecutor(workers or os.cpu_count(), mp_context=context, initializer=_on_the_cpu) as pool:
+            reached = list(pool.map(play_episode, *zip(*jobs), chunksize=4))
     out, start = [], 0
     for r in chosen:
         n = len(r["goals"])
