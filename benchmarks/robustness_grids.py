@@ -18,8 +18,9 @@ import itertools
 from typing import Any
 
 from hsa_mjx.deploy.perturbation import ModelPerturbation
+from hsa_mjx.randomization_config import SCALE_KEYS
 
-SCALES = ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")
+SCALES = SCALE_KEYS  # the physical scales, as the env's randomisation names them
 FACTORS = (*SCALES, "servo_torque_limit", "latency_ms", "pushes", "noise")
 TRAINING = {**dict.fromkeys(SCALES, 1.0), "servo_torque_limit": None, "latency_ms": 0, "pushes": False, "noise": False}
 MAX_LATENCY_MS = 200

@@ -73,7 +73,6 @@ class SimulatedRobot:
         if perturbation is not None and not perturbation.nominal:
             mj_model = perturbed_model(mj_model, index, perturbation)
         self.model, self.index, self.config, self.realtime = mj_model, index, config, realtime
-        self.perturbation = perturbation or ModelPerturbation()
         self.data = mujoco.MjData(mj_model)
         self.data.qpos[index.block_z] = config.spawn_height
         mujoco.mj_forward(mj_model, self.data)

@@ -17,7 +17,7 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx.randomization_config import NO_LIMIT, RandomizationConfig
+from hsa_mjx.randomization_config import NO_LIMIT, SCALE_KEYS, RandomizationConfig
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.task.randomization import NominalModel, PhysicsScales, model_fields
 
@@ -60,7 +60,7 @@ class ModelPerturbation:
     def randomization(self) -> RandomizationConfig:
         """The randomisation config that draws exactly these values (each range [v, v])."""
         limit = NO_LIMIT if self.servo_torque_limit is None else (self.servo_torque_limit,) * 2
-        scales = {name: (float(getattr(self, name)),) * 2 for name in LIMITS if name != "servo_torque_limit"}
+        scales = {name: (float(getattr(self, name)),) * 2 for name in SCALE_KEYS}
         return RandomizationConfig(**scales, servo_force_limit=limit)
 
     def scales(self) -> PhysicsScales:

@@ -45,7 +45,7 @@ def failure_reasons(
         "block_b_too_high": z[1] > config.z_max,
         "block_b_too_low": z[1] < config.z_min,
         "qvel_limit": stats.max_abs_qvel > config.qvel_limit,
-        "qacc_limit": (qacc > config.qacc_limit) & config.qacc_termination,
+        "qacc_limit": qacc > config.qacc_limit if config.qacc_termination else jnp.zeros((), bool),
     }
 
 
