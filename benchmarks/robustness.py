@@ -66,8 +66,7 @@ def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, .
         ranges["push_interval_s"], ranges["push_speed"] = list(grids.PUSH_INTERVAL_S), grids.PUSH_SPEED
     out = [f"env.randomization.{k}={json.dumps(list(v) if isinstance(v, tuple) else v)}" for k, v in ranges.items()]
     out += [f"env.observation.noise.{k}={v if group[0]['noise'] else 0}" for k, v in grids.NOISE.items()]
-    if not qacc_rule:
-        out.append("env.termination.qacc_termination=false")
+    out.append(f"env.termination.qacc_termination={'true' if qacc_rule else 'false'}")  # whatever it trained with
     return tuple(out)
 
 

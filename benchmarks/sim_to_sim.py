@@ -37,12 +37,14 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     """One episode of the deployment loop on the cell's robot; whether it reached the goal."""
     from hsa_mjx.deploy import loop
     from hsa_mjx.randomization_config import ObservationNoiseConfig
+    from hsa_mjx.task.history import is_history
     from hsa_mjx.task.randomization import noise_scales
 
     policy, config, labels, (mj_model, index) = _loaded(directory)
     noise = None
-    if cell["noise"]:
-        scales, rng = noise_scales(tuple(labels), ObservationNoiseConfig(**grids.NOISE)), np.random.default_rng(seed)
+    if cell["noise"]:  # on this tick's readings; a history repeats what the policy saw
+        sensed = tuple(label for label in labels if not is_history(label))
+        scales, rng = noise_scales(sensed, ObservationNoiseConfig(**grids.NOISE)), np.random.default_rng(seed)
         noise = lambda obs: obs + scales * rng.uniform(-1.0, 1.0, obs.shape).astype(np.float32)  # noqa: E731
     latency = loop.latency_steps(cell["latency_ms"], config.dt)
     controller = loop.Controller(policy, labels, config, policy.action_size, latency, noise)

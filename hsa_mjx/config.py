@@ -31,6 +31,7 @@ SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
 HINGE_ANGLE_MODES = ("raw", "wrapped", "sincos")  # observation.hinge_angles
+MAX_HISTORY = 16  # observation.history_steps: a short history, not a sequence model
 MIXED = migrations.MIXED  # terrain_type of a batch drawing from several types (terrain.types)
 TERRAIN_TYPES = GENERATOR_TYPES + (MIXED,)
 
@@ -152,6 +153,9 @@ class ObservationConfig:
     height_scan: HeightScanConfig = HeightScanConfig()
     # uniform noise per observation group on the policy's copy (hsa_mjx.randomization_config)
     noise: ObservationNoiseConfig = ObservationNoiseConfig()
+    # > 0 appends the last history_steps observations (without scan) and actions, newest first
+    # (hsa_mjx.task.history): what the policy needs to identify a model it cannot see. 0 = off.
+    history_steps: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,6 +245,11 @@ def validate(config: EnvConfig) -> EnvConfig:
         raise ValueError(
             "config key 'observation.clock_period_s' must be >= 0 (0 turns the gait clock off), "
             f"got {config.observation.clock_period_s!r}"
+        )
+    if not 0 <= config.observation.history_steps <= MAX_HISTORY:
+        raise ValueError(
+            f"config key 'observation.history_steps' must be an integer in 0..{MAX_HISTORY} (0 turns the "
+            f"history off), got {config.observation.history_steps!r}"
         )
     validate_height_scan(config.observation.height_scan)
     validate_randomization(config.randomization, config.observation.noise)

@@ -87,6 +87,7 @@ def test_observation_section_is_opt_in_and_checked():
         "servo_targets": False,
         "clock_period_s": 0.0,
         "hinge_angles": "raw",
+        "history_steps": 0,
         "height_scan": section["height_scan"],
         "noise": section["noise"],
     }
@@ -103,6 +104,9 @@ def test_observation_section_is_opt_in_and_checked():
         hsa_mjx.config.from_dict({"observation": {"servo_targets": 1}})
     with pytest.raises(ValueError, match=r"observation.clock_period_s.*>= 0.*-4.0"):
         hsa_mjx.config.from_dict({"observation": {"clock_period_s": -4}})
+    for steps in (-1, 17):
+        with pytest.raises(ValueError, match=r"observation.history_steps' must be an integer in 0..16"):
+            hsa_mjx.config.from_dict({"observation": {"history_steps": steps}})
     assert all(p.observation.hinge_angles == "raw" for p in hsa_mjx.config.PRESETS.values())  # the original's angles
     with pytest.raises(ValueError, match=r"observation.hinge_angles.*'wrap'.*\['raw', 'wrapped', 'sincos'\]"):
         hsa_mjx.config.from_dict({"observation": {"hinge_angles": "wrap"}})

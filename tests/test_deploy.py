@@ -44,6 +44,34 @@ def test_the_loop_builds_the_envs_observation_from_sensor_readings():
     assert set(labels) <= set(all_labels)
 
 
+def test_the_history_input_is_the_same_rule_in_the_env_and_in_the_loop():
+    env = hsa_mjx.make_env("flat", physics__backend="c", observation__servo_targets=True, observation__history_steps=2)
+    labels = list(observation_labels(env.config.observation))
+    core = 24 + 8  # the original's slots and the servo targets; a row adds the 8 actions
+    assert len(labels) == env.observation_size == core + 2 * (core + 8) and labels[core] == "prev1_hinge_angle_0"
+    actions = np.asarray(jax.random.uniform(jax.random.PRNGKey(1), (3, 8), minval=-1.5, maxval=1.5))
+    states, step = [env.reset(jax.random.PRNGKey(0))], jax.jit(env.step)
+    assert not np.any(np.asarray(states[0].obs)[core:])  # an episode starts with zero rows
+    for action in actions:
+        states.append(step(states[-1], action))
+    obs = [np.asarray(s.obs) for s in states]
+    clipped = np.clip(actions, -1, 1)
+    expected = np.concatenate([obs[2][:core], clipped[2], obs[1][:core], clipped[1]])
+    np.testing.assert_allclose(obs[3][core:], expected, rtol=1e-6)
+    loop.check_deployable(env.config, labels)  # what an export of this policy lists, the loop can feed
+    controller = loop.Controller(lambda o: actions[len(seen) - 1], labels, env.config, 8)
+    readings = loop.Readings(np.zeros(8), np.zeros(8), np.array([[-0.2, 0, 0.1], [0.2, 0, 0.1]]))
+    seen = []
+    for _ in range(3):
+        seen.append(controller.observe(readings, np.array([2.0, 0.0])))
+        controller.act(readings, np.array([2.0, 0.0]))  # observes again, then records this tick's action
+    last = controller.observe(readings, np.array([2.0, 0.0]))
+    assert last.shape == (len(labels),)
+    np.testing.assert_allclose(last[core : 2 * core + 8], np.concatenate([seen[-1][:core], clipped[2]]), atol=1e-6)
+    with pytest.raises(ValueError, match="history slots"):
+        loop.check_deployable(env.config, labels[:core] + labels[core + 40 :] + labels[core : core + 40])
+
+
 def test_latency_holds_the_servo_targets_for_the_set_ticks():
     config = hsa_mjx.build_config("flat")
     readings = loop.Readings(np.zeros(8), np.zeros(8), np.array([[-0.2, 0, 0.1], [0.2, 0, 0.1]]))

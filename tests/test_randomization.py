@@ -221,3 +221,102 @@ def test_observation_noise_touches_only_its_groups():
 def test_bad_randomization_values_are_refused(key, value, message):
     with pytest.raises(ValueError, match=message):
         hsa_mjx.build_config("flat", **{key: value})
+
+
+def test_a_curriculum_level_moves_the_draws_toward_the_nominal_model():
+    config = RandomizationConfig(**RANGES, latency_steps=(2, 2), push_interval_s=(1.0, 1.0), push_speed=0.3)
+    key = jax.random.PRNGKey(4)
+    full, same = (randomization.reset_state(key, config, 8, 0.02, s) for s in (1.0, jnp.float32(1.0)))
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(jnp.array_equal(a, b)), full, same))
+    plain = randomization.reset_state(key, config, 8, 0.02)
+    assert jax.tree.all(jax.tree.map(lambda a, b: bool(jnp.array_equal(a, b)), full, plain))  # 1: the ranges as set
+    none = randomization.reset_state(key, config, 8, 0.02, 0.0)
+    assert float(none.physics.friction) == 1.0 and np.all(np.asarray(none.physics.block_mass) == 1.0)
+    assert float(none.physics.servo_force_limit) == np.inf and int(none.latency) == 0 and float(none.push_scale) == 0
+    half = randomization.reset_state(key, config, 8, 0.02, 0.5)
+    np.testing.assert_allclose(float(half.physics.friction) - 1, 0.5 * (float(full.physics.friction) - 1), rtol=1e-5)
+    np.testing.assert_allclose(float(half.physics.servo_force_limit), 2 * float(full.physics.servo_force_limit))
+    assert int(half.latency) == 1
+
+
+def test_the_randomization_curriculum_widens_only_while_episodes_succeed():
+    from hsa_mjx.curricula import randomization_curriculum as rc
+    from hsa_mjx.curricula.state import CurriculumRules, EpisodeEnds
+
+    config = rc.RandomizationCurriculumConfig(enabled=True, start=0.2, step_up=0.3, step_down=0.5)
+    level = jnp.asarray([0.2, 0.2, 0.9, 0.6, 0.6], jnp.float32)
+    done = jnp.asarray([True, True, True, True, False])
+    success = jnp.asarray([True, False, True, False, True])
+    np.testing.assert_allclose(rc.update(level, done, success, config), [0.5, 0.2, 1.0, 0.2, 0.6], atol=1e-6)
+    env = hsa_mjx.build_config("flat", randomization__friction=[0.5, 1.5])
+    rules = CurriculumRules(env, randomization=config)
+    state = rules.init(jax.random.split(jax.random.PRNGKey(0), 3))
+    np.testing.assert_allclose(rules.params(state).randomization_scale, [0.2] * 3)
+    ends = EpisodeEnds(done=jnp.ones(3), success=jnp.asarray([1.0, 1.0, 0.0]), progress=jnp.zeros(3))
+    state = rules.after_step(state, ends, jax.random.split(jax.random.PRNGKey(1), 3))
+    np.testing.assert_allclose(rules.params(state).randomization_scale, [0.5, 0.5, 0.2], atol=1e-6)
+    assert rc.summarize(jax.device_get(rules.drain(state)[1])) == pytest.approx(
+        {"randomization_curriculum/mean_level": 0.4, "randomization_curriculum/full_share": 0.0}
+    )
+    off = CurriculumRules(env)  # without the curriculum every env draws from the full ranges
+    np.testing.assert_array_equal(
+        off.params(off.init(jax.random.split(jax.random.PRNGKey(0), 2))).randomization_scale, 1
+    )
+    with pytest.raises(ValueError, match="needs ranges to widen"):
+        rc.validate(config, randomizes=False)
+    with pytest.raises(ValueError, match="step_up must be in"):
+        rc.validate(rc.RandomizationCurriculumConfig(step_up=0.0), randomizes=True)
+
+
+def test_the_privileged_critic_sees_the_episodes_true_model():
+    from hsa_mjx.task import privileged
+    from hsa_mjx.task.env import HSAEnv
+
+    config = hsa_mjx.build_config(
+        "flat",
+        physics__backend="c",
+        randomization__servo_force_limit=[0.5, 2.0],
+        **{f"randomization__{k}": list(v) for k, v in RANGES.items() if k != "servo_force_limit"},
+        randomization__latency_steps=[0, 2],
+    )
+    env = HSAEnv(config, privileged=True)
+    state = env.reset(jax.random.PRNGKey(5))
+    names = privileged.labels(config.observation, config.randomization)
+    assert env.privileged_size == len(names) and names[-8:] == randomization.TRUE_MODEL_LABELS
+    seen = dict(zip(names, np.asarray(state.info["privileged_obs"])))
+    drawn = state.pipeline_state.task.randomization
+    assert seen["true_friction"] == pytest.approx(float(drawn.physics.friction))
+    assert seen["true_inverse_torque_limit"] == pytest.approx(1 / float(drawn.physics.servo_force_limit))
+    assert seen["true_latency_steps"] == int(drawn.latency)
+    assert privileged.size(config.observation) == len(names) - 8  # nothing drawn: no model values
+
+
+def test_randomization_levels_round_trip_through_a_checkpoint(tmp_path):
+    """What the trainer saves is what a resume restores; a checkpoint without them starts afresh."""
+    import hsa_mjx_train.config
+    from hsa_mjx.curricula.state import CurriculumRules, host_levels
+    from hsa_mjx_train import checkpoint
+    from hsa_mjx_train.run_state import payload, restore_levels
+
+    config = hsa_mjx_train.config.load("configs/train_flat_dr.yaml")
+    rules = CurriculumRules(config.env, randomization=config.randomization_curriculum)
+    state = rules.init(jax.random.split(jax.random.PRNGKey(0), 8))
+    state = state.replace(randomization=jnp.linspace(0.25, 1.0, 8, dtype=jnp.float32))
+    host = host_levels([state])
+    assert host["randomization"].shape == (8,) and set(host) >= {"terrain_type", "level"}
+    path = checkpoint.save(
+        tmp_path,
+        5,
+        payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), None, host["randomization"]),
+        hsa_mjx_train.config.to_dict(config),
+        extra={"randomization_envs": 8},
+    )
+    meta = {**checkpoint.read_meta(path), "path": path}
+    restored = restore_levels(config, meta, 8)
+    assert restored.terrain is None
+    np.testing.assert_array_equal(np.asarray(restored.randomization), np.asarray(state.randomization))
+    resumed = rules.init(jax.random.split(jax.random.PRNGKey(1), 8), restored=restored)
+    np.testing.assert_array_equal(np.asarray(rules.params(resumed).randomization_scale), host["randomization"])
+    more = restore_levels(config, meta, 32).randomization
+    assert more.shape == (32,) and set(np.asarray(more).tolist()) <= set(host["randomization"].tolist())
+    assert restore_levels(config, {**meta, "randomization_envs": None}, 8) is None  # an older checkpoint

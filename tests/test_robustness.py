@@ -133,3 +133,15 @@ def test_a_cell_without_pushes_is_never_pushed():
     assert int(pushed.next_push) == int(drawn.next_push)
     kept = with_randomization(state, physics, latency, jnp.asarray(False)).pipeline_state.task.randomization
     assert int(kept.next_push) == NEVER
+
+
+def test_sim_to_sim_feeds_a_history_policy_with_noisy_readings():
+    """The shipped randomised policy reads a history: the deployment loop's noise goes on this tick's
+    readings only, and the episode runs."""
+    from benchmarks import sim_to_sim
+    from hsa_mjx.deploy import policy_file
+
+    directory = policy_file.locate("flat_dr")
+    assert policy_file.load_policy(directory).meta["config"]["env"]["observation"]["history_steps"] > 0
+    cell = robustness_grids.cell(noise=True, latency_ms=60, servo_torque_limit=0.5)
+    assert sim_to_sim.play_episode(str(directory), cell, [2.0, 0.0], 5, 0) is False  # 5 ticks: not there yet

@@ -45,6 +45,7 @@ def test_default_and_shipped_configs_validate():
         "servo_targets": True,
         "clock_period_s": 4.0,
         "hinge_angles": "raw",
+        "history_steps": 0,
     }
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
     # the corridor with perception continues the rough policy: its inputs and servo range, radial goals
@@ -95,6 +96,8 @@ def test_training_configs_use_the_guarded_physics():
         ({"env": {"goal": {"mode": "random"}}}, "goal.mode 'radial'"),
         ({"env": {"preset": "nope"}}, "unknown preset"),
         ({"curriculum": {"window_size": 0}}, "window_size"),
+        ({"randomization_curriculum": {"enabled": True}}, "randomization_curriculum.enabled needs ranges to widen"),
+        ({"randomization_curriculum": {"start": 1.5}}, r"randomization_curriculum.start must be in \[0, 1\]"),
         ({"ppo": {"observation_clip": -1}}, r"ppo.observation_clip.*>= 0"),
         ({"run": {"init_normalizer_count": -5}}, r"run.init_normalizer_count.*>= 0"),
         ({"ppo": {"learning_rate": -0.001}}, r"ppo.learning_rate' = -0.001 is out of range.*\[0.0, inf\)"),
@@ -438,6 +441,31 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     )
     with pytest.raises(ValueError, match=r"policy in .*flat does not fit.*ppo.policy_hidden_sizes"):
         read_init_from(smaller)
+
+
+def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
+    """A history added after the file's observation: the new inputs start at zero weight, so the first
+    actions are the file's whatever the history holds; a changed observation is still refused."""
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    from hsa_mjx.deploy import policy_file
+    from hsa_mjx_train.networks import init_training_state, make_networks
+    from hsa_mjx_train.warm_start import read_init_from, warm_start
+
+    config = hsa_mjx_train.config.load("configs/train_quickstart_cpu.yaml", ["env.observation.history_steps=2"])
+    size = observation_size(config.env.observation)
+    assert size == 28 + 2 * (28 + 8)
+    networks = make_networks(config, size, 8)
+    ts = warm_start(init_training_state(config, networks, jax.random.PRNGKey(0), size), read_init_from(config))
+    shipped = policy_file.load_policy("policies/flat")
+    rng = np.random.default_rng(0)
+    now = (shipped.params["obs_mean"] + shipped.params["obs_std"] * rng.normal(size=(16, 28))).astype(np.float32)
+    obs = np.concatenate([now, rng.normal(size=(16, size - 28)).astype(np.float32)], axis=1)
+    act = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
+    np.testing.assert_allclose(np.asarray(act(jnp.asarray(obs), jax.random.PRNGKey(2))[0]), shipped(now), atol=1e-5)
+    clock = hsa_mjx_train.config.load("configs/train_quickstart_cpu.yaml", ["env.observation.clock_period_s=2.0"])
+    with pytest.raises(ValueError, match="observation size"):
+        read_init_from(clock)
 
 
 def test_learner_refuses_an_env_built_for_another_batch():

@@ -1,11 +1,12 @@
-"""Training configuration: the env, both curricula, PPO hyperparameters and the run, from one YAML file.
+"""Training configuration: the env, the curricula, PPO hyperparameters and the run, from one YAML file.
 
-A training YAML has five sections, each optional (missing keys take the dataclass defaults below,
+A training YAML has six sections, each optional (missing keys take the dataclass defaults below,
 the only defaults there are)::
 
     env: {...}                 # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
     goal_curriculum: {...}     # hsa_mjx.curricula.goal_curriculum.GoalCurriculumConfig (goal distances)
     terrain_curriculum: {...}  # hsa_mjx.curricula.terrain_curriculum.TerrainCurriculumConfig (terrain levels)
+    randomization_curriculum: {...}  # hsa_mjx.curricula.randomization_curriculum (randomisation ranges)
     ppo: {...}                 # PPOConfig
     run: {...}                 # RunConfig
 
@@ -29,12 +30,12 @@ import hsa_mjx.config
 from hsa_mjx import migrations, resources
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.config_schema import build_section, plain
-from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.curricula import goal_curriculum, randomization_curriculum, terrain_curriculum
 from hsa_mjx.deploy.policy_file import ACTIVATIONS
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
-SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "ppo", "run")
+SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "randomization_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
 COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (hsa_mjx_train.strategies)
 
@@ -110,6 +111,9 @@ class TrainConfig:
     env: EnvConfig = dataclasses.field(default_factory=lambda: hsa_mjx.config.get_preset(DEFAULT_ENV_PRESET))
     goal_curriculum: goal_curriculum.GoalCurriculumConfig = goal_curriculum.GoalCurriculumConfig()
     terrain_curriculum: terrain_curriculum.TerrainCurriculumConfig = terrain_curriculum.TerrainCurriculumConfig()
+    randomization_curriculum: randomization_curriculum.RandomizationCurriculumConfig = (
+        randomization_curriculum.RandomizationCurriculumConfig()
+    )
     ppo: PPOConfig = PPOConfig()
     run: RunConfig = RunConfig()
 
@@ -147,6 +151,11 @@ def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
         terrain_curriculum=build_section(
             terrain_curriculum.TerrainCurriculumConfig, data.get("terrain_curriculum") or {}, "terrain_curriculum"
         ),
+        randomization_curriculum=build_section(
+            randomization_curriculum.RandomizationCurriculumConfig,
+            data.get("randomization_curriculum") or {},
+            "randomization_curriculum",
+        ),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
         run=build_section(RunConfig, data.get("run") or {}, "run"),
     )
@@ -173,8 +182,9 @@ def validate(config: TrainConfig) -> TrainConfig:
 
 
 def _validate_curricula(config: TrainConfig) -> None:
-    """Both curricula's settings, and how they fit the env (radial goals, per-env terrain)."""
+    """The curricula's settings, and how they fit the env (radial goals, per-env terrain, randomisation)."""
     env = config.env
+    randomization_curriculum.validate(config.randomization_curriculum, env.randomization.draws)
     goal_curriculum.validate(config.goal_curriculum, tuple(env.goal.radial_range))
     per_env = env.scene == "terrain" and env.terrain.per_env
     terrain_curriculum.validate(config.terrain_curriculum, env.terrain, per_env, env.goal.mode)

@@ -26,8 +26,8 @@ from brax.training.agents.ppo import networks as ppo_networks
 from flax import struct
 
 from hsa_mjx.batch.auto_reset import AutoResetEnv, BatchState
-from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
-from hsa_mjx.curricula.state import Curricula, CurriculumRules
+from hsa_mjx.curricula import goal_curriculum
+from hsa_mjx.curricula.state import Curricula, CurriculumRules, EnvLevels
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx_train.config import TrainConfig
 from hsa_mjx_train.networks import TrainingState, make_networks, make_optimizer, network_obs
@@ -58,7 +58,9 @@ class PPOLearner:
         # the goal curriculum learns from each collection's outcomes in ``learn`` (gathered over devices),
         # the terrain curriculum from each step's episode ends, before those envs reset
         self.batch_env = AutoResetEnv(env)
-        self.rules = CurriculumRules(config.env, config.goal_curriculum, config.terrain_curriculum)
+        self.rules = CurriculumRules(
+            config.env, config.goal_curriculum, config.terrain_curriculum, config.randomization_curriculum
+        )
         self.privileged = config.ppo.privileged_critic
         if self.privileged and not env.privileged:
             raise ValueError("ppo.privileged_critic needs an env built with HSAEnv(..., privileged=True)")
@@ -101,7 +103,7 @@ class PPOLearner:
         self,
         keys: jax.Array,
         goal: goal_curriculum.GoalCurriculumState,
-        levels: terrain_curriculum.TerrainLevels | None,
+        levels: EnvLevels | None,
         batch_env: AutoResetEnv | None = None,
     ) -> LoopState:
         """One device's fresh envs (one key each) on the curricula's start (or restored) state."""

@@ -87,7 +87,7 @@ def _actor_view(normalize: Callable, actor_size: int) -> Callable:
 
 def privileged_size(config: TrainConfig) -> int:
     """Privileged inputs the networks read after the observation (0 without ``ppo.privileged_critic``)."""
-    return privileged.size(config.env.observation) if config.ppo.privileged_critic else 0
+    return privileged.size(config.env.observation, config.env.randomization) if config.ppo.privileged_critic else 0
 
 
 def network_obs(state: EnvState, with_privileged: bool) -> jax.Array:

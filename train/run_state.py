@@ -6,7 +6,8 @@ A checkpoint's payload (``hsa_mjx_train.checkpoint`` writes and reads the files)
 - ``curriculum``: the goal curriculum's state (its on-disk name since format 1);
 - ``rng``: the training loop's PRNG key;
 - ``terrain_levels`` (with the terrain curriculum): every env's terrain cell, ``row`` (its terrain
-  type, the on-disk name since format 1) and ``level``, (envs,) arrays in process and device order.
+  type, the on-disk name since format 1) and ``level``, (envs,) arrays in process and device order;
+- ``randomization_levels`` (with the randomisation curriculum): every env's level, (envs,) float32.
 
 The trainer (save, resume), warm starts (another run's networks or a policy file's) and the tools
 (evaluation, export) all read it through this module, which also knows where each dense layer of a
@@ -24,6 +25,7 @@ import numpy as np
 from brax.training.agents.ppo import networks as ppo_networks
 
 from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.curricula.state import EnvLevels
 from hsa_mjx_train import checkpoint
 from hsa_mjx_train.config import TrainConfig
 from hsa_mjx_train.networks import TrainingState, init_training_state, make_networks, privileged_size
@@ -32,13 +34,20 @@ ON_DISK_TERRAIN = {"terrain_type": "row", "level": "level"}  # TerrainLevels fie
 
 
 def payload(
-    ts: TrainingState, goal: goal_curriculum.GoalCurriculumState, key: jax.Array, terrain: dict | None = None
+    ts: TrainingState,
+    goal: goal_curriculum.GoalCurriculumState,
+    key: jax.Array,
+    terrain: dict | None = None,
+    randomization: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """What a checkpoint holds; ``terrain``: every env's terrain levels (``terrain_curriculum.to_host``'s arrays)."""
+    """What a checkpoint holds; ``terrain``: every env's terrain levels (``terrain_curriculum.to_host``'s
+    arrays); ``randomization``: every env's randomisation level."""
     saved = {"training_state": ts, "curriculum": goal, "rng": key}
-    if terrain is None:
-        return saved
-    return {**saved, "terrain_levels": {disk: terrain[field] for field, disk in ON_DISK_TERRAIN.items()}}
+    if terrain is not None:
+        saved["terrain_levels"] = {disk: terrain[field] for field, disk in ON_DISK_TERRAIN.items()}
+    if randomization is not None:
+        saved["randomization_levels"] = np.asarray(randomization, np.float32)
+    return saved
 
 
 def restore(
@@ -66,6 +75,27 @@ def load_training_state(
     networks = make_networks(config, observation_size, action_size, extra)
     template = init_training_state(config, networks, jax.random.PRNGKey(0), observation_size + extra)
     return networks, restore_training_state(path, template, config)
+
+
+def restore_levels(config: TrainConfig, meta: dict, batch: int) -> EnvLevels | None:
+    """The checkpoint's per-env levels for this process's ``batch`` envs (None: start them all afresh)."""
+    levels = EnvLevels(restore_terrain(config, meta, batch), restore_randomization(config, meta, batch))
+    return None if levels.terrain is None and levels.randomization is None else levels
+
+
+def restore_randomization(config: TrainConfig, meta: dict, batch: int) -> jax.Array | None:
+    """The checkpoint's per-env randomisation levels for this process's ``batch`` envs (None: start afresh,
+    as for a checkpoint written without them). A different env count draws from the saved levels."""
+    saved = meta.get("randomization_envs")
+    if not config.randomization_curriculum.enabled or not saved:
+        return None
+    template = {"randomization_levels": np.zeros((saved,), np.float32)}
+    level = np.asarray(checkpoint.load(meta["path"], template)["randomization_levels"], np.float32)
+    if saved == batch * jax.process_count():  # every process's envs, in process order: this one's share
+        level = level[jax.process_index() * batch : (jax.process_index() + 1) * batch]
+    else:
+        level = level[np.random.default_rng(config.run.seed).integers(0, saved, batch)]
+    return jnp.asarray(np.clip(level, config.randomization_curriculum.start, 1.0))
 
 
 def restore_terrain(config: TrainConfig, meta: dict, batch: int) -> terrain_curriculum.TerrainLevels | None:
@@ -134,11 +164,15 @@ def policy_arrays(config: TrainConfig, ts: TrainingState, action_size: int) -> d
 
 def with_policy_layers(ts: TrainingState, kernels: tuple, biases: tuple) -> TrainingState:
     """``ts`` with a policy file's dense layers in its policy network (the last layer's noise-scale
-    outputs of a ``tanh_normal`` policy, which the file does not hold, stay as they are)."""
+    outputs of a ``tanh_normal`` policy, which the file does not hold, stay as they are). Inputs the
+    file's first layer lacks (a history added after its observation) get zero weights: the policy
+    starts as the file's and learns to use them."""
     new = jax.tree.map(lambda x: x, ts.params.policy["params"])  # fresh containers to write into
     for path, kernel, bias in zip(layer_paths(new), kernels, biases):
         layer = layer_at(new, path)
-        out = kernel.shape[1]
-        layer["kernel"] = jnp.asarray(layer["kernel"]).at[:, :out].set(kernel)
+        rows, out = kernel.shape
+        weights = jnp.asarray(layer["kernel"])
+        weights = weights.at[rows:, :].set(0.0) if rows < weights.shape[0] else weights
+        layer["kernel"] = weights.at[:rows, :out].set(kernel)
         layer["bias"] = jnp.asarray(layer["bias"]).at[:out].set(bias)
     return ts.replace(params=ts.params.replace(policy={**ts.params.policy, "params": new}))

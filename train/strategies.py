@@ -23,7 +23,8 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.curricula import goal_curriculum
+from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx_train import compat
 from hsa_mjx_train.config import TrainConfig
@@ -68,10 +69,10 @@ class OneDevice:
         self,
         env_keys: jax.Array,
         goal: goal_curriculum.GoalCurriculumState,
-        levels: terrain_curriculum.TerrainLevels | None = None,
+        levels: EnvLevels | None = None,
     ) -> LoopState:
         """Fresh envs (``env_keys``: (1, envs, 2)) starting from ``goal`` and, when given, every env's
-        terrain levels ((envs,) arrays; resume)."""
+        levels ((envs,) arrays; resume)."""
         device = self.devices[0]
         return self._reset(*jax.device_put((env_keys[0], goal, levels), device))
 
@@ -84,9 +85,9 @@ class OneDevice:
         return self._collect_epoch(ts, state, keys[0])
 
     @staticmethod
-    def terrain_levels(state: LoopState) -> dict:
-        """Every env's terrain type and level as host arrays (envs,)."""
-        return terrain_curriculum.to_host([jax.device_get(state.curricula.terrain)])
+    def env_levels(state: LoopState) -> dict:
+        """Every env's terrain type and level and randomisation level as host arrays (envs,)."""
+        return host_levels([state.curricula])
 
     @staticmethod
     def goal_curriculum(state: LoopState) -> goal_curriculum.GoalCurriculumState:
@@ -121,10 +122,10 @@ class Pmap:
         self,
         env_keys: jax.Array,
         goal: goal_curriculum.GoalCurriculumState,
-        levels: terrain_curriculum.TerrainLevels | None = None,
+        levels: EnvLevels | None = None,
     ) -> LoopState:
         """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``goal`` (one copy) and,
-        when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
+        when given, the levels of every env ((envs,) arrays in device order; resume)."""
         if levels is not None:
             levels = jax.tree.map(lambda x: jnp.reshape(x, env_keys.shape[:2]), levels)
         return self._reset(jax.device_put(env_keys), compat.device_put_replicated(goal, self.devices), levels)
@@ -138,9 +139,10 @@ class Pmap:
         return self._collect_epoch(ts, state, keys)
 
     @staticmethod
-    def terrain_levels(state: LoopState) -> dict:
-        """This process's envs' terrain types and levels as host arrays (envs,), in device order."""
-        return terrain_curriculum.to_host([jax.device_get(state.curricula.terrain)])
+    def env_levels(state: LoopState) -> dict:
+        """This process's envs' terrain types and levels and randomisation levels as host arrays (envs,),
+        in device order."""
+        return host_levels([jax.device_get(state.curricula)])
 
     @staticmethod
     def goal_curriculum(state: LoopState) -> goal_curriculum.GoalCurriculumState:

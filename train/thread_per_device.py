@@ -28,7 +28,8 @@ from flax import struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
 from hsa_mjx.batch.auto_reset import AutoResetEnv
-from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
+from hsa_mjx.curricula import goal_curriculum
+from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx_train.learner import AXIS, LoopState, PPOLearner
 from hsa_mjx_train.networks import TrainingState
@@ -159,10 +160,10 @@ class ThreadPerDevice:
         self,
         env_keys: jax.Array,
         goal: goal_curriculum.GoalCurriculumState,
-        levels: terrain_curriculum.TerrainLevels | None = None,
+        levels: EnvLevels | None = None,
     ) -> DeviceStates:
         """Fresh envs (``env_keys``: (devices, envs per device, 2)) starting from ``goal`` (one copy) and,
-        when given, the terrain levels of every env ((envs,) arrays in device order; resume)."""
+        when given, the levels of every env ((envs,) arrays in device order; resume)."""
         keys, host = np.asarray(env_keys), jax.device_get(goal)
         pieces = [None] * len(self.devices)
         if levels is not None:
@@ -213,9 +214,10 @@ class ThreadPerDevice:
         jax.block_until_ready(envs)
         return ts, DeviceStates(pieces=tuple(envs), goal=states.goal)
 
-    def terrain_levels(self, states: DeviceStates) -> dict:
-        """This process's envs' terrain types and levels as host arrays (envs,), in device order."""
-        return terrain_curriculum.to_host([jax.device_get(s.curricula.terrain) for s in states.pieces])
+    def env_levels(self, states: DeviceStates) -> dict:
+        """This process's envs' terrain types and levels and randomisation levels as host arrays (envs,),
+        in device order."""
+        return host_levels([jax.device_get(s.curricula) for s in states.pieces])
 
     @staticmethod
     def goal_curriculum(states: DeviceStates) -> goal_curriculum.GoalCurriculumState:

@@ -119,7 +119,7 @@ def train(
 
 
 def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:
-    """(learner state, goal curriculum, PRNG key, step, terrain levels) to start from: fresh, resumed
+    """(learner state, goal curriculum, PRNG key, step, every env's levels) to start from: fresh, resumed
     from ``meta``'s checkpoint, or warm-started from ``init``."""
     config, learner = run.config, run.strategy.learner
     key, k_init = jax.random.split(jax.random.PRNGKey(config.run.seed))
@@ -127,7 +127,7 @@ def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:
     goal = goal_curriculum.init(config.goal_curriculum, tuple(config.env.goal.radial_range))
     if meta is not None:
         ts, goal, key = run_state.restore(meta["path"], ts, goal, key)
-        levels = run_state.restore_terrain(config, meta, config.run.num_envs // jax.process_count())
+        levels = run_state.restore_levels(config, meta, config.run.num_envs // jax.process_count())
         print(f"resumed from {meta['path']} at step {int(meta['step']):,}", flush=True)
         return ts, goal, key, int(meta["step"]), levels
     if init is not None:
@@ -211,16 +211,20 @@ def _record(run: Run, out: dict, totals: dict, goal: Any, sps: float, t_start: f
 
 
 def _save(run: Run, step: int, ts: Any, state: Any, key: jax.Array) -> None:
-    """Checkpoint the learner (first device's copy), both curricula (every process's envs' terrain levels,
-    gathered) and rng; process 0 writes."""
+    """Checkpoint the learner (first device's copy), the curricula (every process's envs' terrain and
+    randomisation levels, gathered) and rng; process 0 writes."""
     config, strategy, extra = run.config, run.strategy, run.extra
-    terrain = None
-    if config.terrain_curriculum.enabled:  # every process takes part in the gather
-        mine = strategy.terrain_levels(state)
-        terrain = {k: np.asarray(distributed.all_processes(v)).reshape(-1) for k, v in mine.items()}
+    terrain = randomization = None
+    if config.terrain_curriculum.enabled or config.randomization_curriculum.enabled:  # every process gathers
+        mine = strategy.env_levels(state)
+        levels = {k: np.asarray(distributed.all_processes(v)).reshape(-1) for k, v in mine.items()}
+        randomization = levels.pop("randomization") if config.randomization_curriculum.enabled else None
+        terrain = levels if config.terrain_curriculum.enabled else None
     if not distributed.is_main():
         return
     if terrain is not None:
         extra = {**extra, "terrain_envs": int(terrain["level"].shape[0])}
-    payload = run_state.payload(strategy.first(ts), strategy.goal_curriculum(state), key, terrain)
+    if randomization is not None:
+        extra = {**extra, "randomization_envs": int(randomization.shape[0])}
+    payload = run_state.payload(strategy.first(ts), strategy.goal_curriculum(state), key, terrain, randomization)
     checkpoint.save(run.run_dir, step, payload, to_dict(config), keep=config.run.keep_checkpoints, extra=extra)

@@ -20,7 +20,8 @@ import jax
 import jax.numpy as jnp
 
 from hsa_mjx.deploy import policy_file
-from hsa_mjx.task.observation import observation_size
+from hsa_mjx.task import history
+from hsa_mjx.task.observation import observation_labels, observation_size
 from hsa_mjx_train import checkpoint, run_state
 from hsa_mjx_train.config import TrainConfig, from_dict
 from hsa_mjx_train.networks import TrainingState, privileged_size
@@ -71,12 +72,25 @@ def _observation_mismatch(size: int, config: TrainConfig) -> list[str]:
     ]
 
 
+def _policy_observation_mismatch(policy: policy_file.NumpyPolicy, config: TrainConfig) -> list[str]:
+    """A complaint unless the policy reads this config's observation, or its first slots with only a
+    history after them (``observation.history_steps``: those inputs start silent, see ``with_policy_layers``)."""
+    theirs = list(policy.meta["observation"]["labels"])
+    ours = list(observation_labels(config.env.observation))
+    added = ours[len(theirs) :]
+    if ours[: len(theirs)] == theirs and all(history.is_history(label) for label in added):
+        return []
+    return _observation_mismatch(len(theirs), config) or [
+        f"observation slots (the policy's {len(theirs)} are not this config's first ones)"
+    ]
+
+
 def _read_policy(config: TrainConfig, directory: Path) -> dict:
     """A policy directory as a warm start: loaded and checked against the config's policy network."""
     policy = policy_file.load_policy(directory)
     net, ppo = policy.meta["network"], config.ppo
     hidden = [int(layer["out"]) for layer in net["layers"][:-1]]
-    bad = _observation_mismatch(policy.observation_size, config)
+    bad = _policy_observation_mismatch(policy, config)
     for key, theirs, ours in (
         ("policy_hidden_sizes", hidden, list(ppo.policy_hidden_sizes)),
         ("activation", net["activation"], ppo.activation),

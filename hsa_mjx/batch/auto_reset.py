@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from hsa_mjx.curricula import terrain_curriculum
+from hsa_mjx.curricula import randomization_curriculum, terrain_curriculum
 from hsa_mjx.curricula.state import EpisodeEnds
 from hsa_mjx.sim import backend
 from hsa_mjx.task import reward, termination
@@ -241,6 +241,7 @@ def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
         }
     )
     out.update(terrain_curriculum.summarize(totals, levels))
+    out.update(randomization_curriculum.summarize(totals))
     episodes = totals["episodes"]
     if episodes <= 0:
         return out

@@ -10,7 +10,9 @@ difference over one control step, not the simulator's velocity) and the controll
 targets and clock. The observation is assembled by its slot labels (``policy.json``), so its order
 is the training env's. Actions go through the training env's control law (increments of at most
 ``control.max_increment`` rad, targets clipped to the servo range, ramped over the substeps when
-``control.smooth_positions``), after ``latency`` control steps.
+``control.smooth_positions``), after ``latency`` control steps. A policy with a history input
+(``observation.history_steps``) gets its last observations and actions from the controller's own
+record, built by the env's rule (``hsa_mjx.task.history``).
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ import numpy as np
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.deploy.perturbation import ModelPerturbation, perturbed_model
 from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.task import history
 from hsa_mjx.task.control import next_targets, substep_targets
-from hsa_mjx.task.observation import GOAL_EPS, HEADING_EPS
+from hsa_mjx.task.observation import GOAL_EPS, HEADING_EPS, SERVO_TARGET_LABELS, core_labels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,9 +162,17 @@ def check_deployable(config: EnvConfig, labels: list[str]) -> None:
     entries = observation_entries(
         Readings(np.zeros(8), np.zeros(8), np.zeros((2, 3))), np.zeros(3), np.zeros(2), np.zeros(8), 0.0, config
     )
-    missing = [label for label in labels if label not in entries]
+    missing = [label for label in labels if label not in entries and not history.is_history(label)]
     if missing:
         raise ValueError(f"the deployment loop cannot build observation slots {missing}")
+    past = [label for label in labels if history.is_history(label)]
+    steps = config.observation.history_steps
+    expected = history.labels(core_labels(config.observation), steps, len(SERVO_TARGET_LABELS))
+    if tuple(past) != expected or labels[len(labels) - len(past) :] != past:
+        raise ValueError(
+            f"the policy's history slots do not follow observation.history_steps = {steps} "
+            "(hsa_mjx.task.history); the deployment loop cannot feed them"
+        )
 
 
 @dataclasses.dataclass
@@ -173,7 +184,8 @@ class Controller:
     config: EnvConfig
     action_size: int
     latency: int = 0
-    noise: Callable[[np.ndarray], np.ndarray] | None = None  # applied to the observation (e.g. a sim-to-real test)
+    # applied to this tick's observation, without the history (e.g. a sim-to-real test)
+    noise: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self):
         if self.latency < 0:
@@ -182,6 +194,10 @@ class Controller:
         self.queue: collections.deque = collections.deque([np.zeros_like(self.targets)] * self.latency)
         self.previous: np.ndarray | None = None
         self.steps = 0
+        self.history_steps = self.config.observation.history_steps
+        self.core_size = len(core_labels(self.config.observation))
+        self.history = np.zeros(history.size(self.core_size, self.history_steps, self.action_size), np.float32)
+        self.last_obs = np.zeros(0, np.float32)
 
     def observe(self, readings: Readings, goal_xy: np.ndarray) -> np.ndarray:
         """The policy's observation from this tick's readings (velocity by finite difference)."""
@@ -191,13 +207,17 @@ class Controller:
         entries = observation_entries(
             readings, velocity, goal_xy, self.targets, self.steps * self.config.dt, self.config
         )
-        obs = np.asarray([entries[label] for label in self.labels], np.float32)
-        return obs if self.noise is None else self.noise(obs)
+        now_labels = self.labels[: len(self.labels) - self.history.shape[0]]
+        obs = np.asarray([entries[label] for label in now_labels], np.float32)
+        self.last_obs = obs if self.noise is None else np.asarray(self.noise(obs), np.float32)
+        return np.concatenate([self.last_obs, self.history])
 
     def act(self, readings: Readings, goal_xy: np.ndarray) -> np.ndarray:
         """The servo targets to command this tick (the action of ``latency`` ticks ago applied)."""
         action = np.asarray(self.policy(self.observe(readings, goal_xy)), np.float64).reshape(-1)
         action = np.clip(np.where(np.isfinite(action), action, 0.0), -1.0, 1.0)
+        core = self.last_obs[: self.core_size]
+        self.history = history.advance(self.history, core, action, self.history_steps, np)
         self.queue.append(action)
         applied = self.queue.popleft()
         control = self.config.control

@@ -19,7 +19,7 @@ from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
 from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
-from hsa_mjx.task import control, goals, observation, privileged, randomization, reward, termination
+from hsa_mjx.task import control, goals, history, observation, privileged, randomization, reward, termination
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
 from hsa_mjx.terrain import height_scan
@@ -83,6 +83,10 @@ class HSAEnv(BraxEnv):
         )
         qpos = data.qpos.at[self.index.block_z].set(cfg.spawn_height)
         self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
+        self._core_size = len(observation.core_labels(cfg.observation))  # a history row's observation part
+        self._history_start = self.observation_size - history.size(
+            self._core_size, cfg.observation.history_steps, self.action_size
+        )
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal, cfg.terrain.spiral)
             if cfg.goal.mode == "spiral"
@@ -93,7 +97,7 @@ class HSAEnv(BraxEnv):
         self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))
         self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index)
         self._obs_noise = randomization.noise_scales(
-            observation.observation_labels(cfg.observation), cfg.observation.noise
+            observation.observation_labels(cfg.observation)[: self._history_start], cfg.observation.noise
         )
         # block-origin height above level ground with the robot resting on it: the scan's zero
         self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
@@ -111,7 +115,7 @@ class HSAEnv(BraxEnv):
     @property
     def privileged_size(self) -> int:
         """Length of ``info["privileged_obs"]`` (0 unless built with ``privileged=True``)."""
-        return privileged.size(self.config.observation) if self.privileged else 0
+        return privileged.size(self.config.observation, self.config.randomization) if self.privileged else 0
 
     @property
     def backend(self) -> str:
@@ -172,7 +176,9 @@ class HSAEnv(BraxEnv):
         drawn = randomization.nominal_state(self.config.randomization, self.action_size)
         if self.config.randomization.draws:  # static: without randomization the key stream stays as it was
             rng, draw_key = jax.random.split(rng)
-            drawn = randomization.reset_state(draw_key, self.config.randomization, self.action_size, self.dt)
+            drawn = randomization.reset_state(
+                draw_key, self.config.randomization, self.action_size, self.dt, params.randomization_scale
+            )
         if self.config.goal.track_starts or start_index is not None:  # static; off keeps the key stream
             rng, start_key = jax.random.split(rng)
             index, goal_xy, move = self._track_start(start_key, start_index)
@@ -200,6 +206,7 @@ class HSAEnv(BraxEnv):
             randomization=drawn,
         )
         obs, critic, task = self._observe(data, task)
+        obs = self._with_history(obs, jnp.zeros((self.observation_size - self._history_start,), jnp.float32))
         metrics = self._metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
@@ -224,6 +231,7 @@ class HSAEnv(BraxEnv):
         distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
         task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
         obs, critic, task = self._observe(data, task, self._episode_time(task))
+        obs = self._with_history(obs, state.obs[self._history_start :])
         info = state.info if critic is None else dict(state.info, privileged_obs=critic)
         return state.replace(pipeline_state=SimState(data, task), obs=obs, info=info)
 
@@ -290,6 +298,11 @@ class HSAEnv(BraxEnv):
         distance, direction = observation.goal_vector(after, task.goal_xy)
         steps = task.step_count + 1
         obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
+        previous = state.obs
+        rows = history.advance(
+            previous[self._history_start :], previous[: self._core_size], action, cfg.observation.history_steps, jnp
+        )
+        obs = self._with_history(obs, rows)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
@@ -359,8 +372,20 @@ class HSAEnv(BraxEnv):
         if not self.privileged:
             return obs, None, task
         clean = jnp.zeros((0,), jnp.float32) if clean is None else clean
-        critic = privileged.inputs(data, self.index, clean, task.terrain_id, self.world.level_fraction(task.tile))
+        true_model = (
+            randomization.true_model(task.randomization)
+            if self.config.randomization.draws
+            else jnp.zeros((0,), jnp.float32)
+        )
+        level = self.world.level_fraction(task.tile)
+        critic = privileged.inputs(data, self.index, clean, task.terrain_id, level, true_model)
         return obs, critic, task
+
+    def _with_history(self, obs: jax.Array, rows: jax.Array) -> jax.Array:
+        """The observation with its history rows (``hsa_mjx.task.history``) appended (unchanged without)."""
+        if self.config.observation.history_steps == 0:
+            return obs
+        return jnp.concatenate([obs, rows])
 
     def _height_scan(self, data: mjx.Data, task: TaskState) -> tuple[jax.Array, jax.Array, TaskState]:
         """(noise-free scan, the policy's noisy copy, task state) as the observation holds them."""

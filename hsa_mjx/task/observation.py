@@ -5,7 +5,9 @@ original), ``wrapped`` into [-pi, pi) or ``sincos`` (8 sines, then 8 cosines: 8 
 Optional entries, appended in this order when enabled (``ObservationConfig``):
 ``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
 (the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock),
-``height_scan`` one value per scan point (``hsa_mjx.terrain.height_scan``; the env reads it from its terrain).
+``height_scan`` one value per scan point (``hsa_mjx.terrain.height_scan``; the env reads it from its terrain),
+``history_steps > 0`` the last observations (without scan) and actions (``hsa_mjx.task.history``;
+the env appends them after :func:`observe`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import hsa_mjx.terrain.height_scan
 from hsa_mjx.config import ObservationConfig
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
+from hsa_mjx.task import history
 
 OBSERVATION_SIZE = 24  # the original's observation (the default)
 HEADING_EPS = 1e-8  # keeps the heading finite if the two block origins ever coincide
@@ -36,15 +39,24 @@ SERVO_TARGET_LABELS = tuple(f"servo_target_{i}" for i in range(8))  # action-slo
 CLOCK_LABELS = ("clock_sin", "clock_cos")
 
 
-def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
-    """A short name per observation slot for this observation config, in ``observe``'s order."""
+def core_labels(config: ObservationConfig) -> tuple[str, ...]:
+    """The slots a history row repeats: every observation slot but the height scan and the history."""
     base = ORIGINAL_LABELS if config.hinge_angles != "sincos" else SINCOS_LABELS + ORIGINAL_LABELS[8:]
     return (
         base
         + (HEADING_LABELS if config.heading else ())
         + (SERVO_TARGET_LABELS if config.servo_targets else ())
         + (CLOCK_LABELS if config.clock_period_s > 0 else ())
+    )
+
+
+def observation_labels(config: ObservationConfig) -> tuple[str, ...]:
+    """A short name per observation slot for this observation config, in order: ``observe``'s, then the history."""
+    core = core_labels(config)
+    return (
+        core
         + hsa_mjx.terrain.height_scan.labels(config.height_scan)
+        + history.labels(core, config.history_steps, len(SERVO_TARGET_LABELS))
     )
 
 

@@ -20,12 +20,17 @@ class EnvParams:
 
     goal_range: jax.Array  # (2,) float32: radial goal distance (min, max) in m, for goal.mode radial
     terrain_cell: jax.Array  # (2,) int32: (type row in terrain.types, level), or FREE_CELL
+    # () float32 in [0, 1]: the share of each ``randomization`` range the episode draws from (1: all of it;
+    # hsa_mjx.task.randomization.reset_state), as the randomisation curriculum widens it
+    randomization_scale: jax.Array
 
     @staticmethod
-    def make(goal_range, terrain_cell=FREE_CELL) -> EnvParams:
+    def make(goal_range, terrain_cell=FREE_CELL, randomization_scale=1.0) -> EnvParams:
         """Parameters from plain values (arrays of the right dtypes)."""
         return EnvParams(
-            goal_range=jnp.asarray(goal_range, jnp.float32), terrain_cell=jnp.asarray(terrain_cell, jnp.int32)
+            goal_range=jnp.asarray(goal_range, jnp.float32),
+            terrain_cell=jnp.asarray(terrain_cell, jnp.int32),
+            randomization_scale=jnp.asarray(randomization_scale, jnp.float32),
         )
 
     def repeat(self, batch: int) -> EnvParams:

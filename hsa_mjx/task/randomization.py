@@ -150,9 +150,34 @@ class RandomizationState:
     action_queue: jax.Array  # (max latency + 1, actions) the last actions, newest first
     latency: jax.Array  # () int32, control steps an action waits before the servos see it
     next_push: jax.Array  # () int32, the step count at which the next push comes
+    push_scale: jax.Array  # () float32, the share of push_speed this episode's pushes reach (the curriculum's)
 
 
 NEVER = np.iinfo(np.int32).max  # next_push without pushes
+# the privileged critic's view of an episode's model (hsa_mjx.task.privileged), in true_model's order
+TRUE_MODEL_LABELS = (
+    "true_friction",
+    "true_block_mass_a",
+    "true_block_mass_b",
+    "true_hsa_stiffness",
+    "true_hsa_damping",
+    "true_servo_gain",
+    "true_inverse_torque_limit",  # 1 / (N m); 0: no limit
+    "true_latency_steps",
+)
+
+
+def true_model(state: RandomizationState) -> jax.Array:
+    """The episode's model as the privileged critic sees it, (8,) float32 in ``TRUE_MODEL_LABELS``' order."""
+    p = state.physics
+    return jnp.concatenate(
+        [
+            jnp.stack([p.friction]),
+            p.block_mass,
+            jnp.stack([p.hsa_stiffness, p.hsa_damping, p.servo_gain, 1.0 / p.servo_force_limit]),
+            jnp.stack([state.latency.astype(jnp.float32)]),
+        ]
+    ).astype(jnp.float32)
 
 
 def nominal_state(config: RandomizationConfig, action_size: int) -> RandomizationState:
@@ -162,21 +187,48 @@ def nominal_state(config: RandomizationConfig, action_size: int) -> Randomizatio
         action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
         latency=jnp.zeros((), jnp.int32),
         next_push=jnp.asarray(NEVER, jnp.int32),
+        push_scale=jnp.ones((), jnp.float32),
     )
 
 
-def reset_state(key: jax.Array, config: RandomizationConfig, action_size: int, dt: float) -> RandomizationState:
-    """An episode's draws from ``key``: scales, latency (uniform in ``latency_steps``), first push."""
+def reset_state(
+    key: jax.Array, config: RandomizationConfig, action_size: int, dt: float, scale: jax.Array | float = 1.0
+) -> RandomizationState:
+    """An episode's draws from ``key``: scales, latency (uniform in ``latency_steps``), first push.
+
+    ``scale`` in [0, 1] shrinks every range towards the nominal model (:func:`toward_nominal`; the
+    randomisation curriculum's level): 1 draws from the config's ranges, 0 gives the asset's model.
+    """
     k_physics, k_latency, k_push = jax.random.split(key, 3)
-    physics = draw(k_physics, config) if config.physical else PhysicsScales.nominal()
+    scale = jnp.asarray(scale, jnp.float32)
+    physics = toward_nominal(draw(k_physics, config), scale) if config.physical else PhysicsScales.nominal()
     lo, hi = config.latency_steps
     latency = jax.random.randint(k_latency, (), lo, hi + 1, jnp.int32)
+    latency = jnp.floor(latency * scale + 0.5).astype(jnp.int32)
     next_push = push_interval_steps(k_push, config, dt) if config.pushes else jnp.asarray(NEVER, jnp.int32)
     return RandomizationState(
         physics=physics,
         action_queue=jnp.zeros((config.max_latency + 1, action_size), jnp.float32),
         latency=latency,
         next_push=next_push,
+        push_scale=scale,
+    )
+
+
+def toward_nominal(physics: PhysicsScales, scale: jax.Array) -> PhysicsScales:
+    """The draws moved towards the nominal model: scales to ``1 + scale (draw - 1)``, the inverse torque
+    limit to ``scale / limit`` (0: none). At ``scale`` 1 the draws are returned exactly."""
+
+    def toward_one(x: jax.Array) -> jax.Array:
+        return x * scale + (1.0 - scale)  # exact at scale 1
+
+    return PhysicsScales(
+        friction=toward_one(physics.friction),
+        block_mass=toward_one(physics.block_mass),
+        hsa_stiffness=toward_one(physics.hsa_stiffness),
+        hsa_damping=toward_one(physics.hsa_damping),
+        servo_gain=toward_one(physics.servo_gain),
+        servo_force_limit=physics.servo_force_limit / scale,  # inf at scale 0: no limit
     )
 
 
@@ -192,7 +244,8 @@ def apply_push(
     """Push both blocks when this step is the push's (and draw the next one); qvel and the new state."""
     k_velocity, k_next = jax.random.split(key)
     due = step_count >= state.next_push
-    qvel = jnp.where(due, pushed(qvel, push_velocity(k_velocity, config.push_speed), block_qvel), qvel)
+    velocity = push_velocity(k_velocity, config.push_speed) * state.push_scale
+    qvel = jnp.where(due, pushed(qvel, velocity, block_qvel), qvel)
     next_push = jnp.where(due, step_count + push_interval_steps(k_next, config, dt), state.next_push)
     return qvel, state.replace(next_push=next_push)
 
