@@ -26,7 +26,7 @@ implementations side by side (each row records its backend).
 
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
         [--terrains flat,heightfield] [--settings NAME ...]
-        [--observations original,heading,heading+scan,heading+randomized]
+        [--observations original,heading,heading+scan,heading+randomized,stress_corner1,...]
         [--steps K] [--repeats R]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
@@ -75,8 +75,33 @@ def _randomized() -> dict[str, Any]:
     }
 
 
+def _stress_corner(number: int) -> dict[str, Any]:
+    """Corner ``number`` (1-4) of the robustness benchmark's stress grid as one fixed model for every env:
+    each range collapsed to the corner's value, its latency, pushes and noise, no ``qacc_limit`` rule
+    (so the NaN check alone guards the state)."""
+    from benchmarks import robustness_grids as grids
+    from hsa_mjx.deploy.loop import latency_steps
+
+    corner = grids.stress_grid()[-4:][number - 1]
+    out: dict[str, Any] = {"observation.heading": True, "termination.qacc_termination": False}
+    out.update({f"randomization.{k}": [corner[k]] * 2 for k in grids.SCALES if corner[k] != 1.0})
+    if corner["servo_torque_limit"] is not None:
+        out["randomization.servo_force_limit"] = [corner["servo_torque_limit"]] * 2
+    delay = latency_steps(corner["latency_ms"], hsa_mjx.build_config("flat").dt)
+    out["randomization.latency_steps"] = [delay, delay]
+    if corner["pushes"]:
+        out.update(
+            {"randomization.push_interval_s": list(grids.PUSH_INTERVAL_S), "randomization.push_speed": grids.PUSH_SPEED}
+        )
+    if corner["noise"]:
+        out.update({f"observation.noise.{k}": v for k, v in grids.NOISE.items()})
+    return out
+
+
 # "heading+randomized": "heading" with the randomised flat task's per-env model, latency, pushes and
-# noise (docs/robustness.md; its cost is measured against "heading"), read from its config when used
+# noise (docs/robustness.md; its cost is measured against "heading"), read from its config when used;
+# "stress_corner1".."stress_corner4": every env on one corner model of the stress grid (random actions
+# there are the stability check at the extremes)
 OBSERVATIONS: dict[str, Callable[[], dict[str, Any]]] = {
     "original": dict,
     "heading": lambda: {"observation.heading": True},
@@ -86,6 +111,7 @@ OBSERVATIONS: dict[str, Callable[[], dict[str, Any]]] = {
         "observation.height_scan.noise": 0.02,
     },
     "heading+randomized": lambda: {"observation.heading": True, **_randomized()},
+    **{f"stress_corner{i}": (lambda i=i: _stress_corner(i)) for i in range(1, 5)},
 }
 DEFAULT_BATCHES = (1024, 4096, 16384, 65536)
 ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s per call on an H200

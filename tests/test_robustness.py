@@ -145,3 +145,21 @@ def test_sim_to_sim_feeds_a_history_policy_with_noisy_readings():
     assert policy_file.load_policy(directory).meta["config"]["env"]["observation"]["history_steps"] > 0
     cell = robustness_grids.cell(noise=True, latency_ms=60, servo_torque_limit=0.5)
     assert sim_to_sim.play_episode(str(directory), cell, [2.0, 0.0], 5, 0) is False  # 5 ticks: not there yet
+
+
+def test_the_stability_check_runs_every_env_on_one_stress_corner():
+    """``benchmarks.throughput --observations stress_cornerN``: each corner of the stress grid as one fixed
+    model (ranges collapsed to its values), without the qacc rule, so the NaN check alone guards the state."""
+    import hsa_mjx
+    from benchmarks import throughput
+
+    corners = robustness_grids.stress_grid()[-4:]
+    for number, corner in enumerate(corners, start=1):
+        overrides = throughput.OBSERVATIONS[f"stress_corner{number}"]()
+        config = hsa_mjx.build_config("flat", **{k.replace(".", "__"): v for k, v in overrides.items()})
+        drawn = config.randomization
+        assert all(getattr(drawn, k) == (corner[k], corner[k]) for k in robustness_grids.SCALES)
+        limit = corner["servo_torque_limit"]
+        assert drawn.servo_force_limit == ((limit, limit) if limit else (0.0, 0.0))
+        assert drawn.latency_steps == (corner["latency_ms"] // 20,) * 2 and drawn.pushes == corner["pushes"]
+        assert config.observation.noise.enabled == corner["noise"] and not config.termination.qacc_termination
