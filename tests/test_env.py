@@ -119,6 +119,9 @@ def test_nan_state_terminates_and_never_reaches_the_learner(jit_single):
     assert float(out.done) == 1.0 and float(out.metrics["termination/non_finite"]) == 1.0
     assert np.all(np.isfinite(out.obs)) and np.isfinite(float(out.reward))
     assert float(out.info["truncation"]) == 0.0
+    # simulator health and task failure are reported apart
+    assert float(out.metrics["termination/simulator_health"]) == 1.0
+    assert float(out.metrics["termination/task_failure"]) == 0.0
 
 
 def test_nonfinite_action_is_sanitised_and_counted(jit_single):

@@ -407,6 +407,8 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     ]
     assert [row["episodes"] for row in result["checkpoint_timeline"]] == [2, 2, 1, 1, 1]
     assert result["termination/qacc_limit"] == pytest.approx(1 / 3) and result["not_finished"] == pytest.approx(2 / 3)
+    assert result["termination/simulator_health"] == pytest.approx(1 / 3)  # the two kinds apart (0: not listed)
+    assert "termination/task_failure" not in result
     assert "checkpoints_per_episode" not in rollout.summarize(traces, dt)  # goals without checkpoints
     json.dumps(result)  # eval.json stays plain JSON
     done[2, 3] = 1.0  # episode 3 truncated at the env's limit: done, but by no termination reason
@@ -519,3 +521,17 @@ def test_progress_counts_to_the_last_whole_epoch():
     bar.update(640, {})
     assert bar.update(1920, {}).split(" | ")[0].endswith("1,920/1,920 100.0%")
     assert "ETA 0:00:00" in bar.update(1920, {})  # never a negative ETA at the end
+
+
+def test_health_and_task_failures_are_grouped_apart():
+    from hsa_mjx.task import termination
+
+    assert set(termination.GROUPS["simulator_health"]) | set(termination.GROUPS["task_failure"]) == set(
+        termination.FAILURE_REASONS
+    )
+    assert not set(termination.GROUPS["simulator_health"]) & set(termination.GROUPS["task_failure"])
+    reasons = {name: jnp.asarray(name == "out_of_bounds") for name in termination.FAILURE_REASONS}
+    assert {k: bool(v) for k, v in termination.grouped(reasons).items()} == {
+        "simulator_health": False,
+        "task_failure": True,
+    }

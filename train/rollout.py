@@ -108,6 +108,9 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
     ended = traces["done"][rows, last] > 0.5
     reasons = traces["reasons"][rows, last] > 0.5  # (episodes, reasons)
     ends = {f"termination/{r}": float(np.mean(ended & reasons[:, i])) for i, r in enumerate(termination.REASONS)}
+    for group, members in termination.GROUPS.items():  # the two kinds of failure, apart
+        hit = reasons[:, [termination.REASONS.index(name) for name in members]].any(axis=1)
+        ends[f"termination/{group}"] = float(np.mean(ended & hit))
     # net progress towards the goal; with spiral checkpoints the goal moves, so count those instead
     collected = traces["checkpoint"][rows, last]
     progress = (

@@ -62,7 +62,7 @@ def _zero_totals() -> dict[str, jax.Array]:
     names = (
         TOTAL_KEYS
         + tuple(f"reward/{k}" for k in reward.TERM_NAMES)
-        + tuple(f"termination/{k}" for k in termination.REASONS)
+        + tuple(f"termination/{k}" for k in (*termination.REASONS, *termination.GROUPS))
     )
     return {name: jnp.zeros((), jnp.float32) for name in names}
 
@@ -177,7 +177,8 @@ class AutoResetEnv:
             "step_checkpoint": jnp.sum(m["checkpoint_index"]),
         }
         add.update({f"reward/{k}": jnp.sum(d * v) for k, v in episode.terms.items()})
-        add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in termination.REASONS})
+        ended = (*termination.REASONS, *termination.GROUPS)
+        add.update({f"termination/{k}": jnp.sum(d * m[f"termination/{k}"]) for k in ended})
         return {**totals, **{k: totals[k] + add[k] for k in add}}
 
     def episode_ends(self, state: BatchState) -> EpisodeEnds:

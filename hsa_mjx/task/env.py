@@ -477,6 +477,7 @@ class HSAEnv(BraxEnv):
     ) -> dict[str, jax.Array]:
         metrics = {f"reward/{k}": v.astype(jnp.float32) for k, v in components.items()}
         metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in reasons.items()})
+        metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in termination.grouped(reasons).items()})
         metrics["nonfinite_action"] = bad_action.astype(jnp.float32)
         metrics["distance_to_goal"] = jnp.where(jnp.isfinite(distance), distance, 0.0).astype(jnp.float32)
         metrics["checkpoint_index"] = checkpoint_index.astype(jnp.float32)

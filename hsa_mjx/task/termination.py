@@ -21,6 +21,13 @@ FAILURE_REASONS = (
     "out_of_bounds",
 )
 REASONS = FAILURE_REASONS + ("goal_reached",)
+# Two kinds of failure, reported apart: the simulator's state is unsound (non-finite, or velocities
+# and accelerations beyond any physical meaning), or the robot failed its task (flipped, lifted off,
+# sank, left the arena). A robot does not stop on the first kind; training and benchmarks may.
+GROUPS = {
+    "simulator_health": ("non_finite", "qvel_limit", "qacc_limit"),
+    "task_failure": ("block_a_too_high", "block_a_too_low", "block_b_too_high", "block_b_too_low", "out_of_bounds"),
+}
 
 
 def failure_reasons(
@@ -52,3 +59,8 @@ def failure_reasons(
 def any_reason(reasons: dict[str, jax.Array]) -> jax.Array:
     """True when any reason holds."""
     return jnp.any(jnp.stack(list(reasons.values())))
+
+
+def grouped(reasons: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """Whether any reason of each ``GROUPS`` kind holds (``simulator_health``, ``task_failure``)."""
+    return {group: any_reason({name: reasons[name] for name in members}) for group, members in GROUPS.items()}
