@@ -298,11 +298,12 @@ class HSAEnv(BraxEnv):
         distance, direction = observation.goal_vector(after, task.goal_xy)
         steps = task.step_count + 1
         obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
-        previous = state.obs
-        rows = history.advance(
-            previous[self._history_start :], previous[: self._core_size], action, cfg.observation.history_steps, jnp
-        )
-        obs = self._with_history(obs, rows)
+        steps_kept, previous = cfg.observation.history_steps, state.obs
+        if steps_kept:  # static: without a history the step computes none
+            rows = history.advance(
+                previous[self._history_start :], previous[: self._core_size], action, steps_kept, jnp
+            )
+            obs = self._with_history(obs, rows)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
