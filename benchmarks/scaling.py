@@ -46,7 +46,7 @@ import jax
 import numpy as np
 
 import benchmarks.scaling_report
-from benchmarks import throughput
+from benchmarks import throughput_loops
 from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx.batch.auto_reset import AutoResetEnv
@@ -152,7 +152,7 @@ class Bench:
         """(i) ``steps`` random-action steps of the training batch env per call on every device."""
         if self.strategy.name == "thread_per_device":
             return self._env_loop_per_device(steps, repeats)
-        _, run = throughput.env_loop(self.env, AutoResetEnv(self.env), steps)
+        _, run = throughput_loops.env_loop(self.env, AutoResetEnv(self.env), steps)
         donate = (0,) if self.donate else ()
         if self.strategy.name == "one_device":
             jitted = jax.jit(run, donate_argnums=donate)
@@ -164,7 +164,7 @@ class Bench:
         """The env loop jitted once per device (each with its own env), one thread each."""
         strategy, runs = self.strategy, []
         for batch_env in strategy.batch_envs:
-            loop = throughput.env_loop(batch_env.env, AutoResetEnv(batch_env.env), steps)[1]
+            loop = throughput_loops.env_loop(batch_env.env, AutoResetEnv(batch_env.env), steps)[1]
             runs.append(jax.jit(loop, donate_argnums=(0,) if self.donate else ()))
 
         def call(carry: tuple) -> tuple:

@@ -27,14 +27,13 @@ implementations side by side (each row records its backend).
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
         [--terrains flat,heightfield] [--settings NAME ...]
         [--observations original,heading,heading+scan,heading+randomized,stress_corner1,...]
-        [--steps K] [--repeats R]
+        [--steps K] [--repeats R] [--no-ceiling] [--append]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import statistics
 import time
@@ -43,7 +42,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
@@ -52,9 +50,17 @@ import hsa_mjx
 import hsa_mjx.sim.backend
 from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
+from benchmarks.throughput_loops import (
+    CEILING_FIELDS,
+    Timed,
+    device_bytes,
+    env_loop,
+    measure_ceiling,
+    per_env,
+    time_loop,
+    tree_bytes,
+)
 from hsa_mjx.resources import config_path, read_yaml
-from hsa_mjx.sim.backend import mjx
-from hsa_mjx.task import control
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -118,17 +124,6 @@ ENV_STEPS_PER_CALL = 2**17  # default K = this / batch, within [2, 20]: ~1-3 s p
 QUICK = {"batches": (8,), "steps": 2, "repeats": 2, "baseline_s": 0.5}
 
 
-@dataclasses.dataclass(frozen=True)
-class Timed:
-    """A compiled batched loop and what was measured on it."""
-
-    seconds: list[float]  # wall time of each timed call
-    compile_s: float
-    compiled_bytes: int | None  # arguments + outputs + temporaries - aliased, from XLA
-    counters: dict[str, float]  # summed over the timed calls
-    last: dict[str, float]  # the last timed call's counters
-
-
 def bench_env(
     terrain: str, setting: str, backend: str = "auto", num_envs: int = 1, observation: str = "original"
 ) -> hsa_mjx.HSAEnv:
@@ -158,112 +153,6 @@ def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
 
 
-def _env_state(state: Any) -> Any:
-    """The per-env EnvState inside a wrapper's batch state (or the state itself)."""
-    return getattr(state, "env", state)
-
-
-def env_loop(env: hsa_mjx.HSAEnv, wrapper: Any | None, steps: int) -> tuple[Callable, Callable]:
-    """(reset(keys), run(state, key)): run takes ``steps`` random-action batch steps in a scan."""
-    reset = wrapper.reset if wrapper is not None else jax.vmap(env.reset)
-    step = wrapper.step if wrapper is not None else jax.vmap(env.step)
-
-    def run(state: Any, key: jax.Array) -> tuple[Any, dict[str, jax.Array]]:
-        batch = _env_state(state).obs.shape[0]
-
-        def body(state, k):
-            state = step(state, jax.random.uniform(k, (batch, env.action_size), minval=-1.0, maxval=1.0))
-            inner = _env_state(state)
-            reasons = {name: jnp.sum(value) for name, value in inner.metrics.items() if name.startswith("termination/")}
-            return state, {
-                **reasons,
-                "obs_non_finite": jnp.sum(~jnp.isfinite(inner.obs)).astype(jnp.float32),
-                "done": jnp.sum(inner.done),
-            }
-
-        state, counts = jax.lax.scan(body, state, jax.random.split(key, steps))
-        return state, jax.tree.map(jnp.sum, counts)
-
-    return reset, run
-
-
-def ceiling_start(env: hsa_mjx.HSAEnv, keys: jax.Array) -> mjx.Data:
-    """Physics state of freshly reset envs (the env's own reset pose, each on its own terrain tile)."""
-    return jax.jit(jax.vmap(env.reset))(keys).pipeline_state.physics
-
-
-def ceiling_loop(env: hsa_mjx.HSAEnv, steps: int) -> Callable:
-    """run(data, key): ``steps`` env steps of bare ``mjx.step`` substeps per env, vmapped."""
-    model, servos, ctl = env.robot.mjx_model, env.index.servo_ids, env.config.control
-
-    def one_env(data: mjx.Data, key: jax.Array) -> mjx.Data:
-
-        def env_step(data, k):
-            start = data.ctrl[servos]
-            action = jax.random.uniform(k, (len(servos),), minval=-1.0, maxval=1.0)
-            end = control.next_targets(start, action, ctl.max_increment, ctl.servo_target_limit)
-
-            def substep(d, target):
-                return mjx.step(model, d.replace(ctrl=d.ctrl.at[servos].set(target))), None
-
-            targets = control.substep_targets(start, end, ctl.frame_skip, ctl.smooth_positions)
-            data, _ = jax.lax.scan(substep, data, targets)
-            return data, None
-
-        data, _ = jax.lax.scan(env_step, data, jax.random.split(key, steps))
-        return data
-
-    def run(data: mjx.Data, key: jax.Array) -> tuple[mjx.Data, dict[str, jax.Array]]:
-        data = jax.vmap(one_env)(data, jax.random.split(key, data.qpos.shape[0]))
-        bad = ~jnp.all(jnp.isfinite(data.qpos), axis=-1)
-        return data, {"non_finite_envs": jnp.sum(bad).astype(jnp.float32)}
-
-    return run
-
-
-def _compiled_bytes(compiled: Any) -> int | None:
-    """Bytes XLA reserves for one call: arguments + outputs + temporaries - aliased."""
-    try:
-        mem = compiled.memory_analysis()
-        return int(
-            mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes - mem.alias_size_in_bytes
-        )
-    except (AttributeError, NotImplementedError, TypeError):
-        return None
-
-
-def time_loop(run: Callable, state: Any, key: jax.Array, repeats: int, donate: bool) -> tuple[Timed, Any]:
-    """Compile ``run`` ahead of time, warm up once, then time ``repeats`` calls (median later)."""
-    jitted = jax.jit(run, donate_argnums=(0,) if donate else ())
-    tic = time.perf_counter()
-    compiled = jitted.lower(state, key).compile()
-    compile_s = time.perf_counter() - tic
-    keys = jax.random.split(key, repeats + 1)
-    state, _ = jax.block_until_ready(compiled(state, keys[0]))
-    seconds, totals, last = [], {}, {}
-    for k in keys[1:]:
-        tic = time.perf_counter()
-        state, counts = jax.block_until_ready(compiled(state, k))
-        seconds.append(time.perf_counter() - tic)
-        last = {name: float(value) for name, value in counts.items()}
-        totals = {name: totals.get(name, 0.0) + value for name, value in last.items()}
-    return Timed(seconds, compile_s, _compiled_bytes(compiled), totals, last), state
-
-
-def tree_bytes(tree: Any) -> int:
-    """Total bytes of the arrays in a pytree."""
-    return int(sum(x.nbytes if hasattr(x, "nbytes") else np.asarray(x).nbytes for x in jax.tree.leaves(tree)))
-
-
-def device_bytes(stat: str = "peak_bytes_in_use") -> int | None:
-    """A memory statistic of device 0 (None where JAX reports none, e.g. on CPU).
-
-    ``peak_bytes_in_use`` is the high-water mark since the process started; ``bytes_in_use`` now.
-    """
-    stats = jax.devices()[0].memory_stats()
-    return int(stats[stat]) if stats and stat in stats else None
-
-
 def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str, float]:
     """Single-env C MuJoCo on the host CPU, same model and settings, random increments."""
     model, servos, ctl = env.robot.mj_model, env.index.servo_ids, env.config.control
@@ -290,9 +179,16 @@ def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str
 
 
 def measure(
-    env: hsa_mjx.HSAEnv, wrapper: Any | None, batch: int, steps: int, repeats: int, seed: int = 0
+    env: hsa_mjx.HSAEnv,
+    wrapper: Any | None,
+    batch: int,
+    steps: int,
+    repeats: int,
+    seed: int = 0,
+    ceiling: bool = True,
 ) -> dict[str, Any]:
-    """Env loop and physics ceiling at one batch size: rates, compile times, memory, NaN counts."""
+    """Env loop and (unless ``ceiling`` is False) physics ceiling at one batch size: rates, compile times,
+    memory, NaN counts. Without the ceiling its fields are None."""
     key = jax.random.PRNGKey(seed)
     donate = jax.default_backend() != "cpu"  # CPU buffers cannot be donated (JAX warns)
     reset, run = env_loop(env, wrapper, steps)
@@ -303,33 +199,31 @@ def measure(
     after = device_bytes("bytes_in_use")
     live = None if before is None or after is None else after - before
     del state
-    start = ceiling_start(env, jax.random.split(key, batch))
-    ceil_t, start = time_loop(ceiling_loop(env, steps), start, key, repeats, donate)
-    del start
-    env_s, ceil_s = statistics.median(env_t.seconds), statistics.median(ceil_t.seconds)
-    measured = batch * steps * repeats
-
-    def per_env(b):
-        return None if b is None else round(b / batch)
-
+    env_s, measured = statistics.median(env_t.seconds), batch * steps * repeats
     return {
         "batch": batch,
         "steps_per_call": steps,
         "repeats": repeats,
         "env_steps_per_s": round(batch * steps / env_s, 1),
-        "physics_ceiling_env_steps_per_s": round(batch * steps / ceil_s, 1),
-        "physics_ceiling_physics_steps_per_s": round(batch * steps * env.config.control.frame_skip / ceil_s, 1),
-        "env_over_ceiling": round(ceil_s / env_s, 4),
         "env_call_s": [round(s, 5) for s in env_t.seconds],
-        "ceiling_call_s": [round(s, 5) for s in ceil_t.seconds],
         "compile_s_env": round(env_t.compile_s, 2),
-        "compile_s_ceiling": round(ceil_t.compile_s, 2),
-        "state_bytes_per_env": per_env(state_bytes),
-        "env_compiled_bytes_per_env": per_env(env_t.compiled_bytes),
-        "ceiling_compiled_bytes_per_env": per_env(ceil_t.compiled_bytes),
-        "device_live_bytes_per_env": per_env(live),  # env state + executables, after the timed calls
+        "state_bytes_per_env": per_env(state_bytes, batch),
+        "env_compiled_bytes_per_env": per_env(env_t.compiled_bytes, batch),
+        "device_live_bytes_per_env": per_env(live, batch),  # env state + executables, after the timed calls
         "device_peak_bytes_in_use": device_bytes("peak_bytes_in_use"),  # process high-water mark
         "env_steps_measured": measured,
+        **_env_counts(env_t, measured),
+        **(
+            measure_ceiling(env, key, batch, steps, repeats, donate, env_s)
+            if ceiling
+            else dict.fromkeys(CEILING_FIELDS)
+        ),
+    }
+
+
+def _env_counts(env_t: Timed, measured: int) -> dict[str, Any]:
+    """NaN terminations, termination reasons, non-finite observations and episodes over the timed calls."""
+    return {
         "nan_terminations": int(env_t.counters.get("termination/non_finite", 0)),
         "nan_terminations_per_million_env_steps": round(
             1e6 * env_t.counters.get("termination/non_finite", 0) / measured, 3
@@ -341,11 +235,6 @@ def measure(
         },
         "obs_non_finite_seen": bool(env_t.counters.get("obs_non_finite", 0) > 0),
         "episodes_ended": int(env_t.counters.get("done", 0)),
-        "ceiling_non_finite_envs_at_end": int(ceil_t.last.get("non_finite_envs", 0)),
-        # an env stays NaN once it is (no reset): envs lost per million env steps run, warm-up included
-        "ceiling_non_finite_per_million_env_steps": round(
-            1e6 * ceil_t.last.get("non_finite_envs", 0) / (batch * steps * (repeats + 1)), 3
-        ),
     }
 
 
@@ -387,6 +276,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"env steps per timed call (lax.scan length); default {ENV_STEPS_PER_CALL} / batch in [2, 20]",
     )
     p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
+    p.add_argument(
+        "--no-ceiling",
+        dest="ceiling",
+        action="store_false",
+        help="time the env loop only, not the bare physics loop beside it (long stability runs)",
+    )
     p.add_argument("--baseline-seconds", type=float, default=None, help="C MuJoCo baseline duration (default 2)")
     p.add_argument("--budget-s", type=float, default=480.0, help="start no new measurement after this many s")
     p.add_argument("--out-dir", type=Path, default=Path("benchmarks/results/throughput"))
@@ -476,7 +371,7 @@ def _row(
     """One measured row (printed as it is done)."""
     env = bench_env(terrain, setting, backend, batch, observation)
     wrapper, note = batch_wrapper(env)
-    measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats)
+    measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats, ceiling=args.ceiling)
     row = {
         "terrain": terrain,
         "settings": setting,
@@ -490,11 +385,12 @@ def _row(
         **baseline,
         **_row_meta(info),
     }
+    fmt = benchmarks.throughput_report.fmt
     print(
         f"{backend:4s} {terrain:11s} {setting} {observation} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
-        f"ceiling {row['physics_ceiling_env_steps_per_s']:12,.0f}/s  compile "
-        f"{row['compile_s_env']:.1f}+{row['compile_s_ceiling']:.1f} s  "
-        f"NaN/M {row['nan_terminations_per_million_env_steps']}",
+        f"ceiling {fmt(row['physics_ceiling_env_steps_per_s'])}/s  compile "
+        f"{row['compile_s_env']:.1f}+{fmt(row['compile_s_ceiling'], 1)} s  "
+        f"NaN/M {row['nan_terminations_per_million_env_steps']}  obs non-finite {row['obs_non_finite_seen']}",
         flush=True,
     )
     return row

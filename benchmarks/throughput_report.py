@@ -36,7 +36,8 @@ def load_rows(path: Path) -> list[dict[str, Any]]:
     return list(json.loads(path.read_text()).get("rows", []))
 
 
-def _fmt(value: Any, digits: int = 0) -> str:
+def fmt(value: Any, digits: int = 0) -> str:
+    """A table cell: thousands separators, ``digits`` decimals for floats, - for None."""
     if value is None:
         return "-"
     if isinstance(value, float):
@@ -67,13 +68,13 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         mib = None if mib is None else mib / 2**20
         head.append(
             f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {_observation(r)} | {r['batch']:,} | "
-            f"{_fmt(r['env_steps_per_s'])} | "
-            f"{_fmt(r['physics_ceiling_env_steps_per_s'])} | {_fmt(r['env_over_ceiling'], 2)} | "
-            f"{_fmt(r['compile_s_env'], 1)} | {_fmt(r['compile_s_ceiling'], 1)} | "
-            f"{_fmt(mib, 3)} | {_fmt(r['nan_terminations_per_million_env_steps'], 1)} | "
-            f"{_fmt(r.get('ceiling_non_finite_per_million_env_steps'), 1)} | "
+            f"{fmt(r['env_steps_per_s'])} | "
+            f"{fmt(r['physics_ceiling_env_steps_per_s'])} | {fmt(r['env_over_ceiling'], 2)} | "
+            f"{fmt(r['compile_s_env'], 1)} | {fmt(r['compile_s_ceiling'], 1)} | "
+            f"{fmt(mib, 3)} | {fmt(r['nan_terminations_per_million_env_steps'], 1)} | "
+            f"{fmt(r.get('ceiling_non_finite_per_million_env_steps'), 1)} | "
             f"{'yes' if r['obs_non_finite_seen'] else 'no'} | {'yes' if r['full_step'] else 'no'} | "
-            f"{_fmt(r.get('cpu_mujoco_env_steps_per_s'))} | {_reasons(r.get('terminations_per_million_env_steps'))} |"
+            f"{fmt(r.get('cpu_mujoco_env_steps_per_s'))} | {_reasons(r.get('terminations_per_million_env_steps'))} |"
         )
     return "\n".join(head) + "\n"
 
@@ -95,7 +96,8 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
         batch, env, ceiling = zip(*pts)
         color, name = f"C{i}", ", ".join(group)
         ax.plot(batch, env, "o-", color=color, label=f"{name}: env step")
-        ax.plot(batch, ceiling, "s--", color=color, alpha=0.7, label=f"{name}: bare mjx.step")
+        if None not in ceiling:  # rows measured with --no-ceiling have none
+            ax.plot(batch, ceiling, "s--", color=color, alpha=0.7, label=f"{name}: bare mjx.step")
     for terrain, target in sorted(TARGETS.items()):
         if any(r["terrain"] == terrain for r in rows):
             ax.axhline(target, color="grey", ls=":", lw=1)

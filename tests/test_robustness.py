@@ -163,3 +163,30 @@ def test_the_stability_check_runs_every_env_on_one_stress_corner():
         assert drawn.servo_force_limit == ((limit, limit) if limit else (0.0, 0.0))
         assert drawn.latency_steps == (corner["latency_ms"] // 20,) * 2 and drawn.pushes == corner["pushes"]
         assert config.observation.noise.enabled == corner["noise"] and not config.termination.qacc_termination
+
+
+def test_a_stability_run_without_the_ceiling_is_reported_with_empty_ceiling_cells(tmp_path):
+    """``--no-ceiling`` (long random-action runs at the corners): the row's ceiling fields are None and the
+    table, the plot and a later ``--append`` run still work."""
+    from benchmarks import throughput, throughput_loops, throughput_report
+
+    assert throughput.parse_args(["--no-ceiling"]).ceiling is False and throughput.parse_args([]).ceiling is True
+    row = {
+        "physics_backend": "jax",
+        "terrain": "flat",
+        "settings": "s",
+        "observation": "stress_corner1",
+        "batch": 8,
+        "full_step": True,
+        "env_steps_per_s": 100.0,
+        "compile_s_env": 1.0,
+        "nan_terminations_per_million_env_steps": 0.0,
+        "obs_non_finite_seen": False,
+        **dict.fromkeys(throughput_loops.CEILING_FIELDS),
+    }
+    paths = throughput_report.write_all(tmp_path, "t", [row], {"device": "cpu"})
+    line = [r for r in paths[1].read_text().splitlines() if "stress_corner1" in r][0]
+    assert "| 100 | - | - |" in line and paths[2].is_file()
+    later = {**row, "observation": "stress_corner2"}
+    rows = throughput_report.upsert(throughput_report.load_rows(paths[0]), later)
+    assert [r["observation"] for r in rows] == ["stress_corner1", "stress_corner2"]
