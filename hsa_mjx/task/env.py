@@ -185,6 +185,11 @@ class HSAEnv(BraxEnv):
         else:
             index, move = jnp.zeros((), jnp.int32), None
             goal_xy = goals.initial_goal(goal_key, self.config, params.goal_range, self._checkpoints, terrain_id)
+            if self.config.goal.mode == "radial" and self.world.reachable_goals:  # static
+                bearing = tuple(self.config.goal.radial_bearing_deg)
+                goal_xy = self.world.reachable_goal(
+                    jax.random.fold_in(goal_key, 1), tile, params.goal_range, bearing, goal_xy
+                )
         goal_xy = self.world.place_goal(goal_xy, terrain_id)
         data = self._with_goal_marker(self._spawn(tile, move), goal_xy, tile)
         position = observation.robot_xy(data, self.index)

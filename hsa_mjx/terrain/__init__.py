@@ -7,7 +7,9 @@ Public API:
     Grid                                   the heightfield's static geometry (``Grid.from_model``)
     to_hfield_data, surface_height         heights -> MuJoCo data in [0, 1]; exact surface lookup
     TerrainConfig and the *Params classes  the ``terrain:`` config section
-    traversability                         free cells of a tile for the robot, path distances over them
+    traversability                         free cells of a tile for the robot (its measured limits: ROBOT),
+                                           path distances over them
+    reachability                           the ground reachable from the spawn per tile; goals drawn on it
 
 Layout convention (MuJoCo's): heights[row, col] is the vertex at world x = xs[col], y = ys[row].
 See ``docs/terrain.md``.

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hsa_mjx.terrain import reachability, traversability
 from hsa_mjx.terrain.grid import Grid
 from hsa_mjx.terrain.params import RANDOM_TYPES, TERRAIN_TYPES, TerrainConfig
 from hsa_mjx.terrain.sampler import TerrainSampler
@@ -128,6 +129,9 @@ class TerrainPool:
         self.config, self.layout = config, layout
         if tiles is None:
             tiles, tile_type = _draw_tiles(config, layout)
+        self.reach = None  # (tiles, n, n) path distances from the spawn, with terrain.reachability
+        if config.reachability.enabled:
+            tiles, self.reach = _reachable_tiles(config, layout, np.array(tiles, np.float32), tile_type)
         if len(tiles) != len(layout.slots()) or len(tile_type) != len(tiles):
             raise ValueError(
                 f"a pool of this layout holds {len(layout.slots())} tiles, got {len(tiles)} "
@@ -172,6 +176,45 @@ class TerrainPool:
         return tile, jnp.asarray(self.tile_type)[tile]
 
 
+def _tile_keys(config: TerrainConfig, layout: AtlasLayout, row: int) -> jax.Array:
+    """The keys of a row's tiles, level by level (each random tile drawn from its own)."""
+    row_key = jax.random.fold_in(jax.random.PRNGKey(config.seed), row)
+    return jax.random.split(row_key, layout.counts[row] * layout.levels)
+
+
+def _reachable_tiles(
+    config: TerrainConfig, layout: AtlasLayout, tiles: np.ndarray, tile_type: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tiles with every random one re-drawn (a new key per attempt) while it holds less reachable goal
+    ground than ``terrain.reachability`` asks, and their path-distance fields; ValueError naming the tiles
+    that still fail (deterministic types cannot be re-drawn)."""
+    reach = config.reachability
+    limits = dataclasses.replace(traversability.ROBOT, resolution=reach.resolution)
+    fields = reachability.spawn_fields(tiles, layout.tile, limits)
+    sampler = TerrainSampler(config, layout.tile)
+    slots, level = layout.slots(), layout.tile_level()
+    first = np.cumsum((0,) + tuple(c * layout.levels for c in layout.counts[:-1]))
+    for attempt in range(1, reach.redraws + 1):
+        failing = np.flatnonzero(reachability.goal_area(fields, reach.goal_range, reach.resolution) < reach.min_area)
+        failing = [i for i in failing if layout.types[slots[i][0]] in RANDOM_TYPES]
+        if not failing:
+            break
+        for i in failing:
+            row = slots[i][0]
+            key = jax.random.fold_in(_tile_keys(config, layout, row)[i - first[row]], attempt)
+            tiles[i] = np.asarray(sampler.type_data(row, key, layout.difficulties[level[i]]))
+        fields[failing] = reachability.spawn_fields(tiles[failing], layout.tile, limits)
+    area = reachability.goal_area(fields, reach.goal_range, reach.resolution)
+    bad = [f"{TERRAIN_TYPES[tile_type[i]]} level {level[i]}" for i in np.flatnonzero(area < reach.min_area)]
+    if bad:
+        raise ValueError(
+            f"terrain tiles with less than terrain.reachability.min_area = {reach.min_area} m^2 of reachable ground "
+            f"at path distances {tuple(reach.goal_range)} m after {reach.redraws} re-draws: {bad}; lower the "
+            "difficulty of these types or change their parameters"
+        )
+    return tiles, fields
+
+
 def _draw_tiles(config: TerrainConfig, layout: AtlasLayout) -> tuple[np.ndarray, np.ndarray]:
     """Every tile of the pool: one shared terrain, or row by row each random tile from its own key."""
     sampler = TerrainSampler(config, layout.tile)
@@ -179,10 +222,9 @@ def _draw_tiles(config: TerrainConfig, layout: AtlasLayout) -> tuple[np.ndarray,
         data, type_id = jax.jit(sampler.sample)(jax.random.PRNGKey(config.seed))
         return np.asarray(data)[None], np.asarray([int(type_id)], np.int32)
     tiles, types = [], []
-    base = jax.random.PRNGKey(config.seed)
     difficulty = np.asarray(layout.difficulties, np.float32)
     for row, (name, count) in enumerate(zip(layout.types, layout.counts)):
-        keys = jax.random.split(jax.random.fold_in(base, row), count * layout.levels)
+        keys = _tile_keys(config, layout, row)
         per_tile = jnp.asarray(np.repeat(difficulty, count))  # level by level
         data = jax.jit(jax.vmap(lambda k, d, r=row: sampler.type_data(r, k, d)))(keys, per_tile)
         tiles.append(np.asarray(data))

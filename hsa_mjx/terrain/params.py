@@ -140,6 +140,24 @@ class FlatSpawnConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class ReachabilityConfig:
+    """Goals only where the robot can get (``hsa_mjx.terrain.reachability``).
+
+    With ``enabled``, building the atlas maps on every tile the ground the robot reaches from its spawn
+    (``traversability.ROBOT``'s limits, on a map of ``resolution`` cells), re-draws a random tile up to
+    ``redraws`` times while less than ``min_area`` of it lies at a path distance inside ``goal_range``
+    (and refuses the build when a tile still fails), and radial goals are drawn on reachable cells at
+    their requested distance measured along the path.
+    """
+
+    enabled: bool = False
+    resolution: float = 0.1  # m
+    goal_range: tuple[float, float] = (1.5, 4.5)  # m along the path: the goals the tiles must hold
+    min_area: float = 0.25  # m^2 (a corridor's reachable strip at 1.5-4.5 m: about 0.6 m^2)
+    redraws: int = 8
+
+
+@dataclasses.dataclass(frozen=True)
 class TerrainConfig:
     """Which terrains a batch uses, in which proportions, and every generator's parameters.
 
@@ -166,6 +184,7 @@ class TerrainConfig:
     spawn_clearance: float = 0.003
     edge_margin: float = 0.3
     flat_spawn: FlatSpawnConfig = FlatSpawnConfig()
+    reachability: ReachabilityConfig = ReachabilityConfig()
     wavy: WavyParams = WavyParams()
     perlin: PerlinParams = PerlinParams()
     stairs: StairsParams = StairsParams()
@@ -309,6 +328,9 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
         _fail("flat_spawn.radius", "must be >= 0 (a fraction of the field width)", spawn.radius)
     if not all(0.0 <= f <= 1.0 for f in spawn.center):
         _fail("flat_spawn.center", "must be fractions of the field in [0, 1]", spawn.center)
+    reach = config.reachability
+    _check_sign(reach, "reachability", positive=("resolution", "min_area"), non_negative=("redraws",))
+    _check_range("reachability.goal_range", reach.goal_range, 0.0, strict=True)
     _check_generators(config)
     return config
 

@@ -1,14 +1,17 @@
 """Where on a terrain tile the robot can go, and how far it is to a point along the ground (pure JAX).
 
 A tile's surface is sampled on a square map of ``resolution`` cells (:func:`surface_map`, MuJoCo's own
-triangulation). A cell is **blocked** where the robot cannot stand or cross: a height step to a
-neighbouring cell above ``max_step`` (a wall, a pole's side) or a slope above ``max_slope`` measured over
-the robot's length. Blocked cells are grown by the robot's half-width, so a gap narrower than the robot
-closes and the robot's centre may use every free cell. :func:`path_distances` is the length of the
-shortest 8-connected path over free cells from every cell to a target (a geodesic distance field,
-computed by relaxation on the device); cells it cannot reach are ``inf``. The same functions serve a
-goal sampler (goals on reachable cells at a path distance), a progress reward along the path and the
-tests; the limits themselves are the robot's (:class:`Limits`).
+triangulation). Two things stop the robot (:func:`blocked`): a **wall**, where the local slope is steeper
+than a rise of ``max_step`` over ``step_run`` (a pole's side, a corridor wall, a step it cannot climb: the
+heightfield draws a step as a rise over one vertex spacing), and **steep ground**, a slope above
+``max_slope`` measured over ``slope_span`` (the robot's length: it bridges a short rise it could not
+climb as a long slope). Walls are grown by the robot's half-width, so a gap narrower than the robot
+closes and the robot's centre may use every free cell; steep ground is not (its span already holds the
+robot). :func:`path_distances` is the length of the shortest 8-connected path over free cells from every
+cell to a target (a geodesic distance field, computed by relaxation on the device); cells it cannot reach
+are ``inf``. The same functions serve the goal sampler (``hsa_mjx.terrain.reachability``), the atlas and
+the tests. :data:`ROBOT` holds this robot's limits as ``python -m benchmarks.capability`` measured them
+(``docs/terrain.md``).
 """
 
 from __future__ import annotations
@@ -29,21 +32,32 @@ class Limits:
     """What the robot passes: every value in metres but the slope (rise over run).
 
     Args:
-        max_step: the highest height difference between neighbouring cells it crosses.
+        max_step: the highest step it climbs, as a rise over ``step_run``: steeper ground is a wall.
         max_slope: the steepest slope it climbs.
         half_width: half its width: blocked cells grow by this much.
         resolution: the map's cell size.
+        slope_span: the run over which a slope is measured (at least two cells: central differences).
+        step_run: the run of a step (the heightfield's vertex spacing, 10 m / 49).
     """
 
     max_step: float
     max_slope: float
     half_width: float
     resolution: float = 0.05
+    slope_span: float = 0.1
+    step_run: float = 10.0 / 49.0
 
     def __post_init__(self) -> None:
-        for name in ("max_step", "max_slope", "half_width", "resolution"):
+        for name in ("max_step", "max_slope", "half_width", "resolution", "slope_span", "step_run"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"traversability limit '{name}' must be > 0, got {getattr(self, name)!r}")
+
+
+# This robot's limits, measured by ``python -m benchmarks.capability`` (docs/terrain.md): a 5 cm step (a
+# rise over one heightfield vertex spacing) passes, 7.5 cm does not; an incline of 8 degrees passes, 12 does
+# not (over the robot's 0.46 m length: 0.141 passes, 0.213 fails); half its 0.28 m full width (blocks
+# 0.24 m, the HSA units 0.28 m).
+ROBOT = Limits(max_step=0.05, max_slope=0.141, half_width=0.14, resolution=0.1, slope_span=0.46)
 
 
 def surface_map(data: jax.Array, grid: Grid, resolution: float) -> jax.Array:
@@ -62,15 +76,33 @@ def _shifted(a: jax.Array, dr: int, dc: int, fill: float) -> jax.Array:
     return padded[1 + dr : 1 + dr + n, 1 + dc : 1 + dc + m]
 
 
+def walls(heights: jax.Array, limits: Limits) -> jax.Array:
+    """Cells whose local slope (over the neighbouring cells) is steeper than ``max_step / step_run``, (n, n)."""
+    rise_y, rise_x = (_rise(heights, axis, 1, limits.resolution) for axis in (0, 1))
+    return jnp.hypot(rise_x, rise_y) > limits.max_step / limits.step_run
+
+
+def steep(heights: jax.Array, limits: Limits) -> jax.Array:
+    """Cells where the slope over ``slope_span`` (each axis between the cells half a span before and after,
+    clipped to the map) is above ``max_slope``, (n, n) bool."""
+    k = max(1, int(round(0.5 * limits.slope_span / limits.resolution)))
+    rise_y, rise_x = (_rise(heights, axis, k, limits.resolution) for axis in (0, 1))
+    return jnp.hypot(rise_x, rise_y) > limits.max_slope
+
+
 def blocked(heights: jax.Array, limits: Limits) -> jax.Array:
-    """Cells the robot cannot enter, before growing: a step to a 4-neighbour above ``max_step``, or a
-    local slope (central differences over the neighbouring cells) above ``max_slope``, (n, n) bool."""
-    step = jnp.zeros(heights.shape, heights.dtype)
-    for dr, dc in NEIGHBOURS[:4]:
-        neighbour = _shifted(heights, dr, dc, jnp.nan)
-        step = jnp.maximum(step, jnp.nan_to_num(jnp.abs(neighbour - heights), nan=0.0))
-    rise_y, rise_x = jnp.gradient(heights, limits.resolution)  # one-sided at the map's edges
-    return (step > limits.max_step) | (jnp.hypot(rise_x, rise_y) > limits.max_slope)
+    """Cells the robot cannot enter, before growing: :func:`walls` or :func:`steep`, (n, n) bool."""
+    return walls(heights, limits) | steep(heights, limits)
+
+
+def _rise(heights: jax.Array, axis: int, k: int, resolution: float) -> jax.Array:
+    """Rise per metre along ``axis`` between the cells ``k`` before and ``k`` after each cell (clipped to
+    the map, over the run that remains there)."""
+    n = heights.shape[axis]
+    index = np.arange(n)
+    lo, hi = np.maximum(index - k, 0), np.minimum(index + k, n - 1)
+    run = ((hi - lo) * resolution).reshape([-1 if a == axis else 1 for a in range(heights.ndim)])
+    return (jnp.take(heights, hi, axis=axis) - jnp.take(heights, lo, axis=axis)) / run
 
 
 def grown(mask: jax.Array, radius: float, resolution: float) -> jax.Array:
@@ -88,8 +120,9 @@ def grown(mask: jax.Array, radius: float, resolution: float) -> jax.Array:
 
 
 def free_cells(heights: jax.Array, limits: Limits) -> jax.Array:
-    """Where the robot's centre may be: not within ``half_width`` of a blocked cell, (n, n) bool."""
-    return jnp.logical_not(grown(blocked(heights, limits), limits.half_width, limits.resolution))
+    """Where the robot's centre may be: not within ``half_width`` of a wall, not on steep ground, (n, n) bool."""
+    near_wall = grown(walls(heights, limits), limits.half_width, limits.resolution)
+    return jnp.logical_not(near_wall | steep(heights, limits))
 
 
 def path_distances(free: jax.Array, target: tuple[int, int] | jax.Array, resolution: float) -> jax.Array:

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from hsa_mjx.terrain import reachability
 from hsa_mjx.terrain.atlas import TerrainPool
 from hsa_mjx.terrain.grid import inside, surface_height
 from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
@@ -49,6 +50,26 @@ class TerrainWorld:
         self.corridor_point, self.corridor_direction, self.corridor_limit = corridor_line(
             config.corridor, self.grid, config.edge_margin
         )
+        if pool.reach is not None:
+            self._reach = jnp.asarray(pool.reach)
+            self._cells = jnp.asarray(reachability.cell_centres(self.grid, config.reachability.resolution))
+
+    @property
+    def reachable_goals(self) -> bool:
+        """Whether goals are drawn on the ground the robot reaches (``terrain.reachability.enabled``)."""
+        return self.enabled and self.pool.reach is not None
+
+    def reachable_goal(
+        self,
+        key: jax.Array,
+        tile: jax.Array,
+        goal_range: jax.Array,
+        bearing_deg: tuple[float, float],
+        fallback: jax.Array,
+    ) -> jax.Array:
+        """A goal on ``tile`` at a path distance in ``goal_range`` from the spawn, within ``bearing_deg``
+        (``reachability.reachable_goal``); ``fallback`` where the tile has no such ground."""
+        return reachability.reachable_goal(key, self._reach[tile], self._cells, goal_range, bearing_deg, fallback)
 
     @property
     def per_env(self) -> bool:
