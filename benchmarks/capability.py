@@ -46,7 +46,7 @@ import numpy as np
 import yaml
 
 import hsa_mjx
-from benchmarks.run_info import run_info
+from benchmarks.run_info import run_info, write_result
 from hsa_mjx.terrain import TerrainSampler, reachability, traversability
 from hsa_mjx.terrain.grid import Grid
 
@@ -282,11 +282,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             result["probes"][name] = sweep(args, name, Path(work))
             result["limits"][name] = limit(PROBES[name], result["probes"][name])
             print(f"{name}: limit {result['limits'][name]} {PROBES[name].unit}", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    stem = args.out / ("capability" + (f"_{Path(args.policy).name}" if args.policy else ""))
-    stem.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-    stem.with_suffix(".md").write_text(markdown(result))
-    print(markdown(result))
+    name = "capability" + (f"_{Path(args.policy).name}" if args.policy else "")
+    write_result(args.out / name, result, markdown(result))
     return 0
 
 

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import datetime
 import importlib.metadata
+import json
 import os
 import platform
 import shlex
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -84,3 +86,12 @@ def _module_name() -> str:
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")
+
+
+def write_result(stem: Path, result: dict[str, Any], text: str) -> None:
+    """Write ``result`` to ``stem``.json and its markdown ``text`` to ``stem``.md (the folder made), and print
+    the text."""
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    stem.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
+    stem.with_suffix(".md").write_text(text)
+    print(text)

@@ -52,24 +52,24 @@ def test_goals_are_drawn_only_on_reachable_ground_at_their_path_distance():
         "flat",
         scene="terrain",
         terrain__types=["poles"],
-        terrain__tiles_per_type=8,
+        terrain__tiles_per_type=4,
         terrain__poles__num=150,  # twice the default's poles: many goals of the ring are closed off
         terrain__reachability__enabled=True,
         goal__mode="radial",
         goal__radial_range=[1.5, 4.5],
     )
     pool, res = env.world.pool, env.config.terrain.reachability.resolution
-    assert pool.reach.shape == (8, 101, 101)
+    assert pool.reach.shape == (4, 101, 101)
     ring = reachability.cell_centres(GRID, res)
     euclid = np.hypot(ring[..., 0], ring[..., 1])
     closed = ((euclid >= 1.5) & (euclid <= 4.5) & np.isinf(pool.reach)).mean(axis=(1, 2))
     assert closed.min() > 0.05  # each tile has unreachable cells at goal distances to avoid
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 256))
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 128))
     goal, tile = np.asarray(states.pipeline_state.task.goal_xy), np.asarray(states.pipeline_state.task.tile)
     cell = np.asarray(tv.cell_of(jnp.asarray(goal), GRID, res))
     path = pool.reach[tile, cell[:, 0], cell[:, 1]]
     assert np.isfinite(path).all() and (path >= 1.5).all() and (path <= 4.5).all()
-    assert len(set(tile.tolist())) == 8 and np.hypot(*goal.T).min() < 4.5  # every tile, goals spread
+    assert len(set(tile.tolist())) == 4 and np.hypot(*goal.T).min() < 4.5  # every tile, goals spread
 
 
 @pytest.mark.parametrize(
@@ -97,3 +97,17 @@ def test_the_measured_limits_put_the_map_on_the_measured_side_of_a_step():
     gap = capability.PROBES["gap"]  # narrower is harder
     widths = [{"corridor_width": w, "mean_progress_m": m} for w, m in ((0.82, 0.6), (0.62, 1.5), (0.52, 0.2))]
     assert capability.limit(gap, widths) == 0.62
+
+
+def test_the_ladder_audit_reads_each_level_on_the_robots_map():
+    """``benchmarks.ladders``: level 0 is open ground, the dispatcher's corridor at full wall height closes
+    (its 0.2 m floor is narrower than the blocks), and the parameter is given in physical units."""
+    from benchmarks import ladders
+
+    config = dataclasses.replace(
+        TerrainConfig(), types=("corridor", "stairs"), proportions=(0.5, 0.5), levels=2, tiles_per_type=1
+    )
+    rows = {(r["type"], r["level"]): r for r in ladders.ladder_rows(config, (1.5, 4.5))}
+    assert rows[("corridor", 0)]["reachable_share"] == 1.0 and rows[("corridor", 1)]["reachable_share"] == 0.0
+    assert rows[("stairs", 1)]["parameter"] == "step_height 0.04 m" and rows[("stairs", 1)]["reachable_share"] == 1.0
+    assert rows[("corridor", 1)]["median_detour"] is None and 1.0 <= rows[("stairs", 0)]["median_detour"] < 1.1

@@ -82,12 +82,17 @@ def walls(heights: jax.Array, limits: Limits) -> jax.Array:
     return jnp.hypot(rise_x, rise_y) > limits.max_step / limits.step_run
 
 
-def steep(heights: jax.Array, limits: Limits) -> jax.Array:
-    """Cells where the slope over ``slope_span`` (each axis between the cells half a span before and after,
-    clipped to the map) is above ``max_slope``, (n, n) bool."""
+def span_slope(heights: jax.Array, limits: Limits) -> jax.Array:
+    """The slope (rise over run) over ``slope_span`` at each cell: each axis between the cells half a span
+    before and after (clipped to the map), (n, n)."""
     k = max(1, int(round(0.5 * limits.slope_span / limits.resolution)))
     rise_y, rise_x = (_rise(heights, axis, k, limits.resolution) for axis in (0, 1))
-    return jnp.hypot(rise_x, rise_y) > limits.max_slope
+    return jnp.hypot(rise_x, rise_y)
+
+
+def steep(heights: jax.Array, limits: Limits) -> jax.Array:
+    """Cells where :func:`span_slope` is above ``max_slope``, (n, n) bool."""
+    return span_slope(heights, limits) > limits.max_slope
 
 
 def blocked(heights: jax.Array, limits: Limits) -> jax.Array:

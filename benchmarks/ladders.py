@@ -1,0 +1,152 @@
+"""How hard each terrain level is for this robot: the ladders of a training config measured on its map.
+
+    python -m benchmarks.ladders [--config configs/train_rough.yaml] [--goal-range 1.5 4.5]
+        [--out benchmarks/results/ladders]
+
+Builds the config's terrain pool as training draws it (every type, level and tile; no re-draws) and
+maps each tile with the robot's measured limits (``traversability.ROBOT``, ``python -m
+benchmarks.capability``). Per type and level it reports the parameter the difficulty scales in physical
+units, the share of the goal ring (cells at a straight-line distance inside ``--goal-range``) the robot
+can reach from its spawn, the median detour (path over straight-line distance) to the reachable ones,
+and the steepest slope over the robot's length on the reachable ground. A level whose goals cannot be
+reached grades nothing; a ladder whose levels all read alike grades little. Writes
+``ladders_<config>.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.run_info import run_info, write_result
+from hsa_mjx.terrain import reachability
+from hsa_mjx.terrain import traversability as tv
+from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
+from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER
+from hsa_mjx.terrain.grid import Grid
+from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
+
+
+def parameter_at(config: TerrainConfig, terrain_type: str, difficulty: float) -> str:
+    """The value the difficulty scales, at ``difficulty``, with its unit ("-" for flat)."""
+    name = DIFFICULTY_PARAMETER[terrain_type]
+    params = config.params(terrain_type)
+    if params is None or not hasattr(params, name):
+        return "-"
+    value = getattr(params, name)
+    unit = "deg" if name == "angle" else "m"
+    if isinstance(value, tuple):
+        return f"{name} {difficulty * value[0]:.3g}-{difficulty * value[1]:.3g} {unit}"
+    return f"{name} {difficulty * value:.3g} {unit}"
+
+
+def tile_measures(pool: TerrainPool, goal_range: tuple[float, float]) -> list[dict[str, float]]:
+    """Per tile: reachable share of the goal ring, median detour and steepest reachable slope."""
+    limits, grid = tv.ROBOT, pool.layout.tile
+    fields = reachability.spawn_fields(pool.tiles, grid, limits)
+    centres = reachability.cell_centres(grid, limits.resolution)
+    straight = np.hypot(centres[..., 0], centres[..., 1])
+    ring = (straight >= goal_range[0]) & (straight <= goal_range[1])
+    out = []
+    for data, field in zip(pool.tiles, fields):
+        reached = ring & np.isfinite(field)
+        slope = np.asarray(tv.span_slope(tv.surface_map(data, grid, limits.resolution), limits))[np.isfinite(field)]
+        out.append(
+            {
+                "reachable_share": float(reached.sum() / ring.sum()),
+                "median_detour": float(np.median(field[reached] / straight[reached])) if reached.any() else None,
+                "steepest_reachable_slope_deg": float(np.degrees(np.arctan(slope.max()))) if slope.size else None,
+            }
+        )
+    return out
+
+
+def ladder_rows(config: TerrainConfig, goal_range: tuple[float, float]) -> list[dict[str, Any]]:
+    """One row per (type, level): the parameter, and the tile measures (mean share, worst tile, detour)."""
+    config = dataclasses.replace(config, reachability=dataclasses.replace(config.reachability, enabled=False))
+    layout = AtlasLayout.from_config(config, Grid())
+    pool = TerrainPool(config, layout)
+    measures = tile_measures(pool, goal_range)
+    rows = []
+    for name in layout.types:
+        for level, difficulty in enumerate(layout.difficulties):
+            mine = [
+                m
+                for m, kind, lv in zip(measures, pool.tile_type, pool.tile_level)
+                if TERRAIN_TYPES[kind] == name and lv == level
+            ]
+            shares = [m["reachable_share"] for m in mine]
+            detours = [m["median_detour"] for m in mine if m["median_detour"] is not None]
+            slopes = [m["steepest_reachable_slope_deg"] for m in mine if m["steepest_reachable_slope_deg"] is not None]
+            rows.append(
+                {
+                    "type": name,
+                    "level": level,
+                    "difficulty": round(difficulty, 4),
+                    "parameter": parameter_at(config, name, difficulty),
+                    "tiles": len(mine),
+                    "reachable_share": round(float(np.mean(shares)), 3),
+                    "worst_tile_share": round(float(np.min(shares)), 3),
+                    "median_detour": round(float(np.median(detours)), 3) if detours else None,
+                    "steepest_reachable_slope_deg": round(float(np.max(slopes)), 1) if slopes else None,
+                }
+            )
+    return rows
+
+
+def markdown(result: dict[str, Any]) -> str:
+    """The rows as one table per type."""
+    lines = [
+        f"# Terrain ladders of `{result['config']}` on the robot's map",
+        "",
+        f"{result['date']}; command `{result['command']}`; goal ring {result['goal_range']} m (straight line); "
+        f"limits {result['limits']}.",
+        "",
+        "| type | level | parameter | reachable share of the goal ring | worst tile | median detour | "
+        "steepest reachable slope deg |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for r in result["rows"]:
+        detour = "-" if r["median_detour"] is None else f"{r['median_detour']:.2f}"
+        slope = "-" if r["steepest_reachable_slope_deg"] is None else f"{r['steepest_reachable_slope_deg']:.1f}"
+        lines.append(
+            f"| {r['type']} | {r['level']} | {r['parameter']} | {r['reachable_share']:.0%} | "
+            f"{r['worst_tile_share']:.0%} | {detour} | {slope} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", type=Path, default=Path("configs/train_rough.yaml"), help="a training or env config")
+    p.add_argument("--goal-range", type=float, nargs=2, default=(1.5, 4.5), metavar=("MIN", "MAX"))
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/ladders"))
+    args = p.parse_args(argv)
+    if not 0.0 <= args.goal_range[0] < args.goal_range[1]:
+        p.error(f"--goal-range MIN MAX must satisfy 0 <= MIN < MAX, got {args.goal_range}")
+    if not args.config.is_file():
+        p.error(f"--config: no such file {args.config}")
+    import hsa_mjx_train.config
+
+    env = hsa_mjx_train.config.load(str(args.config), []).env
+    if env.scene != "terrain":
+        p.error(f"--config: {args.config} has no terrain (scene {env.scene!r})")
+    goal_range = (float(args.goal_range[0]), float(args.goal_range[1]))
+    result = {
+        **run_info(),
+        "config": str(args.config),
+        "goal_range": list(goal_range),
+        "limits": dataclasses.asdict(tv.ROBOT),
+        "rows": ladder_rows(env.terrain, goal_range),
+    }
+    write_result(args.out / f"ladders_{args.config.stem}", result, markdown(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
