@@ -28,7 +28,7 @@ implementations side by side (each row records its backend).
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
         [--terrains flat,heightfield,heightfield_reachable] [--settings NAME ...]
         [--observations original,heading,heading+scan,heading+randomized,stress_corner1,...]
-        [--steps K] [--repeats R] [--no-ceiling] [--append]
+        [--steps K] [--repeats R] [--episode-steps N] [--no-ceiling] [--append]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
 
@@ -135,11 +135,17 @@ QUICK = {"batches": (8,), "steps": 2, "repeats": 2, "baseline_s": 0.5}
 
 
 def bench_env(
-    terrain: str, setting: str, backend: str = "auto", num_envs: int = 1, observation: str = "original"
+    terrain: str,
+    setting: str,
+    backend: str = "auto",
+    num_envs: int = 1,
+    observation: str = "original",
+    episode_steps: int | None = None,
 ) -> hsa_mjx.HSAEnv:
     """The training env (radial goals for the curriculum) on ``terrain`` with ``setting``'s physics and
     ``observation`` (``OBSERVATIONS``), on ``backend``, sized for batches of ``num_envs`` (Warp's shared
-    contact buffer)."""
+    contact buffer); ``episode_steps`` shortens the episodes (resets in every timed call)."""
+    short = {} if episode_steps is None else {"termination.max_episode_steps": episode_steps}
     return hsa_mjx.make_env(
         "flat",
         num_envs=num_envs,
@@ -149,6 +155,7 @@ def bench_env(
             **TERRAINS[terrain],
             **SETTINGS[setting],
             **OBSERVATIONS[observation](),
+            **short,
         },
     )
 
@@ -287,6 +294,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--repeats", type=int, default=None, help="timed calls per measurement (default 3)")
     p.add_argument(
+        "--episode-steps",
+        type=int,
+        default=None,
+        help="end every episode after this many steps, so that resets run in the timed calls (the reset's cost)",
+    )
+    p.add_argument(
         "--no-ceiling",
         dest="ceiling",
         action="store_false",
@@ -311,6 +324,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         + sorted(set(args.settings or ()) - set(SETTINGS))
         + sorted(set(args.observations) - set(OBSERVATIONS))
     )
+    if args.episode_steps is not None and args.episode_steps < 1:
+        p.error(f"--episode-steps must be >= 1, got {args.episode_steps}")
     if bad:
         p.error(
             f"unknown terrain/setting/observation {bad}; terrains {sorted(TERRAINS)}, settings {sorted(SETTINGS)}, "
@@ -379,7 +394,7 @@ def _row(
     observation: str = "original",
 ) -> dict[str, Any]:
     """One measured row (printed as it is done)."""
-    env = bench_env(terrain, setting, backend, batch, observation)
+    env = bench_env(terrain, setting, backend, batch, observation, args.episode_steps)
     wrapper, note = batch_wrapper(env)
     measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats, ceiling=args.ceiling)
     row = {
@@ -387,6 +402,7 @@ def _row(
         "settings": setting,
         "observation": observation,
         "observation_size": env.observation_size,
+        "episode_steps": env.config.termination.max_episode_steps,
         "physics_backend": env.physics_backend,
         "overrides": SETTINGS[setting],
         "full_step": wrapper is not None,

@@ -171,6 +171,9 @@ def test_a_stability_run_without_the_ceiling_is_reported_with_empty_ceiling_cell
     from benchmarks import throughput, throughput_loops, throughput_report
 
     assert throughput.parse_args(["--no-ceiling"]).ceiling is False and throughput.parse_args([]).ceiling is True
+    assert throughput.parse_args(["--episode-steps", "10"]).episode_steps == 10
+    with pytest.raises(SystemExit):
+        throughput.parse_args(["--episode-steps", "0"])
     row = {
         "physics_backend": "jax",
         "terrain": "flat",
