@@ -47,6 +47,7 @@ import yaml
 
 import hsa_mjx
 from benchmarks.run_info import run_info, write_result
+from hsa_mjx.config import BACKENDS
 from hsa_mjx.terrain import TerrainSampler, reachability, traversability
 from hsa_mjx.terrain.grid import Grid
 
@@ -250,7 +251,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--episodes", type=int, default=4, help="episodes per value (default 4)")
     p.add_argument("--steps", type=int, default=2000, help="steps per episode (default 2000: 40 s)")
-    p.add_argument("--backend", default="c", help="physics (default c: C MuJoCo on the CPU; or jax, warp)")
+    p.add_argument(
+        "--backend", default="c", choices=BACKENDS, help="physics (default c: C MuJoCo on the CPU; or jax, warp)"
+    )
     p.add_argument("--probes", default=",".join(PROBES), help=f"comma list of {list(PROBES)}")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/capability"))
