@@ -194,6 +194,7 @@ def _reachable_tiles(
     sampler = TerrainSampler(config, layout.tile)
     slots, level = layout.slots(), layout.tile_level()
     first = np.cumsum((0,) + tuple(c * layout.levels for c in layout.counts[:-1]))
+    keys = {row: _tile_keys(config, layout, row) for row in range(layout.rows)}
     for attempt in range(1, reach.redraws + 1):
         failing = np.flatnonzero(reachability.goal_area(fields, reach.goal_range, reach.resolution) < reach.min_area)
         failing = [i for i in failing if layout.types[slots[i][0]] in RANDOM_TYPES]
@@ -201,7 +202,7 @@ def _reachable_tiles(
             break
         for i in failing:
             row = slots[i][0]
-            key = jax.random.fold_in(_tile_keys(config, layout, row)[i - first[row]], attempt)
+            key = jax.random.fold_in(keys[row][i - first[row]], attempt)
             tiles[i] = np.asarray(sampler.type_data(row, key, layout.difficulties[level[i]]))
         fields[failing] = reachability.spawn_fields(tiles[failing], layout.tile, limits)
     area = reachability.goal_area(fields, reach.goal_range, reach.resolution)

@@ -39,27 +39,28 @@ def goal_area(fields: np.ndarray, goal_range: tuple[float, float], resolution: f
 
 
 def cell_centres(grid: Grid, resolution: float) -> np.ndarray:
-    """Tile coordinates (x, y) of every map cell, (n, n, 2): rows along y, as ``traversability.surface_map``."""
-    count = int(np.floor(2 * grid.half_x / resolution)) + 1
-    xs = -grid.half_x + resolution * np.arange(count)
-    ys = -grid.half_y + resolution * np.arange(count)
-    return np.stack(np.meshgrid(xs, ys), axis=-1).astype(np.float32)
+    """Tile coordinates (x, y) of every map cell, (n, n, 2) (``traversability.map_points``)."""
+    return tv.map_points(grid, resolution)
+
+
+def bearing_mask(centres: np.ndarray, bearing_deg: tuple[float, float]) -> np.ndarray:
+    """Cells whose bearing from +x lies in ``bearing_deg`` = (lo, hi) degrees, either side, (n, n) bool."""
+    bearing = np.degrees(np.abs(np.arctan2(centres[..., 1], centres[..., 0])))
+    return (bearing >= bearing_deg[0]) & (bearing <= bearing_deg[1])
 
 
 def reachable_goal(
     key: jax.Array,
     field: jax.Array,
     centres: jax.Array,
+    allowed: jax.Array,
     goal_range: jax.Array,
-    bearing_deg: tuple[float, float],
     fallback: jax.Array,
 ) -> jax.Array:
-    """A goal (x, y) drawn uniformly over the cells of ``field`` whose path distance lies in ``goal_range``
-    (traced) and whose bearing from +x lies in ``bearing_deg`` (static, either side), jittered inside its
-    cell; ``fallback`` when no cell qualifies (the atlas check keeps that off the configured range)."""
-    bearing = jnp.degrees(jnp.abs(jnp.arctan2(centres[..., 1], centres[..., 0])))
-    ok = (field >= goal_range[0]) & (field <= goal_range[1])
-    ok = ok & (bearing >= bearing_deg[0]) & (bearing <= bearing_deg[1])
+    """A goal (x, y) drawn uniformly over the ``allowed`` cells (e.g. :func:`bearing_mask`) of ``field`` whose
+    path distance lies in ``goal_range`` (traced), jittered inside its cell; ``fallback`` when no cell
+    qualifies (the atlas check keeps that off the configured range)."""
+    ok = allowed & (field >= goal_range[0]) & (field <= goal_range[1])
     k_cell, k_jitter = jax.random.split(key)
     cell = jax.random.categorical(k_cell, jnp.where(ok, 0.0, -jnp.inf).reshape(-1))
     spacing = centres[0, 1, 0] - centres[0, 0, 0]

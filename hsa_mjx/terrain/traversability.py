@@ -60,13 +60,18 @@ class Limits:
 ROBOT = Limits(max_step=0.05, max_slope=0.141, half_width=0.14, resolution=0.1, slope_span=0.46)
 
 
-def surface_map(data: jax.Array, grid: Grid, resolution: float) -> jax.Array:
-    """The tile's surface heights on a square map of ``resolution`` cells, (n, n), rows along world y."""
+def map_points(grid: Grid, resolution: float) -> np.ndarray:
+    """Tile coordinates (x, y) of every cell of the square map of ``resolution`` cells, (n, n, 2) float32,
+    rows along world y."""
     count = int(np.floor(2 * grid.half_x / resolution)) + 1
-    xs = -grid.half_x + resolution * jnp.arange(count)
-    ys = -grid.half_y + resolution * jnp.arange(count)
-    xy = jnp.stack(jnp.meshgrid(xs, ys), axis=-1)
-    return surface_height(data, grid, xy)
+    xs = -grid.half_x + resolution * np.arange(count)
+    ys = -grid.half_y + resolution * np.arange(count)
+    return np.stack(np.meshgrid(xs, ys), axis=-1).astype(np.float32)
+
+
+def surface_map(data: jax.Array, grid: Grid, resolution: float) -> jax.Array:
+    """The tile's surface heights on the map of ``resolution`` cells (:func:`map_points`), (n, n)."""
+    return surface_height(data, grid, jnp.asarray(map_points(grid, resolution)))
 
 
 def _shifted(a: jax.Array, dr: int, dc: int, fill: float) -> jax.Array:

@@ -52,7 +52,7 @@ class TerrainWorld:
         )
         if pool.reach is not None:
             self._reach = jnp.asarray(pool.reach)
-            self._cells = jnp.asarray(reachability.cell_centres(self.grid, config.reachability.resolution))
+            self._cells = reachability.cell_centres(self.grid, config.reachability.resolution)
 
     @property
     def reachable_goals(self) -> bool:
@@ -68,8 +68,11 @@ class TerrainWorld:
         fallback: jax.Array,
     ) -> jax.Array:
         """A goal on ``tile`` at a path distance in ``goal_range`` from the spawn, within ``bearing_deg``
-        (``reachability.reachable_goal``); ``fallback`` where the tile has no such ground."""
-        return reachability.reachable_goal(key, self._reach[tile], self._cells, goal_range, bearing_deg, fallback)
+        (static: its cells are found once, on the host; ``reachability.reachable_goal``); ``fallback`` where
+        the tile has no such ground."""
+        allowed = jnp.asarray(reachability.bearing_mask(self._cells, bearing_deg))
+        cells = jnp.asarray(self._cells)
+        return reachability.reachable_goal(key, self._reach[tile], cells, allowed, goal_range, fallback)
 
     @property
     def per_env(self) -> bool:
