@@ -1,7 +1,7 @@
 """How hard each terrain level is for this robot: the ladders of a training config measured on its map.
 
     python -m benchmarks.ladders [--config configs/train_rough.yaml] [--goal-range 1.5 4.5]
-        [--out benchmarks/results/ladders]
+        [--out benchmarks/results/ladders] [--picture docs/ladders.png]
 
 Builds the config's terrain pool as training draws it (every type, level and tile; no re-draws) and
 maps each tile with the robot's measured limits (``traversability.ROBOT``, ``python -m
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,22 +28,44 @@ from benchmarks.run_info import run_info, write_result
 from hsa_mjx.terrain import reachability
 from hsa_mjx.terrain import traversability as tv
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
-from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER
+from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, stage_fraction
 from hsa_mjx.terrain.grid import Grid
 from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
 
 
 def parameter_at(config: TerrainConfig, terrain_type: str, difficulty: float) -> str:
-    """The value the difficulty scales, at ``difficulty``, with its unit ("-" for flat)."""
-    name = DIFFICULTY_PARAMETER[terrain_type]
-    params = config.params(terrain_type)
-    if params is None or not hasattr(params, name):
+    """What the level means in physical units ("-" for flat): the values the difficulty sets."""
+    p, d = config.params(terrain_type), difficulty
+    if terrain_type == "corridor":
+        return _corridor_at(p, d)
+    if terrain_type == "poles" and p.grade == "count":
+        count = math.ceil(d * p.num - 1e-6)
+        return f"{count} poles {p.height[0]:.2g}-{p.height[1]:.2g} m high, >= {p.min_spacing:.2g} m apart"
+    if terrain_type == "flat_with_ramp":
+        length = p.length * 2.0 * (Grid().half_x if p.direction.endswith("x") else Grid().half_y)
+        return f"height {d * p.height:.3g} m ({math.degrees(math.atan(d * p.height / length)):.1f} deg)"
+    if terrain_type == "wavy":
+        return f"amplitude {d * p.amplitude:.3g} m ({math.degrees(math.atan(d * p.amplitude * p.scale)):.1f} deg)"
+    name = DIFFICULTY_PARAMETER[terrain_type].split()[0].rstrip(",")
+    if p is None or not hasattr(p, name):
         return "-"
-    value = getattr(params, name)
+    value = getattr(p, name)
     unit = "deg" if name == "angle" else "m"
     if isinstance(value, tuple):
-        return f"{name} {difficulty * value[0]:.3g}-{difficulty * value[1]:.3g} {unit}"
-    return f"{name} {difficulty * value:.3g} {unit}"
+        return f"{name} {d * value[0]:.3g}-{d * value[1]:.3g} {unit}"
+    return f"{name} {d * value:.3g} {unit}"
+
+
+def _corridor_at(p: Any, d: float) -> str:
+    """Wall height, floor width and bend of a corridor at difficulty ``d`` (the generator's stages)."""
+    height = p.wall_height * min(1.0, d / p.wall_until)
+    width = p.corridor_width
+    if p.start_width > 0:
+        width = p.start_width + (p.corridor_width - p.start_width) * float(
+            stage_fraction(d, p.wall_until, p.width_until)
+        )
+    bend = p.bend_amplitude * float(stage_fraction(d, p.width_until, 1.0)) if p.bend_amplitude > 0 else 0.0
+    return f"walls {height:.3g} m, floor {width:.3g} m" + (f", bend +-{bend:.2g} m" if bend else "")
 
 
 def tile_measures(pool: TerrainPool, goal_range: tuple[float, float]) -> list[dict[str, float]]:
@@ -121,11 +144,39 @@ def markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def draw_levels(config: TerrainConfig, out: Path, levels: Sequence[int] = (0, 5, 9)) -> Path:
+    """A PNG of one tile of each type at ``levels`` (height maps, a colour scale per type; the red bar is the
+    robot at its spawn), as the pool holds them."""
+    from matplotlib.figure import Figure
+
+    config = dataclasses.replace(config, reachability=dataclasses.replace(config.reachability, enabled=False))
+    layout = AtlasLayout.from_config(config, Grid())
+    pool, grid = TerrainPool(config, layout), layout.tile
+    extent = (-grid.half_x, grid.half_x, -grid.half_y, grid.half_y)
+    levels = [lv for lv in levels if lv < layout.levels]
+    fig = Figure(figsize=(2.6 * len(levels), 2.5 * len(layout.types)))
+    for row, name in enumerate(layout.types):
+        tiles = [i for i, (t, lv) in enumerate(zip(pool.tile_type, pool.tile_level)) if TERRAIN_TYPES[t] == name]
+        heights = {lv: pool.tiles[min(i for i in tiles if pool.tile_level[i] == lv)] * grid.z_scale for lv in levels}
+        top = max(max(float(h.max()) for h in heights.values()), 1e-3)
+        for col, lv in enumerate(levels):
+            ax = fig.add_subplot(len(layout.types), len(levels), row * len(levels) + col + 1)
+            ax.imshow(heights[lv].reshape(grid.nrow, grid.ncol), origin="lower", extent=extent, vmin=0.0, vmax=top)
+            ax.plot([-0.2, 0.2], [0.0, 0.0], "r-", lw=2)
+            ax.set_title(f"{name} level {lv}\n{parameter_at(config, name, layout.difficulties[lv])}", fontsize=6)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=90, bbox_inches="tight")
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", type=Path, default=Path("configs/train_rough.yaml"), help="a training or env config")
     p.add_argument("--goal-range", type=float, nargs=2, default=(1.5, 4.5), metavar=("MIN", "MAX"))
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/ladders"))
+    p.add_argument("--picture", type=Path, help="also draw a tile of each type at levels 0, 5 and 9 into this PNG")
     args = p.parse_args(argv)
     if not 0.0 <= args.goal_range[0] < args.goal_range[1]:
         p.error(f"--goal-range MIN MAX must satisfy 0 <= MIN < MAX, got {args.goal_range}")
@@ -145,6 +196,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "rows": ladder_rows(env.terrain, goal_range),
     }
     write_result(args.out / f"ladders_{args.config.stem}", result, markdown(result))
+    if args.picture:
+        print(f"wrote {draw_levels(env.terrain, args.picture)}")
     return 0
 
 

@@ -22,13 +22,14 @@ run keeps what it measured), a markdown table and a log-log plot.
 The terrains: ``flat`` is the plane scene; ``heightfield`` the terrain scene with per-env terrain
 on: every env draws its own tile at each reset from a pool of all random and deterministic types
 but the spiral (``HEIGHTFIELD_TYPES``); ``heightfield_reachable`` the same with radial goals drawn on
-reachable ground (``terrain.reachability``). ``--backends jax,warp`` measures MJX's JAX and Warp
+reachable ground (``terrain.reachability``); ``heightfield_geodesic`` with goals at 32 sites a tile and
+progress measured along the ground (``reward.progress: geodesic``). ``--backends jax,warp`` measures MJX's JAX and Warp
 implementations side by side (each row records its backend).
 
     python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
-        [--terrains flat,heightfield,heightfield_reachable] [--settings NAME ...]
+        [--terrains flat,heightfield,heightfield_reachable,heightfield_geodesic] [--settings NAME ...]
         [--observations original,heading,heading+scan,heading+randomized,stress_corner1,...]
-        [--steps K] [--repeats R] [--episode-steps N] [--no-ceiling] [--append]
+        [--steps K] [--repeats R] [--episode-steps N] [--regenerate-every K] [--no-ceiling] [--append]
         [--out-dir benchmarks/results/throughput] [--quick]
 """
 
@@ -74,6 +75,16 @@ TERRAINS: dict[str, dict[str, Any]] = {
         "scene": "terrain",
         "terrain.types": HEIGHTFIELD_TYPES,
         "terrain.reachability.enabled": True,
+        "terrain.corridor.corridor_width": 0.62,
+        "terrain.corridor.center": 0.510204,
+    },
+    # and with progress measured along the ground (32 goal sites a tile, reward.progress geodesic)
+    "heightfield_geodesic": {
+        "scene": "terrain",
+        "terrain.types": HEIGHTFIELD_TYPES,
+        "terrain.reachability.enabled": True,
+        "terrain.reachability.goal_sites": 32,
+        "reward.progress": "geodesic",
         "terrain.corridor.corridor_width": 0.62,
         "terrain.corridor.center": 0.510204,
     },
@@ -160,12 +171,13 @@ def bench_env(
     )
 
 
-def batch_wrapper(env: hsa_mjx.HSAEnv) -> tuple[Any | None, str]:
-    """The batch env with auto-reset (``AutoResetEnv``), or None and why not."""
+def batch_wrapper(env: hsa_mjx.HSAEnv, regenerate_every: int = 0) -> tuple[Any | None, str]:
+    """The batch env with auto-reset (``AutoResetEnv``; re-drawing the random terrain tiles every
+    ``regenerate_every`` steps when > 0), or None and why not."""
     try:
         from hsa_mjx.batch.auto_reset import AutoResetEnv
 
-        return AutoResetEnv(env), "AutoResetEnv"
+        return AutoResetEnv(env, regenerate_every), "AutoResetEnv"
     except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
 
@@ -311,6 +323,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--append", action="store_true", help="merge into an existing results file")
     p.add_argument("--tag", default="", help="suffix of the output file names (e.g. stability)")
     p.add_argument("--compile-cache", type=Path, default=None, help="JAX persistent compilation cache dir")
+    p.add_argument(
+        "--regenerate-every",
+        type=int,
+        default=0,
+        metavar="K",
+        help="re-draw the random terrain tiles on the device every K steps of the timed loop (0: never)",
+    )
     p.add_argument("--quick", action="store_true", help=f"pipeline check: {QUICK}")
     args = p.parse_args(argv)
     quick = QUICK if args.quick else {"batches": DEFAULT_BATCHES, "steps": None, "repeats": 3, "baseline_s": 2.0}
@@ -324,6 +343,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         + sorted(set(args.settings or ()) - set(SETTINGS))
         + sorted(set(args.observations) - set(OBSERVATIONS))
     )
+    if args.regenerate_every < 0:
+        p.error(f"--regenerate-every must be >= 0, got {args.regenerate_every}")
     if args.episode_steps is not None and args.episode_steps < 1:
         p.error(f"--episode-steps must be >= 1, got {args.episode_steps}")
     if bad:
@@ -395,7 +416,7 @@ def _row(
 ) -> dict[str, Any]:
     """One measured row (printed as it is done)."""
     env = bench_env(terrain, setting, backend, batch, observation, args.episode_steps)
-    wrapper, note = batch_wrapper(env)
+    wrapper, note = batch_wrapper(env, args.regenerate_every)
     measured = measure(env, wrapper, batch, steps_for(batch, args.steps), args.repeats, ceiling=args.ceiling)
     row = {
         "terrain": terrain,
@@ -403,6 +424,7 @@ def _row(
         "observation": observation,
         "observation_size": env.observation_size,
         "episode_steps": env.config.termination.max_episode_steps,
+        "regenerate_every": args.regenerate_every,
         "physics_backend": env.physics_backend,
         "overrides": SETTINGS[setting],
         "full_step": wrapper is not None,

@@ -44,6 +44,8 @@ def env_loop(env: hsa_mjx.HSAEnv, wrapper: Any | None, steps: int) -> tuple[Call
 
         def body(state, k):
             state = step(state, jax.random.uniform(k, (batch, env.action_size), minval=-1.0, maxval=1.0))
+            if wrapper is not None:  # fresh terrain tiles when due (a no-op without regeneration)
+                state = wrapper.tick(state, jax.random.fold_in(k, 1))
             inner = _env_state(state)
             reasons = {name: jnp.sum(value) for name, value in inner.metrics.items() if name.startswith("termination/")}
             return state, {

@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-ROW_KEY = ("physics_backend", "terrain", "settings", "observation", "batch", "full_step")
+ROW_KEY = ("physics_backend", "terrain", "settings", "observation", "batch", "full_step", "regenerate_every")
 # The project's speed targets (env-steps/s of the full step on one H200, Warp backend): heightfield at
 # 16k+ envs, plane at 65k envs.
 TARGETS = {"flat": 170_000, "heightfield": 120_000}
@@ -21,6 +21,12 @@ def slug(text: str) -> str:
 def _observation(row: dict[str, Any]) -> str:
     """The row's observation (rows written before the column existed measured the original's)."""
     return row.get("observation", "original")
+
+
+def _terrain(row: dict[str, Any]) -> str:
+    """The row's terrain, with how often its random tiles were re-drawn when they were."""
+    every = row.get("regenerate_every") or 0
+    return f"{row['terrain']} (tiles re-drawn every {every} steps)" if every else row["terrain"]
 
 
 def upsert(rows: list[dict[str, Any]], row: dict[str, Any]) -> list[dict[str, Any]]:
@@ -63,11 +69,11 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         "non-finite obs | full step | C MuJoCo env-steps/s | terminations per M steps |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in sorted(rows, key=lambda r: (_backend(r), r["terrain"], r["settings"], _observation(r), r["batch"])):
+    for r in sorted(rows, key=lambda r: (_backend(r), _terrain(r), r["settings"], _observation(r), r["batch"])):
         mib = r.get("env_compiled_bytes_per_env")
         mib = None if mib is None else mib / 2**20
         head.append(
-            f"| {_backend(r)} | {r['terrain']} | {r['settings']} | {_observation(r)} | {r['batch']:,} | "
+            f"| {_backend(r)} | {_terrain(r)} | {r['settings']} | {_observation(r)} | {r['batch']:,} | "
             f"{fmt(r['env_steps_per_s'])} | "
             f"{fmt(r['physics_ceiling_env_steps_per_s'])} | {fmt(r['env_over_ceiling'], 2)} | "
             f"{fmt(r['compile_s_env'], 1)} | {fmt(r['compile_s_ceiling'], 1)} | "
@@ -86,12 +92,12 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], path: Path) -> None:
 
     fig = Figure(figsize=(7.5, 5))
     ax = fig.subplots()
-    groups = sorted({(_backend(r), r["terrain"], r["settings"], _observation(r)) for r in rows})
+    groups = sorted({(_backend(r), _terrain(r), r["settings"], _observation(r)) for r in rows})
     for i, group in enumerate(groups):
         pts = sorted(
             (r["batch"], r["env_steps_per_s"], r["physics_ceiling_env_steps_per_s"])
             for r in rows
-            if (_backend(r), r["terrain"], r["settings"], _observation(r)) == group
+            if (_backend(r), _terrain(r), r["settings"], _observation(r)) == group
         )
         batch, env, ceiling = zip(*pts)
         color, name = f"C{i}", ", ".join(group)

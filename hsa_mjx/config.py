@@ -31,6 +31,7 @@ SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
 HINGE_ANGLE_MODES = ("raw", "wrapped", "sincos")  # observation.hinge_angles
+PROGRESS_MODES = ("euclidean", "geodesic")  # reward.progress
 MAX_HISTORY = 16  # observation.history_steps: a short history, not a sequence model
 MIXED = migrations.MIXED  # terrain_type of a batch drawing from several types (terrain.types)
 TERRAIN_TYPES = GENERATOR_TYPES + (MIXED,)
@@ -93,6 +94,10 @@ class RewardConfig:
     # Not in the original (0 keeps its reward): potential-style shaping that pays turning the robot's
     # axis towards the goal, w * (|cos| after - |cos| before) of the axis-to-goal angle per step.
     heading_alignment: float = 0.0
+    # How the distance and forward terms (and the logged distance_to_goal) measure the way to the goal:
+    # euclidean (the original: the straight line) or geodesic (along the ground the robot can cross, from
+    # the distance fields of the terrain's goal sites: terrain.reachability; hsa_mjx.terrain.geodesic).
+    progress: str = "euclidean"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,6 +202,7 @@ _CHOICES = {
     ("physics", "backend"): BACKENDS,
     ("goal", "mode"): GOAL_MODES,
     ("observation", "hinge_angles"): HINGE_ANGLE_MODES,
+    ("reward", "progress"): PROGRESS_MODES,
 }
 _POSITIVE = {
     ("physics", "timestep"),
@@ -281,9 +287,30 @@ def _validate_terrain(config: EnvConfig) -> None:
         raise ValueError(
             f"terrain types {list(types)} need a heightfield: set 'scene: terrain' (scene 'flat' is a plane)"
         )
+    if config.reward.progress == "geodesic":
+        _validate_geodesic(config)
     if "spiral" in types and config.goal.mode != "spiral":
         raise ValueError(
             f"the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', got {config.goal.mode!r}"
+        )
+
+
+def _validate_geodesic(config: EnvConfig) -> None:
+    """Geodesic progress reads the goal sites' fields: terrain with reachability and goal sites, goals
+    drawn at them (radial) or the spiral's checkpoints."""
+    reach = config.terrain.reachability
+    if config.scene != "terrain" or not reach.enabled:
+        raise ValueError(
+            "config key 'reward.progress' = 'geodesic' needs the terrain scene with terrain.reachability.enabled: true"
+        )
+    if config.goal.mode not in ("radial", "spiral"):
+        raise ValueError(
+            "config key 'reward.progress' = 'geodesic' needs goal.mode 'radial' or 'spiral' (goals at the "
+            f"terrain's goal sites or the checkpoints), got {config.goal.mode!r}"
+        )
+    if config.goal.mode == "radial" and reach.goal_sites < 1:
+        raise ValueError(
+            "config key 'reward.progress' = 'geodesic' with radial goals needs terrain.reachability.goal_sites >= 1"
         )
 
 

@@ -208,7 +208,8 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
         ).env
     )
     batch, rules = AutoResetEnv(env), CurriculumRules(env.config, config.goal_curriculum)
-    assert [f.name for f in dataclasses.fields(BatchState)] == ["env", "episode", "totals"]
+    # no curriculum state in the batch: the envs, episode sums, totals and (with regeneration) terrain tiles
+    assert [f.name for f in dataclasses.fields(BatchState)] == ["env", "episode", "totals", "terrain"]
     keys = jax.random.split(jax.random.PRNGKey(0), 2)
     curricula = rules.init(keys)
     state = jax.jit(batch.reset)(keys, rules.params(curricula))

@@ -32,6 +32,7 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.config_schema import build_section, plain
 from hsa_mjx.curricula import goal_curriculum, randomization_curriculum, terrain_curriculum
 from hsa_mjx.deploy.policy_file import ACTIVATIONS
+from hsa_mjx.terrain.params import RANDOM_TYPES
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
 NOISE_STD_TYPES = ("scalar", "log")
@@ -102,6 +103,9 @@ class RunConfig:
     # std kept), so they follow the new task's observations within about as many env steps instead of
     # being anchored by the source's tens of millions; 0 keeps the source's count
     init_normalizer_count: int = 0
+    # PPO iterations between re-draws of the random terrain types' tiles on the device (fresh terrain, no
+    # pool to memorise: hsa_mjx.terrain.regeneration); 0 keeps the pool drawn from env.terrain.seed
+    regenerate_terrain_every: int = 0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,12 +177,27 @@ def validate(config: TrainConfig) -> TrainConfig:
             f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
             f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)"
         )
+    _validate_regeneration(config)
     if run.steps_per_epoch and run.steps_per_epoch % config.env_steps_per_iteration:
         raise ValueError(
             f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
             f"PPO iteration ({config.env_steps_per_iteration})"
         )
     return config
+
+
+def _validate_regeneration(config: TrainConfig) -> None:
+    """``run.regenerate_terrain_every``: >= 0; re-drawing needs per-env terrain with a random type."""
+    every, env = config.run.regenerate_terrain_every, config.env
+    if isinstance(every, bool) or every < 0:
+        raise ValueError(f"config key 'run.regenerate_terrain_every' must be an integer >= 0, got {every!r}")
+    random = [t for t in env.terrain.types if t in RANDOM_TYPES]
+    if every and not (env.scene == "terrain" and env.terrain.per_env and random):
+        raise ValueError(
+            "config key 'run.regenerate_terrain_every' > 0 needs per-env terrain (env.scene 'terrain', "
+            f"env.terrain.per_env true) with a random type among {list(RANDOM_TYPES)}; got scene "
+            f"{env.scene!r}, types {list(env.terrain.types)}"
+        )
 
 
 def _validate_curricula(config: TrainConfig) -> None:

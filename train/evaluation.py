@@ -8,6 +8,7 @@ type and difficulty by ``hsa_mjx_train.terrain_eval``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -32,6 +33,9 @@ from hsa_mjx_train.policy_sources import (
 from hsa_mjx_train.rollout import rollout, summarize
 
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
+
+
+TERRAIN_SEED_OFFSET = 1000  # --terrain-seed's default: the run's terrain seed + this (tiles not trained on)
 
 
 def parse_args(argv: list[str] | None, description: str | None = None) -> argparse.Namespace:
@@ -101,6 +105,13 @@ def parse_args(argv: list[str] | None, description: str | None = None) -> argpar
         default=None,
         metavar="D1,D2",
         help="terrain difficulties in [0, 1] to evaluate each type at (default: the run's top)",
+    )
+    parser.add_argument(
+        "--terrain-seed",
+        type=int,
+        default=None,
+        help="seed of the evaluation's terrain tiles (default: the run's env.terrain.seed + 1000, tiles training "
+        "never drew its pool from); terrain_eval.json records it beside the training's",
     )
     return parser.parse_args(argv)
 
@@ -215,7 +226,10 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
     episodes = _episodes(args, args.policy is not None)
     steps = args.steps or config.env.termination.max_episode_steps
     goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
+    trained_on = config.env.terrain.seed
+    terrain_seed = trained_on + TERRAIN_SEED_OFFSET if args.terrain_seed is None else args.terrain_seed
     env_config = evaluation_env_config(config.env, args.backend)
+    env_config = dataclasses.replace(env_config, terrain=dataclasses.replace(env_config.terrain, seed=terrain_seed))
 
     def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
         return rollout(env, policy, keys, goal_range, steps, cells=cells)
@@ -228,6 +242,9 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
         "max_steps": steps,
         "policy": "stochastic" if args.stochastic else "deterministic",
         "episodes_per_cell": episodes,
+        "terrain_seed": terrain_seed,
+        "training_terrain_seed": trained_on,
+        "training_seed": config.run.seed,
     }
     written = terrain_eval.write(rows, header, out)
     print(f"wrote {len(written)} files to {out}")

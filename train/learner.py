@@ -32,6 +32,7 @@ from hsa_mjx.task.env import HSAEnv
 from hsa_mjx_train.config import TrainConfig
 from hsa_mjx_train.networks import TrainingState, make_networks, make_optimizer, network_obs
 
+REGENERATION_SALT = 0x7E77  # folded into an iteration's collection key for its terrain re-draw
 AXIS = "devices"  # the name every reduction over devices uses (pmap's axis, or one thread per GPU's learning step)
 
 
@@ -57,7 +58,7 @@ class PPOLearner:
         self.config, self.env, self.axis = config, env, axis
         # the goal curriculum learns from each collection's outcomes in ``learn`` (gathered over devices),
         # the terrain curriculum from each step's episode ends, before those envs reset
-        self.batch_env = AutoResetEnv(env)
+        self.batch_env = AutoResetEnv(env, config.run.regenerate_terrain_every)
         self.rules = CurriculumRules(
             config.env, config.goal_curriculum, config.terrain_curriculum, config.randomization_curriculum
         )
@@ -159,6 +160,8 @@ class PPOLearner:
             return (s, k), data
 
         (state, _), data = jax.lax.scan(one, (state, key), None, length=self.unrolls_per_iteration)
+        envs = (batch_env or self.batch_env).tick(state.envs, jax.random.fold_in(key, REGENERATION_SALT))
+        state = state.replace(envs=envs)  # fresh terrain tiles when due (run.regenerate_terrain_every)
         # (unrolls, T, B, ...) -> (unrolls * B, T, ...)
         data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
         return state, jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), data)

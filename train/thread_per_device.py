@@ -96,7 +96,7 @@ class ThreadPerDevice:
         for device in self.devices:
             with jax.default_device(device):
                 env = HSAEnv(config.env, num_envs=learner.env.num_envs, privileged=config.ppo.privileged_critic)
-                self.batch_envs.append(AutoResetEnv(env))
+                self.batch_envs.append(AutoResetEnv(env, config.run.regenerate_terrain_every))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # the CPU client cannot reuse donated buffers
         self._collect = [
             jax.jit(functools.partial(self._collect_piece, batch_env=b), donate_argnums=donate) for b in self.batch_envs

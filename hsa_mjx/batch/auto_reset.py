@@ -20,6 +20,7 @@ from hsa_mjx.task import reward, termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState
+from hsa_mjx.terrain.regeneration import Regenerator, TerrainTiles, initial_tiles
 
 TOTAL_KEYS = (
     "episodes",
@@ -52,6 +53,7 @@ class BatchState:
     env: EnvState
     episode: EpisodeAccumulator
     totals: dict[str, jax.Array]  # scalar sums over episodes finished since the last drain
+    terrain: TerrainTiles | None = None  # the pool's arrays, with terrain regeneration (no batch axis)
 
     @property
     def obs(self) -> jax.Array:
@@ -76,8 +78,25 @@ class AutoResetEnv:
     curricula from the episodes that ended before the envs reset (the trainer's learner).
     """
 
-    def __init__(self, env: HSAEnv):
-        self.env = env
+    def __init__(self, env: HSAEnv, regenerate_every: int = 0):
+        """``regenerate_every`` > 0: the batch carries the terrain tiles and :meth:`tick` re-draws the random
+        ones every that many calls (``hsa_mjx.terrain.regeneration``)."""
+        self.env, self.regenerate_every = env, int(regenerate_every)
+        self.regenerator = Regenerator(env.world) if self.regenerate_every > 0 else None
+
+    def bound(self, state: BatchState) -> HSAEnv:
+        """The env on the batch's terrain tiles (the env itself without regeneration)."""
+        return self.env if state.terrain is None else self.env.with_terrain(state.terrain)
+
+    def tick(self, state: BatchState, key: jax.Array) -> BatchState:
+        """One training iteration passed: re-draw the random tiles from ``key`` when ``regenerate_every``
+        iterations have passed since the last time (no-op without regeneration)."""
+        if self.regenerator is None:
+            return state
+        terrain = state.terrain.replace(age=state.terrain.age + 1)
+        due = terrain.age >= self.regenerate_every
+        terrain = jax.lax.cond(due, lambda t: self.regenerator.regenerate(key, t).replace(age=0), lambda t: t, terrain)
+        return state.replace(terrain=terrain)
 
     @property
     def observation_size(self) -> int:
@@ -96,10 +115,12 @@ class AutoResetEnv:
         check_batch(self.env, keys.shape[0])
         batch = keys.shape[0]
         params = self.default_params(batch) if params is None else params
-        env_state = jax.vmap(self.env.reset)(keys, params)
+        terrain = None if self.regenerator is None else initial_tiles(self.env.world)
+        env = self.env if terrain is None else self.env.with_terrain(terrain)
+        env_state = jax.vmap(env.reset)(keys, params)
         zeros = jnp.zeros((batch,), jnp.float32)
         episode = EpisodeAccumulator(ret=zeros, length=zeros, terms={k: zeros for k in reward.TERM_NAMES})
-        return BatchState(env=env_state, episode=episode, totals=_zero_totals())
+        return BatchState(env=env_state, episode=episode, totals=_zero_totals(), terrain=terrain)
 
     def step(self, state: BatchState, actions: jax.Array, params: EnvParams | None = None) -> BatchState:
         """Step every env; reset the finished ones with ``params``; add finished episodes to the totals."""
@@ -122,7 +143,7 @@ class AutoResetEnv:
     def advance(self, state: BatchState, actions: jax.Array) -> tuple[BatchState, EpisodeAccumulator]:
         """Step every env without resetting: the state holding the stepped envs (finished ones still
         terminal, their running sums zeroed), and the sums of each env's episode up to this step."""
-        nxt = jax.vmap(self.env.step)(state.env, actions)
+        nxt = jax.vmap(self.bound(state).step)(state.env, actions)
         done = nxt.done > 0
         episode = EpisodeAccumulator(
             ret=state.episode.ret + nxt.reward,
@@ -137,16 +158,16 @@ class AutoResetEnv:
         running = EpisodeAccumulator(
             ret=keep(episode.ret), length=keep(episode.length), terms={k: keep(v) for k, v in episode.terms.items()}
         )
-        return BatchState(env=nxt, episode=running, totals=totals), episode
+        return BatchState(env=nxt, episode=running, totals=totals, terrain=state.terrain), episode
 
     def reset_done(self, state: BatchState, params: EnvParams, reset_metrics: bool = False) -> BatchState:
         """Replace the finished envs of an advanced state by fresh episodes drawn from their own keys
         with their ``params`` (skipped when none ended)."""
-        done = state.env.done > 0
+        done, env = state.env.done > 0, self.bound(state)
 
         def fresh(current: EnvState) -> EnvState:
             keys = jax.vmap(lambda k: jax.random.split(k)[1])(current.pipeline_state.task.rng)
-            new = jax.vmap(self.env.reset)(keys, params)
+            new = jax.vmap(env.reset)(keys, params)
             pick = per_env_picker(done)
             metrics = jax.tree.map(pick, new.metrics, current.metrics) if reset_metrics else current.metrics
             sim = select_sim(done, new.pipeline_state, current.pipeline_state)
@@ -185,7 +206,7 @@ class AutoResetEnv:
         """What an advanced (not yet reset) batch tells the terrain curriculum: which episodes ended,
         which reached their goal, and the share of their start distance to the goal they covered."""
         env = state.env
-        start = jnp.linalg.norm(env.pipeline_state.task.goal_xy - self.env.spawn_xy, axis=-1)
+        start = env.pipeline_state.task.start_distance  # measured as distance_to_goal is (reward.progress)
         progress = 1.0 - env.metrics["distance_to_goal"] / jnp.maximum(start, 1e-6)
         return EpisodeEnds(done=env.done, success=env.metrics["termination/goal_reached"], progress=progress)
 

@@ -5,6 +5,8 @@ Wiring only: control, physics, observation, reward, termination and goals live i
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,7 +21,18 @@ from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
 from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local_device
-from hsa_mjx.task import control, goals, history, observation, privileged, randomization, reward, termination
+from hsa_mjx.task import (
+    control,
+    goals,
+    history,
+    observation,
+    privileged,
+    progress,
+    randomization,
+    reward,
+    termination,
+)
+from hsa_mjx.task.metrics import step_metrics
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
 from hsa_mjx.terrain import height_scan
@@ -64,7 +77,15 @@ class HSAEnv(BraxEnv):
         self.config, self.num_envs, self.privileged = config, int(num_envs), bool(privileged)
         self.robot: RobotModel = load_robot(config, asset_dir)
         self.index = self.robot.index
-        self.world = TerrainWorld(config.terrain, self.robot.pool, self.robot.mj_model, self.index.block_body)
+        spiral_sites = config.goal.mode == "spiral" and config.reward.progress == "geodesic"
+        self.world = TerrainWorld(
+            config.terrain,
+            self.robot.pool,
+            self.robot.mj_model,
+            self.index.block_body,
+            goals.spiral_checkpoints(config.goal, config.terrain.spiral) if spiral_sites else None,
+        )
+        self.progress = progress.GoalProgress(config, self.world)
         self.weights = reward.RewardWeights.from_config(config.reward)
         # physics.backend c: the substeps in C MuJoCo on the host (one env after another under vmap)
         self._host = HostPhysics(self.robot.mj_model, self.index) if self.robot.backend == "c" else None
@@ -101,6 +122,15 @@ class HSAEnv(BraxEnv):
         )
         # block-origin height above level ground with the robot resting on it: the scan's zero
         self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
+
+    def with_terrain(self, tiles) -> HSAEnv:
+        """This env on the terrain ``tiles`` (``hsa_mjx.terrain.regeneration.TerrainTiles``, traced): the
+        physics' heightfield, the ground, goals and distance fields all read them."""
+        env = copy.copy(self)
+        env.world = self.world.with_tiles(tiles)
+        env.robot = dataclasses.replace(self.robot, mjx_model=self.robot.mjx_model.replace(hfield_data=tiles.atlas))
+        env.progress = progress.GoalProgress(self.config, env.world)
+        return env
 
     # ----- Brax Env interface -------------------------------------------------------------
     @property
@@ -185,15 +215,8 @@ class HSAEnv(BraxEnv):
         else:
             index, move = jnp.zeros((), jnp.int32), None
             goal_xy = goals.initial_goal(goal_key, self.config, params.goal_range, self._checkpoints, terrain_id)
-            if self.config.goal.mode == "radial" and self.world.reachable_goals:  # static
-                bearing = tuple(self.config.goal.radial_bearing_deg)
-                goal_xy = self.world.reachable_goal(
-                    jax.random.fold_in(goal_key, 1), tile, params.goal_range, bearing, goal_xy
-                )
-        goal_xy = self.world.place_goal(goal_xy, terrain_id)
+        site, goal_xy = self.progress.place_goal(goal_key, tile, terrain_id, params.goal_range, index, goal_xy)
         data = self._with_goal_marker(self._spawn(tile, move), goal_xy, tile)
-        position = observation.robot_xy(data, self.index)
-        distance, _ = observation.goal_vector(position, goal_xy)
         window = self.config.reward.stagnation_window
         task = TaskState(
             goal_xy=goal_xy,
@@ -201,18 +224,22 @@ class HSAEnv(BraxEnv):
             checkpoint_index=index,
             prev_action=jnp.zeros(self.action_size),
             prev_joint_vel=jnp.zeros(self.action_size),
-            prev_distance=distance,
+            prev_distance=jnp.zeros(()),
+            start_distance=jnp.zeros(()),
             com_history=jnp.zeros((window, 2)),
             history_count=jnp.zeros((), jnp.int32),
             step_count=jnp.zeros((), jnp.int32),
             rng=rng,
             tile=tile,
             terrain_id=terrain_id,
+            site=site,
             randomization=drawn,
         )
+        distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
+        task = task.replace(prev_distance=distance, start_distance=distance)
         obs, critic, task = self._observe(data, task)
         obs = self._with_history(obs, jnp.zeros((self.observation_size - self._history_start,), jnp.float32))
-        metrics = self._metrics(
+        metrics = step_metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
             jnp.zeros((), bool),
@@ -230,11 +257,13 @@ class HSAEnv(BraxEnv):
         )
 
     def set_goal(self, state: EnvState, goal_xy: jax.Array) -> EnvState:
-        """Replace the current goal (non-spiral modes); progress terms restart from it."""
+        """Replace the current goal (non-spiral modes); progress terms restart from it (along the straight
+        line: a goal set by hand has no site on the tile)."""
         sim: SimState = state.pipeline_state
         data = self._with_goal_marker(sim.physics, goal_xy, sim.task.tile)
-        distance, _ = observation.goal_vector(observation.robot_xy(data, self.index), goal_xy)
-        task = sim.task.replace(goal_xy=goal_xy, prev_distance=distance)
+        task = sim.task.replace(goal_xy=goal_xy, site=jnp.asarray(progress.NO_SITE, jnp.int32))
+        distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
+        task = task.replace(prev_distance=distance, start_distance=distance)
         obs, critic, task = self._observe(data, task, self._episode_time(task))
         obs = self._with_history(obs, state.obs[self._history_start :])
         info = state.info if critic is None else dict(state.info, privileged_obs=critic)
@@ -298,9 +327,9 @@ class HSAEnv(BraxEnv):
         task, data = state.pipeline_state.task, state.pipeline_state.physics
         after = observation.robot_xy(new_data, idx)
         velocity = jnp.clip((after - before[0]) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
-        task, collected, completed = self._update_goal(task, after)
+        task, collected, completed = self.progress.advance_checkpoint(task, after)
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
-        distance, direction = observation.goal_vector(after, task.goal_xy)
+        distance, direction = self.progress.measure(task, after)
         steps = task.step_count + 1
         obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
         steps_kept, previous = cfg.observation.history_steps, state.obs
@@ -313,10 +342,14 @@ class HSAEnv(BraxEnv):
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
         failed = termination.any_reason(reasons)
-        success = completed if cfg.goal.mode == "spiral" else distance < cfg.goal.success_radius
+        success = (
+            completed
+            if cfg.goal.mode == "spiral"
+            else observation.goal_vector(after, task.goal_xy)[0] < cfg.goal.success_radius
+        )
         reasons["goal_reached"] = success = success & jnp.logical_not(failed)
         terminated = failed | success
-        task, progress, full = self._record_position(task, after)
+        task, moved, full = progress.record_position(task, after)
         inputs = reward.RewardInputs(
             velocity=velocity,
             goal_direction=direction,
@@ -328,7 +361,7 @@ class HSAEnv(BraxEnv):
             foot_force=physics.foot_forces(new_data, idx.foot_sensors),
             distance=distance,
             prev_distance=task.prev_distance,
-            stagnation_progress=progress,
+            stagnation_progress=moved,
             history_full=full,
             checkpoint_collected=collected,
             spiral_complete=completed & success,
@@ -348,7 +381,7 @@ class HSAEnv(BraxEnv):
             prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance, step_count=steps
         )
         new_data, obs, total = self._sanitize(data, new_data, obs, total, reasons["non_finite"])
-        metrics = self._metrics(components, reasons, bad_action, distance, task.checkpoint_index)
+        metrics = step_metrics(components, reasons, bad_action, distance, task.checkpoint_index)
         info = dict(state.info, truncation=truncated.astype(jnp.float32))
         if critic is not None:
             info["privileged_obs"] = jnp.where(jnp.isfinite(critic), critic, 0.0)
@@ -443,31 +476,6 @@ class HSAEnv(BraxEnv):
         marker = jnp.concatenate([goal_xy, z[None]])
         return data.replace(mocap_pos=data.mocap_pos.at[self.index.goal_mocap].set(marker))
 
-    def _update_goal(self, task: TaskState, position: jax.Array) -> tuple[TaskState, jax.Array, jax.Array]:
-        """Spiral: collect the current checkpoint and move the goal to the next one."""
-        if self.config.goal.mode != "spiral":
-            return task, jnp.zeros((), bool), jnp.zeros((), bool)
-        collected, completed, index = goals.advance_checkpoint(
-            position, task.checkpoints, task.checkpoint_index, self.config.goal.checkpoint_radius
-        )
-        goal_xy = task.checkpoints[index]
-        # Measure progress towards the new checkpoint from here: no distance reward on a switch.
-        new_prev = jnp.where(collected, jnp.linalg.norm(goal_xy - position), task.prev_distance)
-        return task.replace(goal_xy=goal_xy, checkpoint_index=index, prev_distance=new_prev), collected, completed
-
-    @staticmethod
-    def _record_position(task: TaskState, position: jax.Array) -> tuple[TaskState, jax.Array, jax.Array]:
-        """Append to the stagnation window; return displacement over the window and whether it is full."""
-        window = task.com_history.shape[0]
-        history = task.com_history.at[task.history_count % window].set(position)
-        count = task.history_count + 1
-        oldest = history[count % window]
-        return (
-            task.replace(com_history=history, history_count=count),
-            jnp.linalg.norm(position - oldest),
-            count >= window,
-        )
-
     def _sanitize(
         self, old: mjx.Data, new: mjx.Data, obs: jax.Array, total: jax.Array, non_finite: jax.Array
     ) -> tuple[mjx.Data, jax.Array, jax.Array]:
@@ -476,15 +484,3 @@ class HSAEnv(BraxEnv):
         obs = jnp.where(jnp.isfinite(obs), obs, 0.0)
         total = jnp.where(jnp.isfinite(total), total, -self.weights.termination)
         return data, obs, total
-
-    @staticmethod
-    def _metrics(
-        components: dict, reasons: dict, bad_action: jax.Array, distance: jax.Array, checkpoint_index: jax.Array
-    ) -> dict[str, jax.Array]:
-        metrics = {f"reward/{k}": v.astype(jnp.float32) for k, v in components.items()}
-        metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in reasons.items()})
-        metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in termination.grouped(reasons).items()})
-        metrics["nonfinite_action"] = bad_action.astype(jnp.float32)
-        metrics["distance_to_goal"] = jnp.where(jnp.isfinite(distance), distance, 0.0).astype(jnp.float32)
-        metrics["checkpoint_index"] = checkpoint_index.astype(jnp.float32)
-        return metrics

@@ -21,12 +21,14 @@ class TaskState:
     prev_action: jax.Array  # (8,) last normalised action (zeros after reset)
     prev_joint_vel: jax.Array  # (8,) actuated hinge velocities at the end of the last step
     prev_distance: jax.Array  # () distance to the goal at the end of the last step
+    start_distance: jax.Array  # () distance to the goal when it was set (reset, set_goal)
     com_history: jax.Array  # (W, 2) ring buffer of robot positions for the stagnation term
     history_count: jax.Array  # () int32, positions written since reset
     step_count: jax.Array  # () int32, env steps since reset
     rng: jax.Array  # PRNG key of this env
     tile: jax.Array  # () int32, this episode's tile of the run's terrain atlas (0 on a plane or shared terrain)
     terrain_id: jax.Array  # () int32, this env's terrain type (index into hsa_mjx.terrain.TERRAIN_TYPES)
+    site: jax.Array  # () int32, the goal's site on the tile (its distance field; -1: none, straight line)
     randomization: RandomizationState  # this episode's physical scales, latency and next push
 
 

@@ -175,7 +175,9 @@ def poles(
     """Poles of random radius and height: full height up to ``radius - edge``, linear to 0 at ``radius``.
 
     ``edge`` is one vertex spacing (or the radius if smaller), so the default 0.2 m poles are the
-    original's single-vertex spikes. Poles taller than the heightfield's z scale are clipped by
+    original's single-vertex spikes. The difficulty scales their height (``grade: height``) or how many
+    of the placed poles stand (``grade: count``: the ``ceil(difficulty x num)`` of highest priority, each
+    at full height). Poles taller than the heightfield's z scale are clipped by
     :func:`~hsa_mjx.terrain.grid.to_hfield_data`.
     """
     if p.num == 0:
@@ -183,12 +185,16 @@ def poles(
     k_pos, k_radius, k_height = jax.random.split(key, 3)
     cx, cy, present = pole_centres(k_pos, p, grid)
     count = cx.shape[0]
+    scale = difficulty
+    if p.grade == "count":
+        present = present & (jnp.arange(count) < jnp.ceil(difficulty * p.num - 1e-6))
+        scale = 1.0
     radius = jax.random.uniform(k_radius, (count,), minval=p.radius[0], maxval=p.radius[1])
     height = jax.random.uniform(k_height, (count,), minval=p.height[0], maxval=p.height[1])
     edge = jnp.minimum(radius, min(grid.spacing_x, grid.spacing_y))
     d = _pairwise_distance(x, y, cx, cy)
     profile = jnp.where(present, height * jnp.clip((radius - d) / edge, 0.0, 1.0), 0.0)
-    return difficulty * jnp.max(profile, axis=-1)
+    return scale * jnp.max(profile, axis=-1)
 
 
 def flat_with_incline(
@@ -222,15 +228,34 @@ def flat_with_ramp(
     return jnp.where(inside, rise, 0.0)
 
 
+def stage_fraction(difficulty: Difficulty, start: float, end: float) -> jax.Array:
+    """How far ``difficulty`` has come from ``start`` to ``end``, in [0, 1] (1 from ``end`` on)."""
+    if end <= start:
+        return jnp.asarray(difficulty >= end, jnp.float32)
+    return jnp.clip((jnp.asarray(difficulty, jnp.float32) - start) / (end - start), 0.0, 1.0)
+
+
 def corridor(
     key: jax.Array, p: CorridorParams, grid: Grid, x: jax.Array, y: jax.Array, difficulty: Difficulty = 1.0
 ) -> jax.Array:
-    """Walls of ``wall_height`` on both sides of a floor running along ``axis``."""
+    """Walls of ``wall_height`` on both sides of a floor running along ``axis``; the difficulty raises the
+    walls, then narrows the floor, then bends it (``CorridorParams``)."""
     if p.axis == "x":
-        lateral, ramp = y - grid.fraction_to_y(p.center), grid.spacing_y
+        along, lateral, ramp = x, y - grid.fraction_to_y(p.center), grid.spacing_y
     else:
-        lateral, ramp = x - grid.fraction_to_x(p.center), grid.spacing_x
-    return difficulty * p.wall_height * soft_edge(jnp.abs(lateral), 0.5 * p.corridor_width, ramp)
+        along, lateral, ramp = y, x - grid.fraction_to_x(p.center), grid.spacing_x
+    width = p.corridor_width
+    if p.start_width > 0:
+        width = p.start_width + (p.corridor_width - p.start_width) * stage_fraction(
+            difficulty, p.wall_until, p.width_until
+        )
+    if p.bend_amplitude > 0:
+        amplitude = p.bend_amplitude * stage_fraction(difficulty, p.width_until, 1.0)
+        phase = 2.0 * math.pi * along / p.bend_wavelength
+        slope = amplitude * 2.0 * math.pi / p.bend_wavelength * jnp.cos(phase)
+        lateral = (lateral - amplitude * jnp.sin(phase)) / jnp.sqrt(1.0 + slope**2)  # across the bent floor
+    height = p.wall_height * jnp.minimum(1.0, jnp.asarray(difficulty, jnp.float32) / p.wall_until)
+    return height * soft_edge(jnp.abs(lateral), 0.5 * width, ramp)
 
 
 def spiral_track_distance(p: SpiralParams, x: jax.Array, y: jax.Array, extension: float) -> jax.Array:
@@ -273,10 +298,10 @@ DIFFICULTY_PARAMETER: dict[str, str] = {
     "flat": "(none: always level)",
     "incline": "angle",
     "craters": "depth",
-    "poles": "height",
+    "poles": "height (grade: height) or count (grade: count)",
     "flat_with_incline": "angle",
     "flat_with_ramp": "height",
-    "corridor": "wall_height",
+    "corridor": "wall_height, then the width from start_width, then the bend",
     "spiral": "wall_height",
 }
 

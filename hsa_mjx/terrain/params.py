@@ -30,6 +30,7 @@ RANDOM_TYPES = ("perlin", "craters", "poles")  # the others ignore the key
 AXES = ("x", "y")
 INCLINE_DIRECTIONS = ("x", "y", "diagonal")
 RAMP_DIRECTIONS = ("x", "-x", "y", "-y")
+POLE_GRADES = ("height", "count")
 MAX_LEVELS = 64
 
 
@@ -79,12 +80,18 @@ class CratersParams:
 
 @dataclasses.dataclass(frozen=True)
 class PolesParams:
-    """Up to ``num`` poles at random vertices, no two closer than ``min_spacing``."""
+    """Up to ``num`` poles at random vertices, no two closer than ``min_spacing``.
+
+    ``grade`` is what the difficulty scales: ``height`` (the original's poles, lower at lower levels) or
+    ``count`` (full-height poles, ``ceil(difficulty x num)`` of them: open ground grows into the full
+    maze, the gaps closing towards ``min_spacing`` less a pole's width).
+    """
 
     num: int = 75
     radius: tuple[float, float] = (0.2, 0.2)  # m (original 1 cell: a single-vertex spike)
     height: tuple[float, float] = (0.75, 1.25)  # m (original 1.5-2.5 x 0.5 m; clipped to the z scale)
     min_spacing: float = 0.6  # m (original 3 cells)
+    grade: str = "height"  # height | count
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,12 +118,24 @@ class FlatWithRampParams:
 
 @dataclasses.dataclass(frozen=True)
 class CorridorParams:
-    """A straight floor between two walls, ``corridor_width`` wide at half the wall height."""
+    """A floor between two walls, ``corridor_width`` wide at half the wall height (measured across it).
+
+    The difficulty grades it in up to three stages: the walls grow to ``wall_height`` until difficulty
+    ``wall_until``; the floor narrows from ``start_width`` to ``corridor_width`` until ``width_until``;
+    then the centre line bends, ``bend_amplitude x sin(2 pi s / bend_wavelength)`` across it at ``s``
+    along it, growing to full amplitude at difficulty 1. The defaults are the original's straight
+    corridor with the walls scaled by the difficulty.
+    """
 
     corridor_width: float = 0.6  # m (dispatcher default; the function's own default was 0.85)
     axis: str = "x"  # direction the corridor runs (the original's 'y' ran along world x)
     center: float = 0.5  # fraction of the field across the corridor (0.5: centred on the origin)
     wall_height: float = 0.25  # m (original 0.5 x 0.5 m)
+    wall_until: float = 1.0  # difficulty at which the walls reach full height
+    start_width: float = 0.0  # m, the floor's width until wall_until (0: corridor_width throughout)
+    width_until: float = 1.0  # difficulty at which the floor has narrowed to corridor_width
+    bend_amplitude: float = 0.0  # m across the corridor (0: straight, the original)
+    bend_wavelength: float = 5.0  # m along it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,6 +167,11 @@ class ReachabilityConfig:
     ``redraws`` times while less than ``min_area`` of it lies at a path distance inside ``goal_range``
     (and refuses the build when a tile still fails), and radial goals are drawn on reachable cells at
     their requested distance measured along the path.
+
+    ``goal_sites`` > 0 also gives every tile that many goal sites, spread evenly in path distance over
+    ``goal_range``, each with its distance field at every ``field_stride``-th map cell
+    (``hsa_mjx.terrain.geodesic``): what ``reward.progress: geodesic`` reads; radial goals are then drawn
+    among the sites.
     """
 
     enabled: bool = False
@@ -155,6 +179,8 @@ class ReachabilityConfig:
     goal_range: tuple[float, float] = (1.5, 4.5)  # m along the path: the goals the tiles must hold
     min_area: float = 0.25  # m^2 (a corridor's reachable strip at 1.5-4.5 m: about 0.6 m^2)
     redraws: int = 8
+    goal_sites: int = 0  # per tile (0: none)
+    field_stride: int = 2  # the fields' cells: every second map cell (0.2 m)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -293,6 +319,7 @@ def _check_generators(c: TerrainConfig) -> None:
     _check_sign(c.poles, "poles", non_negative=("num", "min_spacing"))
     _check_range("poles.radius", c.poles.radius, 0.0, strict_low=True)
     _check_range("poles.height", c.poles.height, 0.0)
+    _check_choice("poles.grade", c.poles.grade, POLE_GRADES)
     _check_range("flat_with_incline.x_range", c.flat_with_incline.x_range, 0.0, high=1.0, strict=True)
     _check_range("flat_with_incline.y_range", c.flat_with_incline.y_range, 0.0, high=1.0, strict=True)
     _check_angle("flat_with_incline.angle", c.flat_with_incline.angle)
@@ -306,9 +333,21 @@ def _check_generators(c: TerrainConfig) -> None:
     _check_choice("corridor.axis", c.corridor.axis, AXES)
     if not 0.0 <= c.corridor.center <= 1.0:
         _fail("corridor.center", "must be a fraction of the field in [0, 1]", c.corridor.center)
+    _check_corridor_stages(c.corridor)
     _check_sign(c.spiral, "spiral", positive=("turns", "track_width"), non_negative=("start_radius", "wall_height"))
     if c.spiral.end_radius < c.spiral.start_radius:
         _fail("spiral.end_radius", "must be >= spiral.start_radius", c.spiral.end_radius)
+
+
+def _check_corridor_stages(p: CorridorParams) -> None:
+    """0 < wall_until <= width_until <= 1, a positive start width and wavelength, a non-negative bend."""
+    if not 0.0 < p.wall_until <= p.width_until <= 1.0:
+        _fail(
+            "corridor.wall_until",
+            "and corridor.width_until must satisfy 0 < wall_until <= width_until <= 1",
+            (p.wall_until, p.width_until),
+        )
+    _check_sign(p, "corridor", positive=("bend_wavelength",), non_negative=("start_width", "bend_amplitude"))
 
 
 def validate_terrain(config: TerrainConfig) -> TerrainConfig:
@@ -331,7 +370,17 @@ def validate_terrain(config: TerrainConfig) -> TerrainConfig:
     reach = config.reachability
     _check_sign(reach, "reachability", positive=("resolution", "min_area"), non_negative=("redraws",))
     _check_range("reachability.goal_range", reach.goal_range, 0.0, strict=True)
+    if not 0 <= reach.goal_sites <= 256:
+        _fail("reachability.goal_sites", "must be between 0 and 256", reach.goal_sites)
+    if not 1 <= reach.field_stride <= 8:
+        _fail("reachability.field_stride", "must be between 1 and 8", reach.field_stride)
     _check_generators(config)
+    if "corridor" in config.types and config.corridor.bend_amplitude > 0 and not reach.enabled:
+        _fail(
+            "corridor.bend_amplitude",
+            "> 0 needs terrain.reachability.enabled: true (goals on a bent corridor are drawn on its floor)",
+            config.corridor.bend_amplitude,
+        )
     return config
 
 

@@ -74,7 +74,7 @@ def surface_map(data: jax.Array, grid: Grid, resolution: float) -> jax.Array:
     return surface_height(data, grid, jnp.asarray(map_points(grid, resolution)))
 
 
-def _shifted(a: jax.Array, dr: int, dc: int, fill: float) -> jax.Array:
+def shifted(a: jax.Array, dr: int, dc: int, fill: float) -> jax.Array:
     """``a`` moved so that out[r, c] = a[r + dr, c + dc], ``fill`` outside."""
     padded = jnp.pad(a, 1, constant_values=fill)
     n, m = a.shape
@@ -147,7 +147,7 @@ def path_distances(free: jax.Array, target: tuple[int, int] | jax.Array, resolut
         d, _ = state
         best = d
         for (dr, dc), cost in zip(NEIGHBOURS, costs):
-            best = jnp.minimum(best, _shifted(d, dr, dc, jnp.inf) + cost)
+            best = jnp.minimum(best, shifted(d, dr, dc, jnp.inf) + cost)
         best = jnp.where(free, best, jnp.inf)
         return best, jnp.any(best < d)
 

@@ -9,12 +9,15 @@ the ground is z = 0.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hsa_mjx.terrain import reachability
+from hsa_mjx.terrain import geodesic, reachability, traversability
 from hsa_mjx.terrain.atlas import TerrainPool
 from hsa_mjx.terrain.grid import inside, surface_height
 from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
@@ -35,10 +38,18 @@ class TerrainWorld:
     """
 
     def __init__(
-        self, config: TerrainConfig, pool: TerrainPool | None, mj_model: mujoco.MjModel, block_body: np.ndarray
+        self,
+        config: TerrainConfig,
+        pool: TerrainPool | None,
+        mj_model: mujoco.MjModel,
+        block_body: np.ndarray,
+        site_points: np.ndarray | None = None,
     ):
+        """``site_points`` (count, 2): put these goal sites (the spiral's checkpoints) on every tile instead
+        of drawing ``terrain.reachability.goal_sites`` per tile."""
         self.config, self.pool = config, pool
         self.enabled = pool is not None
+        self.sites: geodesic.GoalSites | None = None
         if not self.enabled:
             return
         self.grid = pool.layout.tile  # one tile: the original field, in the robot's coordinates
@@ -53,6 +64,56 @@ class TerrainWorld:
         if pool.reach is not None:
             self._reach = jnp.asarray(pool.reach)
             self._cells = reachability.cell_centres(self.grid, config.reachability.resolution)
+            if config.reachability.goal_sites > 0 or site_points is not None:
+                self._build_sites(site_points)
+
+    def _build_sites(self, points: np.ndarray | None) -> None:
+        """Every tile's goal sites and their distance fields (``hsa_mjx.terrain.geodesic``), on the device."""
+        reach = self.config.reachability
+        limits = dataclasses.replace(traversability.ROBOT, resolution=reach.resolution)
+        count = reach.goal_sites if points is None else len(points)
+        spec = geodesic.SiteSpec(self.grid, limits, reach.goal_range, count, reach.field_stride)
+        key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 7)
+        self.site_spec = spec
+        self.sites = geodesic.build(spec, self.pool.tiles, self.pool.reach, key, points)
+        self._site_xy = jnp.asarray(self.sites.xy)
+        self._site_spawn = jnp.asarray(self.sites.spawn_distance)
+        self._site_fields = jnp.asarray(self.sites.fields)
+
+    def with_tiles(self, tiles) -> TerrainWorld:
+        """This world reading the pool's arrays from ``tiles`` (``regeneration.TerrainTiles``, traced)."""
+        world = copy.copy(self)
+        world._atlas = tiles.atlas
+        if self.pool.reach is not None:
+            world._reach = tiles.reach
+        if self.sites is not None:
+            world._site_xy, world._site_spawn, world._site_fields = tiles.site_xy, tiles.site_spawn, tiles.site_fields
+        return world
+
+    @property
+    def has_sites(self) -> bool:
+        """Whether every tile carries goal sites with distance fields (geodesic progress)."""
+        return self.sites is not None
+
+    def site_goal(
+        self, key: jax.Array, tile: jax.Array, goal_range: jax.Array, bearing_deg: tuple[float, float]
+    ) -> tuple[jax.Array, jax.Array]:
+        """(site index, goal xy): a site of ``tile`` drawn uniformly among those at a path distance in
+        ``goal_range`` (traced) and a bearing in ``bearing_deg`` (static); site -1 and the spawn-nearest
+        site's position where none qualifies."""
+        spawn, xy = self._site_spawn[tile], self._site_xy[tile]
+        bearing = jnp.degrees(jnp.abs(jnp.arctan2(xy[:, 1], xy[:, 0])))
+        ok = (spawn >= goal_range[0]) & (spawn <= goal_range[1])
+        ok = ok & (bearing >= bearing_deg[0]) & (bearing <= bearing_deg[1])
+        site = jax.random.categorical(key, jnp.where(ok, 0.0, -jnp.inf)).astype(jnp.int32)
+        site = jnp.where(jnp.any(ok), site, -1)
+        return site, xy[jnp.maximum(site, 0)]
+
+    def path_to_goal(self, tile: jax.Array, site: jax.Array, xy: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(path distance, unit direction of the path) from ``xy`` to goal site ``site`` of ``tile``."""
+        field = self._site_fields[tile, site]
+        origin, spacing = self.sites.origin, self.sites.spacing
+        return geodesic.field_distance(field, origin, spacing, xy), geodesic.path_direction(field, origin, spacing, xy)
 
     @property
     def reachable_goals(self) -> bool:

@@ -1,0 +1,23 @@
+"""What every env step reports besides its reward: the named reward components, the termination reasons
+(one by one and grouped into simulator health and task failure), non-finite actions, the distance to the
+goal (``reward.progress``'s measure) and the checkpoint index."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from hsa_mjx.task import termination
+
+
+def step_metrics(
+    components: dict, reasons: dict, bad_action: jax.Array, distance: jax.Array, checkpoint_index: jax.Array
+) -> dict[str, jax.Array]:
+    """``EnvState.metrics`` of one step (float32 scalars; a non-finite distance reads 0)."""
+    metrics = {f"reward/{k}": v.astype(jnp.float32) for k, v in components.items()}
+    metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in reasons.items()})
+    metrics.update({f"termination/{k}": v.astype(jnp.float32) for k, v in termination.grouped(reasons).items()})
+    metrics["nonfinite_action"] = bad_action.astype(jnp.float32)
+    metrics["distance_to_goal"] = jnp.where(jnp.isfinite(distance), distance, 0.0).astype(jnp.float32)
+    metrics["checkpoint_index"] = checkpoint_index.astype(jnp.float32)
+    return metrics

@@ -1,0 +1,117 @@
+"""The env on terrain tasks, with one shared env (a bent corridor and a pole field): goals at the tiles'
+goal sites with progress measured along the ground, and the random tiles re-drawn on the device."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hsa_mjx
+from hsa_mjx.batch.auto_reset import AutoResetEnv
+from hsa_mjx.task import progress
+from hsa_mjx.task.params import EnvParams
+from hsa_mjx.terrain import TERRAIN_TYPES, reachability
+
+ENVS = 4
+CELLS = [(0, 0), (0, 0), (1, 0), (1, 0)]  # two envs in the corridor, two among the poles
+
+
+@pytest.fixture(scope="module")
+def batch():
+    env = hsa_mjx.make_env(
+        "flat",
+        num_envs=ENVS,
+        scene="terrain",
+        terrain__types=["corridor", "poles"],
+        terrain__tiles_per_type=2,
+        terrain__corridor__corridor_width=0.72,
+        terrain__corridor__center=0.510204,
+        terrain__corridor__bend_amplitude=0.5,
+        terrain__corridor__bend_wavelength=6.0,
+        terrain__reachability__enabled=True,
+        terrain__reachability__goal_sites=4,
+        goal__mode="radial",
+        goal__radial_range=[3.0, 4.5],
+        reward__progress="geodesic",
+    )
+    return AutoResetEnv(env, regenerate_every=2)
+
+
+@pytest.fixture(scope="module")
+def start(batch):
+    params = jax.tree.map(lambda *x: jnp.stack(x), *[EnvParams.make((3.0, 4.5), cell) for cell in CELLS])
+    return jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), ENVS), params)
+
+
+@pytest.fixture(scope="module")
+def step(batch):
+    return jax.jit(batch.step)
+
+
+def _tile_data(batch, atlas: np.ndarray, tile: int) -> np.ndarray:
+    layout = batch.env.world.pool.layout
+    r, c = layout.slots()[tile]
+    t = layout.tile
+    return atlas.reshape(layout.rows * t.nrow, -1)[r * t.nrow : (r + 1) * t.nrow, c * t.ncol : (c + 1) * t.ncol]
+
+
+def test_goals_are_sites_and_progress_is_measured_along_the_bent_corridor(batch, start, step):
+    task, sites = start.env.pipeline_state.task, batch.env.world.sites
+    site, tile = np.asarray(task.site), np.asarray(task.tile)
+    assert (site >= 0).all()
+    np.testing.assert_allclose(np.asarray(task.goal_xy), sites.xy[tile, site])
+    distance = np.asarray(start.env.metrics["distance_to_goal"])
+    np.testing.assert_allclose(distance, sites.spawn_distance[tile, site], atol=0.25)  # the spawn is ~a cell off
+    straight = np.hypot(*(np.asarray(task.goal_xy) - np.asarray(batch.env.spawn_xy)).T)
+    assert (distance >= 3.0 - 0.25).all() and (distance[:2] > straight[:2] + 0.05).all()  # the bends add way
+    stepped = step(start, jnp.zeros((ENVS, batch.env.action_size)))
+    assert np.isfinite(np.asarray(stepped.env.reward)).all()
+    assert np.abs(np.asarray(stepped.env.metrics["distance_to_goal"]) - distance).max() < 0.05
+
+
+def test_a_goal_without_a_site_is_measured_along_the_straight_line(batch, start):
+    """``set_goal`` (a goal set by hand) leaves no site: the distance falls back to the straight line."""
+    task = jax.tree.map(lambda x: x[0], start.env.pipeline_state.task)
+    task = task.replace(goal_xy=jnp.array([1.0, 0.5]), site=jnp.asarray(progress.NO_SITE, jnp.int32))
+    xy = batch.env.spawn_xy
+    distance, direction = jax.jit(batch.env.progress.measure)(task, xy)
+    assert float(distance) == pytest.approx(float(jnp.linalg.norm(jnp.array([1.0, 0.5]) - xy)), rel=1e-5)
+    np.testing.assert_allclose(direction, (jnp.array([1.0, 0.5]) - xy) / distance, atol=1e-5)
+
+
+def test_tiles_change_when_regenerated_and_the_env_runs_on_the_new_ones(batch, start, step):
+    tick = jax.jit(batch.tick)
+    once = tick(start, jax.random.PRNGKey(1))
+    assert int(once.terrain.generation) == 0  # one iteration: not yet due
+    np.testing.assert_array_equal(np.asarray(once.terrain.atlas), np.asarray(start.terrain.atlas))
+    twice = tick(once, jax.random.PRNGKey(2))
+    assert int(twice.terrain.generation) == 1 and int(twice.terrain.age) == 0
+    before, after = np.asarray(start.terrain.atlas), np.asarray(twice.terrain.atlas)
+    pool = batch.env.world.pool
+    poles = [i for i, t in enumerate(pool.tile_type) if t == TERRAIN_TYPES.index("poles")]
+    corridor = [i for i in range(len(pool.tile_type)) if i not in poles]
+    assert all(not np.allclose(_tile_data(batch, before, i), _tile_data(batch, after, i)) for i in poles)
+    assert all(np.array_equal(_tile_data(batch, before, i), _tile_data(batch, after, i)) for i in corridor)
+    # The new tiles were mapped: goal ground where the check asks for it, sites on it at their path distance.
+    reach = batch.env.config.terrain.reachability
+    fields = np.asarray(twice.terrain.reach)
+    assert (reachability.goal_area(fields, reach.goal_range, reach.resolution) >= reach.min_area).all()
+    spawn = np.asarray(twice.terrain.site_spawn)
+    assert ((spawn >= reach.goal_range[0]) & (spawn <= reach.goal_range[1])).all()
+    assert not np.allclose(spawn[poles], np.asarray(start.terrain.site_spawn)[poles])
+    # The env reads the new tiles: the physics' heightfield, the ground, the goal sites.
+    env = batch.bound(twice)
+    assert env.robot.mjx_model.hfield_data is twice.terrain.atlas
+    stepped = step(twice, jnp.zeros((ENVS, env.action_size)))
+    assert np.isfinite(np.asarray(stepped.env.reward)).all() and stepped.terrain is not None
+
+
+def test_regeneration_needs_per_env_terrain_with_a_random_type():
+    import hsa_mjx_train.config
+
+    with pytest.raises(ValueError, match="regenerate_terrain_every"):
+        hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": 5}})  # the default env: a plane
+    with pytest.raises(ValueError, match="regenerate_terrain_every"):
+        hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": -1}})
