@@ -674,6 +674,8 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     ]
     assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
+    # evaluated on tiles the run's pool was not drawn from, both seeds recorded
+    assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table
 
 
 def test_cluster_spec_from_flags_or_environment():

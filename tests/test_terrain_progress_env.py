@@ -115,3 +115,9 @@ def test_regeneration_needs_per_env_terrain_with_a_random_type():
         hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": 5}})  # the default env: a plane
     with pytest.raises(ValueError, match="regenerate_terrain_every"):
         hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": -1}})
+
+
+def test_regeneration_refuses_c_mujoco_physics():
+    env = hsa_mjx.make_env("flat", scene="terrain", terrain__types=["poles"], physics__backend="c")
+    with pytest.raises(ValueError, match="MJX physics"):
+        AutoResetEnv(env, regenerate_every=1)

@@ -82,6 +82,11 @@ class AutoResetEnv:
         """``regenerate_every`` > 0: the batch carries the terrain tiles and :meth:`tick` re-draws the random
         ones every that many calls (``hsa_mjx.terrain.regeneration``)."""
         self.env, self.regenerate_every = env, int(regenerate_every)
+        if self.regenerate_every > 0 and env.physics_backend == "c":
+            raise ValueError(
+                "terrain regeneration needs MJX physics (physics.backend jax or warp): C MuJoCo substeps read the "
+                "heightfield of the host model, which the re-drawn tiles do not reach"
+            )
         self.regenerator = Regenerator(env.world) if self.regenerate_every > 0 else None
 
     def bound(self, state: BatchState) -> HSAEnv:
