@@ -20,7 +20,7 @@ from hsa_mjx.task import reward, termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState
-from hsa_mjx.terrain.regeneration import Regenerator, TerrainTiles, initial_tiles
+from hsa_mjx.terrain.regeneration import Regenerator, TerrainTiles
 
 TOTAL_KEYS = (
     "episodes",
@@ -120,7 +120,7 @@ class AutoResetEnv:
         check_batch(self.env, keys.shape[0])
         batch = keys.shape[0]
         params = self.default_params(batch) if params is None else params
-        terrain = None if self.regenerator is None else initial_tiles(self.env.world)
+        terrain = None if self.regenerator is None else self.env.world.tiles
         env = self.env if terrain is None else self.env.with_terrain(terrain)
         env_state = jax.vmap(env.reset)(keys, params)
         zeros = jnp.zeros((batch,), jnp.float32)

@@ -48,9 +48,8 @@ def _empty() -> jax.Array:
     return jnp.zeros((0,), jnp.float32)
 
 
-def initial_tiles(world) -> TerrainTiles:
-    """The pool as built (``world``: the env's ``TerrainWorld``), generation 0."""
-    pool, sites = world.pool, world.sites
+def initial_tiles(pool, sites: geodesic.GoalSites | None) -> TerrainTiles:
+    """The arrays of ``pool`` (``atlas.TerrainPool``) and its goal ``sites`` as built, generation 0."""
     return TerrainTiles(
         atlas=jnp.asarray(pool.atlas),
         reach=_empty() if pool.reach is None else jnp.asarray(pool.reach),

@@ -22,6 +22,7 @@ from hsa_mjx.terrain.atlas import TerrainPool
 from hsa_mjx.terrain.grid import inside, surface_height
 from hsa_mjx.terrain.params import TERRAIN_TYPES, TerrainConfig
 from hsa_mjx.terrain.placement import Footprint, corridor_line, onto_line
+from hsa_mjx.terrain.regeneration import TerrainTiles, initial_tiles
 
 FLAT_ID = TERRAIN_TYPES.index("flat")
 CORRIDOR_ID = TERRAIN_TYPES.index("corridor")
@@ -50,11 +51,11 @@ class TerrainWorld:
         self.config, self.pool = config, pool
         self.enabled = pool is not None
         self.sites: geodesic.GoalSites | None = None
+        self.tiles: TerrainTiles | None = None  # the pool's device arrays the env reads (replaced by with_tiles)
         if not self.enabled:
             return
         self.grid = pool.layout.tile  # one tile: the original field, in the robot's coordinates
         self._atlas_grid = pool.layout.grid
-        self._atlas = jnp.asarray(pool.atlas)
         self._centres = jnp.asarray(pool.centres)
         self.footprint = Footprint.from_model(mj_model, block_body)
         self._corridor = "corridor" in config.types
@@ -62,10 +63,10 @@ class TerrainWorld:
             config.corridor, self.grid, config.edge_margin
         )
         if pool.reach is not None:
-            self._reach = jnp.asarray(pool.reach)
             self._cells = reachability.cell_centres(self.grid, config.reachability.resolution)
             if config.reachability.goal_sites > 0 or site_points is not None:
                 self._build_sites(site_points)
+        self.tiles = initial_tiles(pool, self.sites)
 
     def _build_sites(self, points: np.ndarray | None) -> None:
         """Every tile's goal sites and their distance fields (``hsa_mjx.terrain.geodesic``), on the device."""
@@ -76,18 +77,11 @@ class TerrainWorld:
         key = jax.random.fold_in(jax.random.PRNGKey(self.config.seed), 7)
         self.site_spec = spec
         self.sites = geodesic.build(spec, self.pool.tiles, self.pool.reach, key, points)
-        self._site_xy = jnp.asarray(self.sites.xy)
-        self._site_spawn = jnp.asarray(self.sites.spawn_distance)
-        self._site_fields = jnp.asarray(self.sites.fields)
 
-    def with_tiles(self, tiles) -> TerrainWorld:
-        """This world reading the pool's arrays from ``tiles`` (``regeneration.TerrainTiles``, traced)."""
+    def with_tiles(self, tiles: TerrainTiles) -> TerrainWorld:
+        """This world reading the pool's arrays from ``tiles`` (traced; ``hsa_mjx.terrain.regeneration``)."""
         world = copy.copy(self)
-        world._atlas = tiles.atlas
-        if self.pool.reach is not None:
-            world._reach = tiles.reach
-        if self.sites is not None:
-            world._site_xy, world._site_spawn, world._site_fields = tiles.site_xy, tiles.site_spawn, tiles.site_fields
+        world.tiles = tiles
         return world
 
     @property
@@ -101,7 +95,7 @@ class TerrainWorld:
         """(site index, goal xy): a site of ``tile`` drawn uniformly among those at a path distance in
         ``goal_range`` (traced) and a bearing in ``bearing_deg`` (static); site -1 and the spawn-nearest
         site's position where none qualifies."""
-        spawn, xy = self._site_spawn[tile], self._site_xy[tile]
+        spawn, xy = self.tiles.site_spawn[tile], self.tiles.site_xy[tile]
         bearing = jnp.degrees(jnp.abs(jnp.arctan2(xy[:, 1], xy[:, 0])))
         ok = (spawn >= goal_range[0]) & (spawn <= goal_range[1])
         ok = ok & (bearing >= bearing_deg[0]) & (bearing <= bearing_deg[1])
@@ -111,7 +105,7 @@ class TerrainWorld:
 
     def path_to_goal(self, tile: jax.Array, site: jax.Array, xy: jax.Array) -> tuple[jax.Array, jax.Array]:
         """(path distance, unit direction of the path) from ``xy`` to goal site ``site`` of ``tile``."""
-        field = self._site_fields[tile, site]
+        field = self.tiles.site_fields[tile, site]
         origin, spacing = self.sites.origin, self.sites.spacing
         return geodesic.field_distance(field, origin, spacing, xy), geodesic.path_direction(field, origin, spacing, xy)
 
@@ -133,7 +127,7 @@ class TerrainWorld:
         the tile has no such ground."""
         allowed = jnp.asarray(reachability.bearing_mask(self._cells, bearing_deg))
         cells = jnp.asarray(self._cells)
-        return reachability.reachable_goal(key, self._reach[tile], cells, allowed, goal_range, fallback)
+        return reachability.reachable_goal(key, self.tiles.reach[tile], cells, allowed, goal_range, fallback)
 
     @property
     def per_env(self) -> bool:
@@ -161,7 +155,7 @@ class TerrainWorld:
         """Surface height under the points ``xy`` (..., 2) of this env's tile; 0 on a plane."""
         if not self.enabled:
             return jnp.zeros(xy.shape[:-1], jnp.float32)
-        return surface_height(self._atlas, self._atlas_grid, xy + self._centres[tile])
+        return surface_height(self.tiles.atlas, self._atlas_grid, xy + self._centres[tile])
 
     def level_fraction(self, tile: jax.Array) -> jax.Array:
         """The difficulty level of ``tile`` as a fraction of the top level (0 on a plane or with one level)."""
