@@ -3,6 +3,9 @@ goal sites with progress measured along the ground, and the random tiles re-draw
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -117,7 +120,9 @@ def test_regeneration_needs_per_env_terrain_with_a_random_type():
         hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": -1}})
 
 
-def test_regeneration_refuses_c_mujoco_physics():
-    env = hsa_mjx.make_env("flat", scene="terrain", terrain__types=["poles"], physics__backend="c")
+def test_regeneration_refuses_c_mujoco_physics(batch):
+    c_env = copy.copy(batch.env)
+    c_env.robot = dataclasses.replace(c_env.robot, backend="c")  # what physics.backend c builds
+    assert c_env.physics_backend == "c"
     with pytest.raises(ValueError, match="MJX physics"):
-        AutoResetEnv(env, regenerate_every=1)
+        AutoResetEnv(c_env, regenerate_every=1)
