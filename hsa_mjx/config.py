@@ -151,6 +151,10 @@ class ObservationConfig:
     # > 0 appends a gait clock, (sin, cos) of 2 pi t / clock_period_s with t the episode time:
     # a phase signal from which a periodic gait is a plain function of the observation. 0 = off.
     clock_period_s: float = 0.0
+    # true appends the way the path to the goal leaves the robot (the geodesic field's downhill unit
+    # vector, hsa_mjx.task.progress) in the heading frame (ahead, left): 2 values. Needs
+    # reward.progress 'geodesic'; the straight goal direction where the goal has no site.
+    path_direction: bool = False
     # How the 8 actuated hinge angles enter: "raw" (the original: unbounded, they wind up over long
     # episodes), "wrapped" (into [-pi, pi): same size) or "sincos" (sin then cos: 8 more values).
     hinge_angles: str = "raw"
@@ -289,6 +293,11 @@ def _validate_terrain(config: EnvConfig) -> None:
         )
     if config.reward.progress == "geodesic":
         _validate_geodesic(config)
+    elif config.observation.path_direction:
+        raise ValueError(
+            "config key 'observation.path_direction' reads the goal sites' distance fields: it needs "
+            f"reward.progress 'geodesic' (got {config.reward.progress!r})"
+        )
     if "spiral" in types and config.goal.mode != "spiral":
         raise ValueError(
             f"the spiral terrain is a checkpoint track: it needs 'goal.mode: spiral', got {config.goal.mode!r}"

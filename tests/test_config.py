@@ -86,6 +86,7 @@ def test_observation_section_is_opt_in_and_checked():
         "heading": True,
         "servo_targets": False,
         "clock_period_s": 0.0,
+        "path_direction": False,
         "hinge_angles": "raw",
         "history_steps": 0,
         "height_scan": section["height_scan"],

@@ -13,7 +13,7 @@ import pytest
 
 import hsa_mjx
 from hsa_mjx.batch.auto_reset import AutoResetEnv
-from hsa_mjx.task import progress
+from hsa_mjx.task import observation, progress
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.terrain import TERRAIN_TYPES, reachability
 
@@ -38,6 +38,8 @@ def batch():
         goal__mode="radial",
         goal__radial_range=[3.0, 4.5],
         reward__progress="geodesic",
+        observation__heading=True,
+        observation__path_direction=True,
     )
     return AutoResetEnv(env, regenerate_every=2)
 
@@ -72,6 +74,28 @@ def test_goals_are_sites_and_progress_is_measured_along_the_bent_corridor(batch,
     stepped = step(start, jnp.zeros((ENVS, batch.env.action_size)))
     assert np.isfinite(np.asarray(stepped.env.reward)).all()
     assert np.abs(np.asarray(stepped.env.metrics["distance_to_goal"]) - distance).max() < 0.05
+
+
+def test_the_observation_shows_the_path_direction_in_the_heading_frame(batch, start):
+    """``observation.path_direction``: the field's downhill unit vector turned into the heading frame, beside
+    the straight goal direction; round the bends and poles the two differ."""
+    env, data = batch.env, start.env.pipeline_state.physics
+    labels = list(observation.observation_labels(env.config.observation))
+    obs = np.asarray(start.env.obs)
+    path = obs[:, [labels.index("path_dir_ahead"), labels.index("path_dir_left")]]
+    goal = obs[:, [labels.index("goal_dir_ahead"), labels.index("goal_dir_left")]]
+    xy = jax.vmap(lambda d: observation.robot_xy(d, env.index))(data)
+    world = jax.vmap(env.progress.measure)(start.env.pipeline_state.task, xy)[1]
+    heading = jax.vmap(lambda d: observation.heading(d, env.index))(data)
+    expected = jax.vmap(observation.to_heading_frame)(world, heading)
+    np.testing.assert_allclose(path, np.asarray(expected), atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(path, axis=1), 1.0, atol=1e-4)
+    assert np.degrees(np.arccos(np.clip((path * goal).sum(1), -1, 1))).max() > 5.0
+
+
+def test_path_direction_needs_geodesic_progress():
+    with pytest.raises(ValueError, match="observation.path_direction"):
+        hsa_mjx.build_config("flat", observation__path_direction=True)
 
 
 def test_a_goal_without_a_site_is_measured_along_the_straight_line(batch, start):

@@ -67,7 +67,7 @@ def _observation_mismatch(size: int, config: TrainConfig) -> list[str]:
     if size == own:
         return []
     return [
-        f"observation size ({size} vs {own}: env.observation: heading, servo_targets, clock_period_s, "
+        f"observation size ({size} vs {own}: env.observation: heading, servo_targets, clock_period_s, path_direction, "
         "hinge_angles, height_scan)"
     ]
 

@@ -404,7 +404,8 @@ class HSAEnv(BraxEnv):
         clean = scan = None
         if cfg.height_scan.enabled:
             clean, scan, task = self._height_scan(data, task)
-        obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan)
+        path = self.progress.measure(task, observation.robot_xy(data, self.index))[1] if cfg.path_direction else None
+        obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan, path)
         if cfg.noise.enabled:  # static: without noise the key stream stays as it was
             rng, key = jax.random.split(task.rng)
             task, obs = task.replace(rng=rng), randomization.add_noise(obs, key, self._obs_noise)

@@ -5,6 +5,7 @@ original), ``wrapped`` into [-pi, pi) or ``sincos`` (8 sines, then 8 cosines: 8 
 Optional entries, appended in this order when enabled (``ObservationConfig``):
 ``heading`` 4 values (the robot's heading and the goal direction in it), ``servo_targets`` 8 values
 (the servo targets the actions increment), ``clock_period_s > 0`` 2 values (a gait clock),
+``path_direction`` 2 values (the way the path to the goal leaves the robot, in its heading frame),
 ``height_scan`` one value per scan point (``hsa_mjx.terrain.height_scan``; the env reads it from its terrain),
 ``history_steps > 0`` the last observations (without scan) and actions (``hsa_mjx.task.history``;
 the env appends them after :func:`observe`).
@@ -37,6 +38,7 @@ ORIGINAL_LABELS = (
 HEADING_LABELS = ("heading_cos", "heading_sin", "goal_dir_ahead", "goal_dir_left")
 SERVO_TARGET_LABELS = tuple(f"servo_target_{i}" for i in range(8))  # action-slot order
 CLOCK_LABELS = ("clock_sin", "clock_cos")
+PATH_LABELS = ("path_dir_ahead", "path_dir_left")
 
 
 def core_labels(config: ObservationConfig) -> tuple[str, ...]:
@@ -47,6 +49,7 @@ def core_labels(config: ObservationConfig) -> tuple[str, ...]:
         + (HEADING_LABELS if config.heading else ())
         + (SERVO_TARGET_LABELS if config.servo_targets else ())
         + (CLOCK_LABELS if config.clock_period_s > 0 else ())
+        + (PATH_LABELS if config.path_direction else ())
     )
 
 
@@ -135,11 +138,13 @@ def observe(
     config: ObservationConfig = ORIGINAL,
     time_s: jax.Array | float = 0.0,
     height_scan: jax.Array | None = None,
+    path_direction: jax.Array | None = None,
 ) -> jax.Array:
     """Build the observation (float32): the original's 24 values, then the enabled optional entries.
 
     ``time_s`` is the episode time (env steps x dt), read only by the gait clock; ``height_scan`` the
-    scan values (required when ``config.height_scan`` is on).
+    scan values (required when ``config.height_scan`` is on); ``path_direction`` the world-frame unit
+    vector along the path to the goal (required when ``config.path_direction`` is on).
     """
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
@@ -158,6 +163,10 @@ def observe(
         parts.append(servo_targets(data, index))
     if config.clock_period_s > 0:
         parts.append(gait_clock(time_s, config.clock_period_s))
+    if config.path_direction:
+        if path_direction is None:
+            raise ValueError("observation.path_direction is on: pass the path direction to observe()")
+        parts.append(to_heading_frame(path_direction, heading(data, index)))
     if config.height_scan.enabled:
         if height_scan is None:
             raise ValueError("observation.height_scan is on: pass the scan values to observe()")

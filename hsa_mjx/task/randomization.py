@@ -50,7 +50,7 @@ NOISE_LABELS = {
     "position": ("robot_x", "robot_y"),
     "velocity": ("block_v",),
     "goal": ("goal_distance", "goal_dir_x", "goal_dir_y"),
-    "heading": ("heading_", "goal_dir_ahead", "goal_dir_left"),
+    "heading": ("heading_", "goal_dir_ahead", "goal_dir_left", "path_dir_"),
 }
 
 
