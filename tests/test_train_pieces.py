@@ -44,6 +44,7 @@ def test_default_and_shipped_configs_validate():
         "heading": True,
         "servo_targets": True,
         "clock_period_s": 4.0,
+        "path_direction": False,
         "hinge_angles": "raw",
         "history_steps": 0,
     }
