@@ -24,7 +24,6 @@ from hsa_mjx.sim.model import RobotModel, compiled_kinematics, load_robot, local
 from hsa_mjx.task import (
     control,
     goals,
-    history,
     observation,
     privileged,
     progress,
@@ -33,10 +32,9 @@ from hsa_mjx.task import (
     termination,
 )
 from hsa_mjx.task.metrics import step_metrics
+from hsa_mjx.task.observer import Observer
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, SimState, TaskState
-from hsa_mjx.terrain import height_scan
-from hsa_mjx.terrain.placement import Footprint
 from hsa_mjx.terrain.world import TerrainWorld
 
 GOAL_MARKER_Z = 0.1
@@ -86,6 +84,7 @@ class HSAEnv(BraxEnv):
             goals.spiral_checkpoints(config.goal, config.terrain.spiral) if spiral_sites else None,
         )
         self.progress = progress.GoalProgress(config, self.world)
+        self.observer = Observer(config, self.robot, self.progress, self.privileged)
         self.weights = reward.RewardWeights.from_config(config.reward)
         # physics.backend c: the substeps in C MuJoCo on the host (one env after another under vmap)
         self._host = HostPhysics(self.robot.mj_model, self.index) if self.robot.backend == "c" else None
@@ -104,10 +103,6 @@ class HSAEnv(BraxEnv):
         )
         qpos = data.qpos.at[self.index.block_z].set(cfg.spawn_height)
         self._data0 = compiled_kinematics(model, data.replace(qpos=qpos))
-        self._core_size = len(observation.core_labels(cfg.observation))  # a history row's observation part
-        self._history_start = self.observation_size - history.size(
-            self._core_size, cfg.observation.history_steps, self.action_size
-        )
         self._checkpoints = jnp.asarray(
             goals.spiral_checkpoints(cfg.goal, cfg.terrain.spiral)
             if cfg.goal.mode == "spiral"
@@ -115,13 +110,7 @@ class HSAEnv(BraxEnv):
         )
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
-        self._scan_points = jnp.asarray(height_scan.local_points(cfg.observation.height_scan))
         self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index)
-        self._obs_noise = randomization.noise_scales(
-            observation.observation_labels(cfg.observation)[: self._history_start], cfg.observation.noise
-        )
-        # block-origin height above level ground with the robot resting on it: the scan's zero
-        self._rest_height = float(np.max(Footprint.from_model(self.robot.mj_model, self.index.block_body).drop))
 
     def with_terrain(self, tiles) -> HSAEnv:
         """This env on the terrain ``tiles`` (``hsa_mjx.terrain.regeneration.TerrainTiles``, traced): the
@@ -130,6 +119,7 @@ class HSAEnv(BraxEnv):
         env.world = self.world.with_tiles(tiles)
         env.robot = dataclasses.replace(self.robot, mjx_model=self.robot.mjx_model.replace(hfield_data=tiles.atlas))
         env.progress = progress.GoalProgress(self.config, env.world)
+        env.observer = self.observer.with_progress(env.progress)
         return env
 
     # ----- Brax Env interface -------------------------------------------------------------
@@ -237,8 +227,7 @@ class HSAEnv(BraxEnv):
         )
         distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)
-        obs, critic, task = self._observe(data, task)
-        obs = self._with_history(obs, jnp.zeros((self.observation_size - self._history_start,), jnp.float32))
+        obs, critic, task = self.observer.at_reset(data, task)
         metrics = step_metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
@@ -264,8 +253,7 @@ class HSAEnv(BraxEnv):
         task = sim.task.replace(goal_xy=goal_xy, site=jnp.asarray(progress.NO_SITE, jnp.int32))
         distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)
-        obs, critic, task = self._observe(data, task, self._episode_time(task))
-        obs = self._with_history(obs, state.obs[self._history_start :])
+        obs, critic, task = self.observer.after_goal_change(data, task, self._episode_time(task), state.obs)
         info = state.info if critic is None else dict(state.info, privileged_obs=critic)
         return state.replace(pipeline_state=SimState(data, task), obs=obs, info=info)
 
@@ -331,13 +319,7 @@ class HSAEnv(BraxEnv):
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = self.progress.measure(task, after)
         steps = task.step_count + 1
-        obs, critic, task = self._observe(new_data, task, steps * cfg.dt)
-        steps_kept, previous = cfg.observation.history_steps, state.obs
-        if steps_kept:  # static: without a history the step computes none
-            rows = history.advance(
-                previous[self._history_start :], previous[: self._core_size], action, steps_kept, jnp
-            )
-            obs = self._with_history(obs, rows)
+        obs, critic, task = self.observer.after_step(new_data, task, steps * cfg.dt, state.obs, action)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)
@@ -395,55 +377,6 @@ class HSAEnv(BraxEnv):
         )
 
     # ----- helpers ------------------------------------------------------------------------
-    def _observe(
-        self, data: mjx.Data, task: TaskState, time_s: jax.Array | float = 0.0
-    ) -> tuple[jax.Array, jax.Array | None, TaskState]:
-        """The policy's observation, the privileged critic inputs (None unless ``privileged``) and the
-        task state (its key advanced when the scan draws noise)."""
-        cfg = self.config.observation
-        clean = scan = None
-        if cfg.height_scan.enabled:
-            clean, scan, task = self._height_scan(data, task)
-        path = self.progress.measure(task, observation.robot_xy(data, self.index))[1] if cfg.path_direction else None
-        obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan, path)
-        if cfg.noise.enabled:  # static: without noise the key stream stays as it was
-            rng, key = jax.random.split(task.rng)
-            task, obs = task.replace(rng=rng), randomization.add_noise(obs, key, self._obs_noise)
-        if not self.privileged:
-            return obs, None, task
-        clean = jnp.zeros((0,), jnp.float32) if clean is None else clean
-        true_model = (
-            randomization.true_model(task.randomization)
-            if self.config.randomization.draws
-            else jnp.zeros((0,), jnp.float32)
-        )
-        level = self.world.level_fraction(task.tile)
-        critic = privileged.inputs(data, self.index, clean, task.terrain_id, level, true_model)
-        return obs, critic, task
-
-    def _with_history(self, obs: jax.Array, rows: jax.Array) -> jax.Array:
-        """The observation with its history rows (``hsa_mjx.task.history``) appended (unchanged without)."""
-        if self.config.observation.history_steps == 0:
-            return obs
-        return jnp.concatenate([obs, rows])
-
-    def _height_scan(self, data: mjx.Data, task: TaskState) -> tuple[jax.Array, jax.Array, TaskState]:
-        """(noise-free scan, the policy's noisy copy, task state) as the observation holds them."""
-        cfg = self.config.observation.height_scan
-        heights = height_scan.read(
-            lambda xy: self.world.ground(task.tile, xy),
-            self._scan_points,
-            observation.robot_xy(data, self.index),
-            observation.heading(data, self.index),
-            jnp.mean(data.xpos[self.index.block_body, 2]),
-            self._rest_height,
-        )
-        noisy = heights
-        if cfg.noise > 0:  # static: without noise the key stream stays as it was
-            rng, key = jax.random.split(task.rng)
-            task, noisy = task.replace(rng=rng), height_scan.add_noise(heights, key, cfg)
-        return height_scan.shape(heights, cfg), height_scan.shape(noisy, cfg), task
-
     def _episode_time(self, task: TaskState) -> jax.Array:
         """Seconds since this episode's reset (env steps x dt)."""
         return task.step_count * self.config.dt
