@@ -70,6 +70,17 @@ def test_the_history_input_is_the_same_rule_in_the_env_and_in_the_loop():
     np.testing.assert_allclose(last[core : 2 * core + 8], np.concatenate([seen[-1][:core], clipped[2]]), atol=1e-6)
     with pytest.raises(ValueError, match="history slots"):
         loop.check_deployable(env.config, labels[:core] + labels[core + 40 :] + labels[core : core + 40])
+    path = hsa_mjx.build_config(
+        "flat",
+        scene="terrain",
+        terrain__reachability__enabled=True,
+        terrain__reachability__goal_sites=1,
+        goal__mode="radial",
+        reward__progress="geodesic",
+        observation__path_direction=True,
+    )
+    with pytest.raises(ValueError, match="path direction.*observation.path_direction"):
+        loop.check_deployable(path, list(observation_labels(path.observation)))
 
 
 def test_latency_holds_the_servo_targets_for_the_set_ticks():

@@ -153,11 +153,17 @@ def observation_entries(
 
 
 def check_deployable(config: EnvConfig, labels: list[str]) -> None:
-    """ValueError when the policy needs an input a robot does not read (the terrain height scan)."""
+    """ValueError when the policy needs an input a robot does not read (the terrain height scan, the path
+    direction over the terrain's map)."""
     if config.observation.height_scan.enabled:
         raise ValueError(
             "this policy reads a terrain height scan, which the deployment loop has no sensor "
             "for; deploy a policy without observation.height_scan (e.g. flat)"
+        )
+    if config.observation.path_direction:
+        raise ValueError(
+            "this policy reads the path direction to its goal from the terrain's distance fields, which "
+            "the deployment loop has no map for; deploy a policy without observation.path_direction"
         )
     entries = observation_entries(
         Readings(np.zeros(8), np.zeros(8), np.zeros((2, 3))), np.zeros(3), np.zeros(2), np.zeros(8), 0.0, config
