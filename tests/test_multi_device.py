@@ -662,6 +662,8 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
                 "2",
                 "--steps",
                 "5",
+                "--tiles",
+                "2",
                 "--backend",
                 "c",
             ]
@@ -676,6 +678,7 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
     # evaluated on tiles the run's pool was not drawn from, both seeds recorded
     assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table
+    assert table["tiles_per_cell"] == 2
 
 
 def test_cluster_spec_from_flags_or_environment():

@@ -92,8 +92,10 @@ def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
     assert evaluate.main(["--policy", "corridor", "--stochastic"]) == 2
     assert evaluate.main([]) == 2 and evaluate.main([str(tiny_run_dir), "--policy", "corridor"]) == 2
     assert evaluate.main(["--policy", "corridor", "--episodes", "0"]) == 2
+    assert evaluate.main(["--policy", "rough", "--tiles", "0"]) == 2
     err = capsys.readouterr().err
     assert "--stochastic needs a RUN_DIR" in err and "either a RUN_DIR or --policy" in err and "--episodes" in err
+    assert "--tiles must be between 1 and 256" in err
     assert evaluate.main(["--policy", "spiral", "--goal-range", "4", "4.5"]) == 2  # checkpoints: not radial goals
     assert "env.goal.mode=radial" in capsys.readouterr().err
     assert evaluate.main(["--policy", "flat", "--goal-range", "4.5", "4"]) == 2

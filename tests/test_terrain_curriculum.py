@@ -244,6 +244,7 @@ def test_terrain_evaluation_arguments():
     assert terrain_eval.level_groups((0.2, 0.9)) == [(0.2,), (0.9,)]
     config = terrain_eval.cell_config(rough, ("stairs", "poles"), (0.0, 0.5, 1.0))
     assert config.terrain.level_difficulties == (0.0, 0.5, 1.0) and config.terrain.tiles_per_type == 1
+    assert terrain_eval.cell_config(rough, ("poles",), (1.0,), tiles=8).terrain.tiles_per_type == 8
 
 
 def test_terrain_table_rows_and_means():

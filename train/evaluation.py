@@ -113,6 +113,13 @@ def parse_args(argv: list[str] | None, description: str | None = None) -> argpar
         help="seed of the evaluation's terrain tiles (default: the run's env.terrain.seed + 1000, tiles training "
         "never drew its pool from); terrain_eval.json records it beside the training's",
     )
+    parser.add_argument(
+        "--tiles",
+        type=int,
+        default=1,
+        help="tiles of each random terrain type per difficulty, drawn from --terrain-seed (default 1); each "
+        "episode plays one of them, so a cell's episodes spread over this many tiles",
+    )
     return parser.parse_args(argv)
 
 
@@ -122,6 +129,8 @@ def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, di
         raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
     if args.episodes is not None and args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if not 1 <= args.tiles <= 256:
+        raise ValueError(f"--tiles must be between 1 and 256, got {args.tiles}")
     if args.policy is not None:
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
@@ -234,7 +243,7 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
     def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
         return rollout(env, policy, keys, goal_range, steps, cells=cells)
 
-    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed)
+    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed, args.tiles)
     print(terrain_eval.table(rows))
     header = {
         **header,
@@ -243,6 +252,7 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
         "policy": "stochastic" if args.stochastic else "deterministic",
         "episodes_per_cell": episodes,
         "terrain_seed": terrain_seed,
+        "tiles_per_cell": args.tiles,
         "training_terrain_seed": trained_on,
         "training_seed": config.run.seed,
     }

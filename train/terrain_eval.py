@@ -1,7 +1,8 @@
 """Evaluation by terrain type and difficulty: ``python -m train.evaluate RUN --terrain-types all --levels 0,0.5,1``.
 
-The run's env is rebuilt with one tile per type and difficulty (one atlas when the difficulties are
-evenly spaced from 0, e.g. 0, 0.5, 1), and the episodes of one batch are split evenly over the
+The run's env is rebuilt with ``tiles`` tiles per type and difficulty (one by default; each episode of a
+random type plays one of them, drawn from its key; one atlas when the difficulties are evenly spaced
+from 0, e.g. 0, 0.5, 1), and the episodes of one batch are split evenly over the
 (type, difficulty) cells, each env reset on its cell's tile with the same goals in every cell. Per
 type and difficulty it reports the success rate and the net progress towards the goal, prints them
 as a table, writes ``terrain_eval.json`` and plots them.
@@ -60,9 +61,9 @@ def parse_levels(text: str) -> tuple[float, ...]:
     return levels
 
 
-def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, ...]) -> EnvConfig:
-    """The env with one tile of each of ``types`` per difficulty level (random types: one drawn terrain);
-    ``levels`` must be one difficulty, or evenly spaced from 0 (``level_groups``)."""
+def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, ...], tiles: int = 1) -> EnvConfig:
+    """The env with ``tiles`` tiles of each random type of ``types`` per difficulty level (one of each
+    deterministic type); ``levels`` must be one difficulty, or evenly spaced from 0 (``level_groups``)."""
     terrain = dataclasses.replace(
         config.terrain,
         types=types,
@@ -70,7 +71,7 @@ def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, 
         levels=len(levels),
         difficulty=max(levels),
         per_env=True,
-        tiles_per_type=1,
+        tiles_per_type=tiles,
     )
     if not np.allclose(terrain.level_difficulties, levels):
         raise ValueError(f"difficulties {levels} are not one value or evenly spaced from 0")
@@ -94,11 +95,13 @@ def evaluate(
     levels: tuple[float, ...],
     episodes: int,
     seed: int,
+    tiles: int = 1,
 ) -> list[dict[str, Any]]:
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
-    (``hsa_mjx_train.rollout.rollout`` with the policy bound).
+    (``hsa_mjx_train.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
+    difficulty, the episodes of a cell spread over them by their keys.
     """
     rows = []
     for group in level_groups(levels):
@@ -107,7 +110,7 @@ def evaluate(
         level_of = np.repeat(np.arange(len(group)), episodes * len(types))
         keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(types) * len(group), 1))
         cells = jnp.asarray(np.stack([type_of, level_of], axis=-1), jnp.int32)
-        env = HSAEnv(cell_config(config, types, group), num_envs=len(type_of))
+        env = HSAEnv(cell_config(config, types, group, tiles), num_envs=len(type_of))
         traces = {k: np.asarray(v) for k, v in jax.device_get(rollout(env, keys, cells)).items()}
         outcome = episode_outcomes(traces)
         for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
