@@ -225,9 +225,9 @@ class HSAEnv(BraxEnv):
             site=site,
             randomization=drawn,
         )
-        distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
+        distance, direction = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)
-        obs, critic, task = self.observer.at_reset(data, task)
+        obs, critic, task = self.observer.at_reset(data, task, direction)
         metrics = step_metrics(
             {name: jnp.zeros(()) for name in reward.TERM_NAMES},
             {name: jnp.zeros((), bool) for name in termination.REASONS},
@@ -251,9 +251,9 @@ class HSAEnv(BraxEnv):
         sim: SimState = state.pipeline_state
         data = self._with_goal_marker(sim.physics, goal_xy, sim.task.tile)
         task = sim.task.replace(goal_xy=goal_xy, site=jnp.asarray(progress.NO_SITE, jnp.int32))
-        distance, _ = self.progress.measure(task, observation.robot_xy(data, self.index))
+        distance, direction = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)
-        obs, critic, task = self.observer.after_goal_change(data, task, self._episode_time(task), state.obs)
+        obs, critic, task = self.observer.after_goal_change(data, task, direction, self._episode_time(task), state.obs)
         info = state.info if critic is None else dict(state.info, privileged_obs=critic)
         return state.replace(pipeline_state=SimState(data, task), obs=obs, info=info)
 
@@ -319,7 +319,7 @@ class HSAEnv(BraxEnv):
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = self.progress.measure(task, after)
         steps = task.step_count + 1
-        obs, critic, task = self.observer.after_step(new_data, task, steps * cfg.dt, state.obs, action)
+        obs, critic, task = self.observer.after_step(new_data, task, direction, steps * cfg.dt, state.obs, action)
         ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
         reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
         reasons["out_of_bounds"] = self.world.out_of_bounds(after)

@@ -48,21 +48,30 @@ class Observer:
         other.progress = goal_progress
         return other
 
-    def at_reset(self, data: mjx.Data, task: TaskState) -> Seen:
-        """A new episode's observation: its history rows are zeros."""
-        obs, critic, task = self._current(data, task, 0.0)
+    def at_reset(self, data: mjx.Data, task: TaskState, path: jax.Array) -> Seen:
+        """A new episode's observation: its history rows are zeros. ``path`` is the goal progress's measured
+        direction at the robot (``GoalProgress.measure``), read only by ``observation.path_direction``."""
+        obs, critic, task = self._current(data, task, path, 0.0)
         return self._with_rows(obs, jnp.zeros((self.size - self.history_start,), jnp.float32)), critic, task
 
-    def after_goal_change(self, data: mjx.Data, task: TaskState, time_s: jax.Array, previous: jax.Array) -> Seen:
+    def after_goal_change(
+        self, data: mjx.Data, task: TaskState, path: jax.Array, time_s: jax.Array, previous: jax.Array
+    ) -> Seen:
         """The observation with a new goal, mid-step: the history rows of ``previous`` stay."""
-        obs, critic, task = self._current(data, task, time_s)
+        obs, critic, task = self._current(data, task, path, time_s)
         return self._with_rows(obs, previous[self.history_start :]), critic, task
 
     def after_step(
-        self, data: mjx.Data, task: TaskState, time_s: jax.Array, previous: jax.Array, action: jax.Array
+        self,
+        data: mjx.Data,
+        task: TaskState,
+        path: jax.Array,
+        time_s: jax.Array,
+        previous: jax.Array,
+        action: jax.Array,
     ) -> Seen:
         """The observation after a step: ``previous`` (with ``action``) becomes the newest history row."""
-        obs, critic, task = self._current(data, task, time_s)
+        obs, critic, task = self._current(data, task, path, time_s)
         steps = self.config.observation.history_steps
         if steps:  # static: without a history the step computes none
             rows = history.advance(previous[self.history_start :], previous[: self.core_size], action, steps, jnp)
@@ -75,16 +84,16 @@ class Observer:
             return obs
         return jnp.concatenate([obs, rows])
 
-    def _current(self, data: mjx.Data, task: TaskState, time_s: jax.Array | float) -> Seen:
+    def _current(self, data: mjx.Data, task: TaskState, path: jax.Array, time_s: jax.Array | float) -> Seen:
         """The observation without history rows, the critic's inputs and the task state (its key advanced
         when the scan or the observation draws noise)."""
         cfg = self.config.observation
         clean = scan = None
         if cfg.height_scan.enabled:
             clean, scan, task = self._height_scan(data, task)
-        xy = observation.robot_xy(data, self.index)
-        path = self.progress.measure(task, xy)[1] if cfg.path_direction else None
-        obs = observation.observe(data, task.goal_xy, self.index, cfg, time_s, scan, path)
+        obs = observation.observe(
+            data, task.goal_xy, self.index, cfg, time_s, scan, path if cfg.path_direction else None
+        )
         if cfg.noise.enabled:  # static: without noise the key stream stays as it was
             rng, key = jax.random.split(task.rng)
             task, obs = task.replace(rng=rng), randomization.add_noise(obs, key, self._noise)
