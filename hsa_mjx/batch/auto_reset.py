@@ -34,6 +34,7 @@ TOTAL_KEYS = (
     "step_reward",
     "step_distance",
     "step_checkpoint",
+    "redraw_truncations",  # episodes cut short because the terrain tile under them was re-drawn
 )
 
 
@@ -93,15 +94,22 @@ class AutoResetEnv:
         """The env on the batch's terrain tiles (the env itself without regeneration)."""
         return self.env if state.terrain is None else self.env.with_terrain(state.terrain)
 
-    def tick(self, state: BatchState, key: jax.Array) -> BatchState:
+    def tick(self, state: BatchState, key: jax.Array, params: EnvParams | None = None) -> BatchState:
         """One training iteration passed: re-draw the random tiles from ``key`` when ``regenerate_every``
-        iterations have passed since the last time (no-op without regeneration)."""
+        iterations have passed since the last time (no-op without regeneration). Episodes on a re-written
+        tile are truncated (``hsa_mjx.terrain.regeneration``): they restart with ``params`` (default: the
+        env's), their partial episode counted in ``totals["redraw_truncations"]`` alone."""
         if self.regenerator is None:
             return state
         terrain = state.terrain.replace(age=state.terrain.age + 1)
         due = terrain.age >= self.regenerate_every
         terrain = jax.lax.cond(due, lambda t: self.regenerator.regenerate(key, t).replace(age=0), lambda t: t, terrain)
-        return state.replace(terrain=terrain)
+        state = state.replace(terrain=terrain)
+        stale = due & self.regenerator.stale(terrain, state.env.pipeline_state.task.tile)
+        params = self.default_params(stale.shape[0]) if params is None else params
+        episode = jax.tree.map(lambda x: jnp.where(stale, jnp.zeros_like(x), x), state.episode)
+        totals = {**state.totals, "redraw_truncations": state.totals["redraw_truncations"] + jnp.sum(stale)}
+        return self._reset_where(state.replace(episode=episode, totals=totals), stale, params)
 
     @property
     def observation_size(self) -> int:
@@ -168,7 +176,13 @@ class AutoResetEnv:
     def reset_done(self, state: BatchState, params: EnvParams, reset_metrics: bool = False) -> BatchState:
         """Replace the finished envs of an advanced state by fresh episodes drawn from their own keys
         with their ``params`` (skipped when none ended)."""
-        done, env = state.env.done > 0, self.bound(state)
+        return self._reset_where(state, state.env.done > 0, params, reset_metrics)
+
+    def _reset_where(
+        self, state: BatchState, done: jax.Array, params: EnvParams, reset_metrics: bool = False
+    ) -> BatchState:
+        """The envs where ``done`` replaced by fresh episodes drawn from their own keys (skipped when none)."""
+        env = self.bound(state)
 
         def fresh(current: EnvState) -> EnvState:
             keys = jax.vmap(lambda k: jax.random.split(k)[1])(current.pipeline_state.task.rng)
@@ -267,6 +281,8 @@ def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
             "step/checkpoint_index": totals["step_checkpoint"] / steps,
         }
     )
+    if totals.get("redraw_truncations", 0.0) > 0:  # only with terrain re-draws shorter than an episode
+        out["terrain/redraw_truncations"] = totals["redraw_truncations"]
     out.update(terrain_curriculum.summarize(totals, levels))
     out.update(randomization_curriculum.summarize(totals))
     episodes = totals["episodes"]

@@ -145,11 +145,16 @@ class TerrainPool:
         first = np.cumsum((0,) + tuple(c * layout.levels for c in layout.counts[:-1]))
         self._first = jnp.asarray(first, jnp.int32)  # first tile of each type's row
         self._count = jnp.asarray(layout.counts, jnp.int32)  # tiles per level of each row
+        self._random_row = jnp.asarray([t in RANDOM_TYPES for t in layout.types])
         self._log_p = jnp.log(jnp.asarray(np.asarray(config.proportions, np.float64) + 1e-30, jnp.float32))
 
-    def draw(self, key: jax.Array, cell: jax.Array | None = None) -> tuple[jax.Array, jax.Array]:
+    def draw(
+        self, key: jax.Array, cell: jax.Array | None = None, half: jax.Array | None = None
+    ) -> tuple[jax.Array, jax.Array]:
         """(tile index, type id) of one episode; ``cell`` = (type row, level) int32 (2,) picks the cell, a
-        negative row draws type and level from the proportions (traced: one compiled draw for both)."""
+        negative row draws type and level from the proportions (traced: one compiled draw for both);
+        ``half`` (0 or 1, traced): a random type's tile among that half of its cell's tiles (the tiles of
+        a cell at even or odd positions: ``hsa_mjx.terrain.regeneration``)."""
         if not self.config.per_env:
             return jnp.zeros((), jnp.int32), jnp.asarray(self.tile_type[0], jnp.int32)
         k_type, k_tile = jax.random.split(key)
@@ -163,16 +168,23 @@ class TerrainPool:
             if self.layout.levels > 1
             else jnp.zeros((), jnp.int32)
         )
-        if cell is None:
-            return self._tile(k_tile, row, level)
-        free = cell[0] < 0
-        row, level = jnp.where(free, row, cell[0]), jnp.where(free, level, cell[1])
-        return self._tile(k_tile, row, level)
+        if cell is not None:
+            free = cell[0] < 0
+            row, level = jnp.where(free, row, cell[0]), jnp.where(free, level, cell[1])
+        return self._tile(k_tile, row, level, half)
 
-    def _tile(self, key: jax.Array, row: jax.Array, level: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """A random tile of the cell (row, level) and its type id."""
+    def _tile(
+        self, key: jax.Array, row: jax.Array, level: jax.Array, half: jax.Array | None = None
+    ) -> tuple[jax.Array, jax.Array]:
+        """A random tile of the cell (row, level) (of ``half`` of it, for a random type) and its type id."""
         count = self._count[row]
-        tile = self._first[row] + level * count + jax.random.randint(key, (), 0, count)
+        if half is None:
+            index = jax.random.randint(key, (), 0, count)
+        else:
+            alternate = self._random_row[row] & (count >= 2)
+            index = jax.random.randint(key, (), 0, jnp.where(alternate, (count - half + 1) // 2, count))
+            index = jnp.where(alternate, half + 2 * index, index)
+        tile = self._first[row] + level * count + index
         return tile, jnp.asarray(self.tile_type)[tile]
 
 

@@ -8,7 +8,14 @@ carries (``hsa_mjx.batch.auto_reset``) and :func:`regenerate` replaces: every ti
 holds the goal ground ``terrain.reachability`` asks for (a failing draw leaves the old tile in place:
 a tile that fails is never shipped). The deterministic types do not change. It all runs in one jitted
 function on the device, between PPO iterations; the env reads the tiles through
-``HSAEnv.with_terrain``. Episodes running across a regeneration finish on the new ground under them.
+``HSAEnv.with_terrain``.
+
+No tile changes under a running episode: the tiles of each random cell are two halves, and a re-draw
+writes the half that new episodes stopped drawing at the re-draw before, then sends new episodes
+there (``TerrainWorld.draw``). An episode still running on the half being written (one that started
+two re-draws ago: only where the re-draw period is shorter than an episode) is truncated first
+(``AutoResetEnv.tick``), so its goal, its goal site's distance field and the ground under it always
+belong to the same tile.
 """
 
 from __future__ import annotations
@@ -79,26 +86,45 @@ class Regenerator:
             if name in RANDOM_TYPES
         ]
         self.difficulty = np.asarray(self.layout.difficulties, np.float32)[self.layout.tile_level()]
+        slots = self.layout.slots()
+        self.tile_half = np.asarray([c % self.layout.counts[r] % 2 for r, c in slots], np.int32)
+        self.random_tile = np.zeros(len(slots), bool)
+        for _, first, count in self.rows:
+            self.random_tile[first : first + count] = True
+        small = [self.layout.types[r] for r, _, _ in self.rows if self.layout.counts[r] < 2]
+        if small:
+            raise ValueError(
+                f"terrain regeneration needs terrain.tiles_per_type >= 2 (the tiles of a cell are two halves that "
+                f"take turns, so that no tile changes under a running episode); {small} have fewer"
+            )
 
     @property
     def random_tiles(self) -> int:
         """How many tiles a regeneration re-draws."""
         return sum(count for _, _, count in self.rows)
 
+    def stale(self, tiles: TerrainTiles, tile: jax.Array) -> jax.Array:
+        """Whether ``tile`` (any shape of indices) was re-written by the last re-draw: episodes on it that
+        started before that re-draw stand on ground that changed (``AutoResetEnv.tick`` truncates them)."""
+        half = jnp.asarray(self.tile_half)[tile]
+        return jnp.asarray(self.random_tile)[tile] & (half == tiles.generation % 2) & (tiles.generation > 0)
+
     def regenerate(self, key: jax.Array, tiles: TerrainTiles) -> TerrainTiles:
-        """Every random tile drawn again from ``key`` (kept where it passes the reachability check)."""
+        """The random tiles of the half that new episodes stopped drawing at the last re-draw drawn again from
+        ``key`` (kept where they pass the reachability check); new episodes then draw them."""
         t = self.layout.tile
         atlas = tiles.atlas.reshape(self.layout.rows * t.nrow, self.layout.cols * t.ncol)
+        half = (tiles.generation + 1) % 2  # the half written now, drawn from the next generation on
         for row, first, count in self.rows:
             index = np.arange(first, first + count)
             keys = jax.vmap(lambda i: jax.random.fold_in(key, i))(jnp.asarray(index))
             data = jax.vmap(lambda k, d, r=row: self.sampler.type_data(r, k, d))(keys, self.difficulty[index])
-            accept, fields = jnp.ones((count,), bool), None
+            accept, fields = jnp.asarray(self.tile_half[index]) == half, None
             if tiles.reach.size:
                 fields = jax.vmap(lambda d: reachability.spawn_field(d, t, self.limits))(data)
                 reach = self.config.reachability
                 area = jnp.sum((fields >= reach.goal_range[0]) & (fields <= reach.goal_range[1]), axis=(1, 2))
-                accept = area * reach.resolution**2 >= reach.min_area
+                accept = accept & (area * reach.resolution**2 >= reach.min_area)
                 tiles = tiles.replace(reach=tiles.reach.at[index].set(_keep(accept, fields, tiles.reach[index])))
             if tiles.site_fields.size:
                 tiles = self._new_sites(tiles, index, keys, data, fields, accept)

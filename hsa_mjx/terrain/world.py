@@ -52,6 +52,7 @@ class TerrainWorld:
         self.enabled = pool is not None
         self.sites: geodesic.GoalSites | None = None
         self.tiles: TerrainTiles | None = None  # the pool's device arrays the env reads (replaced by with_tiles)
+        self.alternating = False  # tiles re-drawn in two halves: new episodes draw the newer (with_tiles)
         if not self.enabled:
             return
         self.grid = pool.layout.tile  # one tile: the original field, in the robot's coordinates
@@ -79,9 +80,10 @@ class TerrainWorld:
         self.sites = geodesic.build(spec, self.pool.tiles, self.pool.reach, key, points)
 
     def with_tiles(self, tiles: TerrainTiles) -> TerrainWorld:
-        """This world reading the pool's arrays from ``tiles`` (traced; ``hsa_mjx.terrain.regeneration``)."""
+        """This world reading the pool's arrays from ``tiles`` (traced; ``hsa_mjx.terrain.regeneration``), new
+        episodes drawing a random type's tile among the half its latest re-draw wrote."""
         world = copy.copy(self)
-        world.tiles = tiles
+        world.tiles, world.alternating = tiles, True
         return world
 
     @property
@@ -138,7 +140,7 @@ class TerrainWorld:
         """This episode's (tile index, terrain type id); ``key`` and ``cell`` = (type row, level), or (-1, -1)
         (or None) to draw both by the proportions, are used only when envs draw their own."""
         if self.per_env:
-            return self.pool.draw(key, cell)
+            return self.pool.draw(key, cell, self.tiles.generation % 2 if self.alternating else None)
         type_id = int(self.pool.tile_type[0]) if self.enabled else FLAT_ID
         return jnp.zeros((), jnp.int32), jnp.asarray(type_id, jnp.int32)
 
