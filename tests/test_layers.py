@@ -31,7 +31,7 @@ LAYERS = (
     # learner; what builds on them; the collection strategies; the training loop and the evaluation;
     # on top, the command-line tools nothing else imports
     tuple(T + m for m in ("checkpoint", "compat", "config", "distributed", "logger", "onnx_policy", "diagnostics")),
-    (T + "rollout", T + "networks", T + "plots", T + "run_dir"),
+    (T + "rollout", T + "networks", T + "ppo_update", T + "plots", T + "run_dir"),
     (T + "learner", T + "run_state", T + "terrain_eval"),
     (T + "placement", T + "warm_start", T + "policy_sources"),
     (T + "thread_per_device",),

@@ -35,6 +35,7 @@ def records(path):
 def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == ["step_000000000040", "step_000000000080"]
     assert (run_dir / "config.yaml").is_file() and (run_dir / "learning_curve.png").stat().st_size > 10_000
+    assert (run_dir / "ppo_diagnostics.png").stat().st_size > 10_000
     assert list((run_dir / "tensorboard").iterdir())
     recs = records(run_dir)
     assert [r["step"] for r in recs] == [40, 80]
@@ -42,6 +43,12 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     for key in (
         "loss/total_loss",
         "loss/policy_loss",
+        "loss/v_loss",
+        "loss/kl_mean",
+        "loss/clip_fraction",
+        "loss/explained_variance",
+        "loss/grad_norm",
+        "loss/learning_rate",
         "curriculum/max_distance",
         "curriculum/success_rate",
         "training/env_steps_per_s",

@@ -35,6 +35,8 @@ from hsa_mjx.deploy.policy_file import ACTIVATIONS
 from hsa_mjx.terrain.params import RANDOM_TYPES
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
+VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (hsa_mjx_train.ppo_update)
+LR_SCHEDULES = ("fixed", "adaptive_kl")  # ppo.learning_rate_schedule
 NOISE_STD_TYPES = ("scalar", "log")
 SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "randomization_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
@@ -57,14 +59,30 @@ class PPOConfig:
     reward_scaling: float = 1.0
     normalize_observations: bool = True
     # normalised observations are clipped to +-observation_clip, as the original's VecNormalize
-    # (clip_obs 10). Without it, dimensions that barely vary over a fresh run's first unroll (every
-    # env starts in the same pose) later normalise to hundreds or more and the first updates' value
-    # loss reaches 1e7-1e12 (docs/training.md). 0 (the default) = no clip, so that
-    # checkpoints written before the key existed load and evaluate exactly as they were trained.
+    # (clip_obs 10): a dimension that barely varied when the statistics were last updated (every env
+    # starts in the same pose) otherwise reaches the networks as thousands of standard deviations. 0 (the
+    # default) = no clip: at 5, with the floor below at 0.01, the flat task did not train better (91 against
+    # 95 % of goals at equal steps, two seeds each; docs/experiments.md); the shipped policies train without.
     observation_clip: float = 0.0
+    # the running statistics' standard deviation never goes below this (Brax's 1e-6 is the default: a
+    # dimension constant over the first collection, e.g. the heading of envs that all start facing +x, then
+    # normalises its first changes to 1e4 standard deviations and more)
+    observation_std_min: float = 1e-6
     normalize_advantage: bool = True
     max_grad_norm: float = 1.0
     vf_loss_coefficient: float = 0.5
+    # when the value targets and advantages are computed (hsa_mjx_train.ppo_update): "per_minibatch" at every
+    # minibatch from the critic being trained (Brax's PPO, the default: its values chase their own bootstrap,
+    # the first value losses of 1e8-1e10), or "per_iteration" once per collection from the critic that
+    # collected it (rsl_rl, CleanRL, SB3: first value loss 0.2-0.4). On the flat task the held targets did
+    # not train a better policy at equal steps (95 against 98 % of goals, two seeds each; docs/experiments.md)
+    value_targets: str = "per_minibatch"
+    # > 0: the clipped value loss of rsl_rl (the value moves at most this far from the rollout's); 0 = off
+    value_clip: float = 0.0
+    # "fixed", or "adaptive_kl": after each minibatch the rate is divided by 1.5 when the KL divergence
+    # from the collecting policy exceeds 2 x desired_kl, multiplied by 1.5 below half of it (rsl_rl)
+    learning_rate_schedule: str = "fixed"
+    desired_kl: float = 0.01
     policy_hidden_sizes: tuple[int, ...] = (128, 128, 128)
     value_hidden_sizes: tuple[int, ...] = (256, 256, 256)
     activation: str = "swish"
@@ -106,6 +124,9 @@ class RunConfig:
     # PPO iterations between re-draws of the random terrain types' tiles on the device (fresh terrain, no
     # pool to memorise: hsa_mjx.terrain.regeneration); 0 keeps the pool drawn from env.terrain.seed
     regenerate_terrain_every: int = 0
+    # true: each env's first episode starts a random number of steps old (0..max_episode_steps), so that the
+    # batch's episodes end spread over time instead of all at once (legged_gym's random episode phase)
+    random_initial_phase: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,6 +219,11 @@ def _validate_regeneration(config: TrainConfig) -> None:
             f"env.terrain.per_env true) with a random type among {list(RANDOM_TYPES)}; got scene "
             f"{env.scene!r}, types {list(env.terrain.types)}"
         )
+    if every and env.terrain.tiles_per_type < 2:
+        raise ValueError(
+            "config key 'run.regenerate_terrain_every' > 0 needs env.terrain.tiles_per_type >= 2 (a cell's tiles are "
+            f"re-drawn in two halves, so none changes under a running episode), got {env.terrain.tiles_per_type}"
+        )
 
 
 def _validate_curricula(config: TrainConfig) -> None:
@@ -220,6 +246,8 @@ def _validate_ppo(ppo: PPOConfig) -> None:
         ("activation", ACTIVATIONS),
         ("distribution_type", DISTRIBUTIONS),
         ("noise_std_type", NOISE_STD_TYPES),
+        ("value_targets", VALUE_TARGETS),
+        ("learning_rate_schedule", LR_SCHEDULES),
     ):
         if getattr(ppo, key) not in choices:
             raise ValueError(f"config key 'ppo.{key}' = {getattr(ppo, key)!r}; choose one of {list(choices)}")
@@ -255,6 +283,9 @@ RANGES = {
     ("ppo", "max_grad_norm"): (0.0, float("inf"), (False, False)),
     ("ppo", "vf_loss_coefficient"): (0.0, float("inf"), (False, False)),
     ("ppo", "init_noise_std"): (0.0, float("inf"), (False, False)),
+    ("ppo", "observation_std_min"): (0.0, float("inf"), (False, False)),
+    ("ppo", "value_clip"): (0.0, float("inf"), (True, False)),
+    ("ppo", "desired_kl"): (0.0, float("inf"), (False, False)),
     ("run", "seed"): (0, 2**32 - 1, (True, True)),
 }
 

@@ -1,15 +1,15 @@
-"""PPO on the batched hsa_mjx env, built from Brax's PPO networks, loss and gradient update.
+"""PPO on the batched hsa_mjx env, built from Brax's PPO networks and GAE.
 
 Brax's ``ppo.train`` owns its training state and env state inside one function, so a checkpoint
 there holds neither the optimiser state nor the step count, and the env state (where the curricula
-live) never reaches a callback. This learner keeps Brax's PPO pieces (``ppo.networks``,
-``ppo.losses.compute_ppo_loss``, ``gradients.gradient_update_fn``, running observation statistics)
-as pure functions of pytrees the caller owns: :meth:`PPOLearner.collect` (policy and env steps,
-with the terrain curriculum) and :meth:`PPOLearner.learn` (observation statistics, goal curriculum,
-SGD), and the epoch built from them. How devices share the work is not its business: a collection
-strategy (``hsa_mjx_train.strategies``) places and calls these functions on one device, under
-``pmap``, or one thread per GPU. Every reduction over devices names the learner's ``axis``; with
-``axis=None`` (one device) there is none.
+live) never reaches a callback. This learner keeps Brax's PPO networks, GAE and running observation
+statistics, with the loss and gradient step of ``hsa_mjx_train.ppo_update``, as pure functions of
+pytrees the caller owns: :meth:`PPOLearner.collect` (policy and env steps, with the terrain
+curriculum) and :meth:`PPOLearner.learn` (observation statistics, goal curriculum, SGD), and the
+epoch built from them. How devices share the work is not its business: a collection strategy
+(``hsa_mjx_train.strategies``) places and calls these functions on one device, under ``pmap``, or
+one thread per GPU. Every reduction over devices names the learner's ``axis``; with ``axis=None``
+(one device) there is none.
 """
 
 from __future__ import annotations
@@ -19,9 +19,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from brax.training import gradients, types
+from brax.training import types
 from brax.training.acme import running_statistics
-from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import struct
 
@@ -30,10 +29,20 @@ from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import Curricula, CurriculumRules, EnvLevels
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx_train.config import TrainConfig
-from hsa_mjx_train.networks import TrainingState, make_networks, make_optimizer, network_obs
+from hsa_mjx_train.networks import TrainingState, make_networks, network_obs
+from hsa_mjx_train.ppo_update import PPOUpdate, explained_variance, with_targets
 
 REGENERATION_SALT = 0x7E77  # folded into an iteration's collection key for its terrain re-draw
+PHASE_SALT = 0x9A5E  # folded into an env's key for its first episode's random phase (run.random_initial_phase)
 AXIS = "devices"  # the name every reduction over devices uses (pmap's axis, or one thread per GPU's learning step)
+
+
+def with_random_phase(envs: BatchState, keys: jax.Array, max_steps: int) -> BatchState:
+    """Every env's episode already ``randint(0, max_steps)`` steps old (legged_gym's random episode phase):
+    the first episodes are truncated at different steps, so the batch's episodes never end in lockstep."""
+    steps = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, PHASE_SALT), (), 0, max_steps))(keys)
+    task = envs.env.pipeline_state.task.replace(step_count=steps.astype(jnp.int32))
+    return envs.replace(env=envs.env.replace(pipeline_state=envs.env.pipeline_state.replace(task=task)))
 
 
 @struct.dataclass
@@ -71,20 +80,7 @@ class PPOLearner:
         ppo = config.ppo
         self.unrolls_per_iteration = ppo.batch_size * ppo.num_minibatches // config.run.num_envs
         self.iterations_per_epoch = max(1, config.run.steps_per_epoch // config.env_steps_per_iteration)
-        loss_fn = functools.partial(
-            ppo_losses.compute_ppo_loss,
-            ppo_network=self.networks,
-            entropy_cost=ppo.entropy_cost,
-            discounting=ppo.discounting,
-            reward_scaling=ppo.reward_scaling,
-            gae_lambda=ppo.gae_lambda,
-            clipping_epsilon=ppo.clipping_epsilon,
-            normalize_advantage=ppo.normalize_advantage,
-            vf_coefficient=ppo.vf_loss_coefficient,
-        )
-        self.update_fn = gradients.gradient_update_fn(
-            loss_fn, make_optimizer(config), pmap_axis_name=axis, has_aux=True
-        )
+        self.update = PPOUpdate(self.networks, ppo, axis)
 
     @property
     def env_steps_per_epoch(self) -> int:
@@ -107,10 +103,14 @@ class PPOLearner:
         levels: EnvLevels | None,
         batch_env: AutoResetEnv | None = None,
     ) -> LoopState:
-        """One device's fresh envs (one key each) on the curricula's start (or restored) state."""
+        """One device's fresh envs (one key each) on the curricula's start (or restored) state; with
+        ``run.random_initial_phase`` each first episode starts at a random step of its length."""
         batch_env = batch_env or self.batch_env
         curricula = self.rules.init(keys, goal, levels)
-        return LoopState(envs=batch_env.reset(keys, self.rules.params(curricula)), curricula=curricula)
+        envs = batch_env.reset(keys, self.rules.params(curricula))
+        if self.config.run.random_initial_phase:
+            envs = with_random_phase(envs, keys, self.config.env.termination.max_episode_steps)
+        return LoopState(envs=envs, curricula=curricula)
 
     def unroll(
         self, ts: TrainingState, state: LoopState, key: jax.Array, batch_env: AutoResetEnv | None = None
@@ -160,7 +160,8 @@ class PPOLearner:
             return (s, k), data
 
         (state, _), data = jax.lax.scan(one, (state, key), None, length=self.unrolls_per_iteration)
-        envs = (batch_env or self.batch_env).tick(state.envs, jax.random.fold_in(key, REGENERATION_SALT))
+        regeneration_key = jax.random.fold_in(key, REGENERATION_SALT)
+        envs = (batch_env or self.batch_env).tick(state.envs, regeneration_key, self.rules.params(state.curricula))
         state = state.replace(envs=envs)  # fresh terrain tiles when due (run.regenerate_terrain_every)
         # (unrolls, T, B, ...) -> (unrolls * B, T, ...)
         data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
@@ -177,9 +178,7 @@ class PPOLearner:
         """One gradient step; a non-finite loss leaves parameters and optimiser untouched."""
         params, opt_state, normalizer, key, skipped = carry
         key, k_loss = jax.random.split(key)
-        (loss, metrics), new_params, new_opt = self.update_fn(
-            params, normalizer, minibatch, k_loss, optimizer_state=opt_state
-        )
+        loss, metrics, new_params, new_opt = self.update.step(params, opt_state, normalizer, minibatch, k_loss)
         bad = self._sum_over_devices(jnp.logical_not(jnp.isfinite(loss)).astype(jnp.int32)) > 0
 
         def keep(old, new):
@@ -227,7 +226,8 @@ class PPOLearner:
     def learn(
         self, ts: TrainingState, goal: goal_curriculum.GoalCurriculumState, data: types.Transition, key: jax.Array
     ) -> tuple[TrainingState, goal_curriculum.GoalCurriculumState, dict]:
-        """Observation statistics, goal curriculum, then ``num_updates_per_batch`` SGD passes over ``data``."""
+        """Observation statistics, goal curriculum, the collection's value targets and advantages (from the
+        critic that collected it), then ``num_updates_per_batch`` SGD passes over ``data``."""
         obs = data.observation.reshape((-1, data.observation.shape[-1]))
         finite = jnp.all(jnp.isfinite(obs), axis=-1)
         normalizer = ts.normalizer
@@ -236,14 +236,18 @@ class PPOLearner:
                 normalizer,
                 jnp.where(finite[:, None], obs, 0.0),
                 weights=finite.astype(jnp.float32),
+                std_min_value=self.config.ppo.observation_std_min,
                 pmap_axis_name=self.axis,
             )
+        targets = self.update.targets(ts.params, normalizer, data)
+        data = with_targets(data, targets)
         carry = (ts.params, ts.optimizer_state, normalizer, key, jnp.zeros(()))
         (params, opt_state, _, _, skipped), metrics = jax.lax.scan(
             functools.partial(self._sgd_pass, data=data), carry, None, length=self.config.ppo.num_updates_per_batch
         )
         metrics = jax.tree.map(jnp.mean, metrics)
         metrics["skipped_updates"] = skipped
+        metrics["explained_variance"] = explained_variance(targets)
         return TrainingState(params, opt_state, normalizer), self._goal_curriculum(goal, data), metrics
 
     # ----- the epoch on one device (a strategy maps it over several) --------------------------

@@ -23,6 +23,7 @@ from hsa_mjx.deploy.policy_file import ACTIVATIONS as POLICY_ACTIVATIONS
 from hsa_mjx.task import privileged
 from hsa_mjx.task.types import EnvState
 from hsa_mjx_train.config import TrainConfig
+from hsa_mjx_train.ppo_update import make_optimizer
 
 # the activations the exported numpy policy can run, as flax functions of the same names
 ACTIVATIONS: dict[str, Callable] = {name: getattr(linen, name) for name in POLICY_ACTIVATIONS}
@@ -97,11 +98,6 @@ def network_obs(state: EnvState, with_privileged: bool) -> jax.Array:
     return jnp.concatenate([state.obs, state.info["privileged_obs"]], axis=-1)
 
 
-def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    """Adam with global-norm gradient clipping."""
-    return optax.chain(optax.clip_by_global_norm(config.ppo.max_grad_norm), optax.adam(config.ppo.learning_rate))
-
-
 def init_training_state(
     config: TrainConfig, networks: ppo_networks.PPONetworks, key: jax.Array, observation_size: int
 ) -> TrainingState:
@@ -111,4 +107,4 @@ def init_training_state(
         policy=networks.policy_network.init(k_policy), value=networks.value_network.init(k_value)
     )
     normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((observation_size,), jnp.float32))
-    return TrainingState(params=params, optimizer_state=make_optimizer(config).init(params), normalizer=normalizer)
+    return TrainingState(params=params, optimizer_state=make_optimizer(config.ppo).init(params), normalizer=normalizer)

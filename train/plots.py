@@ -23,16 +23,39 @@ PANELS = (
     ("terrain/mean_level", "terrain level (mean over envs)"),
     ("terrain/top_share", "share of envs at the top terrain level"),
 )
-LOG_SCALE = {"loss/total_loss"}
+# what a PPO engineer reads first (hsa_mjx_train.ppo_update), in a figure of their own
+PPO_PANELS = (
+    ("loss/v_loss", "value loss (symlog)"),
+    ("loss/explained_variance", "explained variance of the returns"),
+    ("loss/kl_mean", "KL from the collecting policy (symlog)"),
+    ("loss/clip_fraction", "clip fraction"),
+    ("loss/grad_norm", "gradient norm (before clipping)"),
+    ("loss/learning_rate", "learning rate"),
+    ("loss/policy_loss", "policy loss"),
+    ("loss/entropy_loss", "entropy loss"),
+    ("terrain/redraw_truncations", "episodes cut by terrain re-draws"),
+)
+LOG_SCALE = {"loss/total_loss", "loss/v_loss", "loss/kl_mean"}
 
 
 def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str | None = None) -> Path | None:
     """Plot the headline metrics against env steps into ``out_path``; None if there is nothing to plot."""
+    return _figure(metrics_path, out_path, PANELS, title)
+
+
+def ppo_diagnostics(metrics_path: str | Path, out_path: str | Path, title: str | None = None) -> Path | None:
+    """Plot the learning step's diagnostics (value loss, explained variance, KL, clip fraction, gradient norm,
+    learning rate) against env steps into ``out_path``; None if there is nothing to plot."""
+    return _figure(metrics_path, out_path, PPO_PANELS, title)
+
+
+def _figure(metrics_path: str | Path, out_path: str | Path, panels: tuple, title: str | None) -> Path | None:
+    """One panel per (key, label) of ``panels`` that the records hold (terrain keys only when present)."""
     records = read_jsonl(metrics_path) if Path(metrics_path).is_file() else []
     if not records:
         return None
     steps = [r["step"] for r in records]
-    panels = [p for p in PANELS if not p[0].startswith("terrain/") or any(p[0] in r for r in records)]
+    panels = [p for p in panels if not p[0].startswith("terrain/") or any(p[0] in r for r in records)]
     columns = (len(panels) + 2) // 3
     fig = Figure(figsize=(4.4 * columns, 10), layout="constrained")
     axes = fig.subplots(3, columns)

@@ -1,7 +1,7 @@
 """A run directory: what a run writes there, and the checks before it starts or resumes.
 
 A run dir holds ``config.yaml``, ``checkpoints/``, ``metrics.jsonl``, ``tensorboard/``,
-``summary.json`` and ``learning_curve.png``. A new run refuses a folder that already holds one
+``summary.json``, ``learning_curve.png`` and ``ppo_diagnostics.png``. A new run refuses a folder that already holds one
 (``--overwrite`` replaces the run's own files, nothing else); a resume reads the newest readable
 checkpoint's metadata and refuses one written with a config whose networks, env or curricula differ.
 Every check runs before anything compiles; with several processes, process 0 alone writes.
@@ -18,7 +18,15 @@ import yaml
 from hsa_mjx_train import checkpoint, distributed
 from hsa_mjx_train.config import TrainConfig, from_dict, to_dict
 
-RUN_FILES = ("checkpoints", "metrics.jsonl", "tensorboard", "config.yaml", "summary.json", "learning_curve.png")
+RUN_FILES = (
+    "checkpoints",
+    "metrics.jsonl",
+    "tensorboard",
+    "config.yaml",
+    "summary.json",
+    "learning_curve.png",
+    "ppo_diagnostics.png",
+)
 
 
 def run_files(run_dir: Path) -> list[str]:

@@ -191,8 +191,9 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
 
 
 def _finish(run_dir: Path, summary: dict) -> dict:
-    """Process 0: learning curves and ``summary.json`` (with the latest checkpoint) into the run dir."""
+    """Process 0: learning curves, PPO diagnostics and ``summary.json`` (with the latest checkpoint)."""
     plots.learning_curves(run_dir / "metrics.jsonl", run_dir / "learning_curve.png")
+    plots.ppo_diagnostics(run_dir / "metrics.jsonl", run_dir / "ppo_diagnostics.png")
     summary = {**summary, "checkpoint": str(checkpoint.latest(run_dir))}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary

@@ -197,13 +197,15 @@ def summarize(sums: dict[str, float], levels: int) -> dict[str, float]:
 
 
 def _cell_success(sums: dict[str, float]) -> dict[str, float]:
-    """``terrain/success/<type>/L<level>``: goals reached per episode ended on that cell (cells with episodes)."""
+    """``terrain/success/<type>/L<level>``: goals reached per episode ended on that cell (cells with episodes),
+    and ``terrain/episodes/<type>``: the episodes that ended on each type."""
     out = {}
     prefix = f"terrain_{OUTCOME_KEYS[0]}/"
     for key, episodes in sums.items():
         if key.startswith(prefix) and episodes > 0:
             name, level = key[len(prefix) :].rsplit("/", 1)
             out[f"terrain/success/{name}/L{level}"] = sums[f"terrain_{OUTCOME_KEYS[1]}/{name}/{level}"] / episodes
+            out[f"terrain/episodes/{name}"] = out.get(f"terrain/episodes/{name}", 0.0) + episodes
     return out
 
 
