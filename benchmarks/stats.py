@@ -20,3 +20,15 @@ def wilson_interval(successes: int, trials: int, z: float = Z_95) -> tuple[float
     centre = (p + z2 / (2 * n)) / (1 + z2 / n)
     half = z * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def difference_interval(
+    successes: tuple[int, int], trials: tuple[int, int], z: float = Z_95
+) -> tuple[float, float, float]:
+    """(difference, low, high) of two proportions, the first minus the second, with Newcombe's interval from
+    their Wilson intervals (method 10 of Newcombe 1998: stays inside [-1, 1], keeps a width at 0 and 1)."""
+    (s1, s2), (n1, n2) = successes, trials
+    p1, p2 = s1 / n1, s2 / n2
+    (l1, u1), (l2, u2) = wilson_interval(s1, n1, z), wilson_interval(s2, n2, z)
+    d = p1 - p2
+    return d, d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2), d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2)

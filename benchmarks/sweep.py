@@ -1,0 +1,269 @@
+"""Compare training recipes honestly: arms x seeds at equal env steps, each run evaluated, with intervals.
+
+    python -m benchmarks.sweep SWEEP.yaml [--out DIR] [--devices 0,1] [--time-limit S] [--report-only]
+
+A sweep file (``benchmarks/sweeps/*.yaml``) names a question, a training config, the env steps every run
+trains for, the seeds, the arms (each a list of ``--set`` overrides over the config) and the
+evaluation. Every (arm, seed) is one run of ``python -m train`` in ``OUT/runs/<arm>/seed<k>``, one run
+per GPU at a time on a host of several (``CUDA_VISIBLE_DEVICES`` per process; in sequence on one GPU
+or a CPU), then one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat
+ground over ``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed
+the run never trained on. ``--time-limit`` sends SIGTERM to the runs still training when the time is
+nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
+is done. The report (``benchmarks.sweep_report``): ``sweep.json``, ``sweep.md`` and one plot per arm
+plus ``sweep.png`` in ``OUT``; every figure with its 95 % interval, the arms against the first.
+
+The sweep file is checked before anything runs: unknown keys, an arm whose config does not build,
+a missing config file are refused with a ValueError naming them.
+"""
+
+from __future__ import annotations
+
+import os
+
+CHILD_ENVIRONMENT = dict(os.environ)  # what the runs get: this process keeps JAX off the GPUs, they are the runs'
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import shutil  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import yaml  # noqa: E402
+
+from benchmarks import sweep_report  # noqa: E402
+from hsa_mjx_train import config as train_config  # noqa: E402
+
+KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
+EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain")
+TERRAIN_KEYS = ("types", "levels", "tiles", "terrain_seed")
+GRACE_S = 90  # --time-limit: SIGTERM this long before the limit (the epoch in flight ends, a checkpoint is written)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A sweep file, checked."""
+
+    name: str
+    question: str
+    config: str
+    env_steps: int
+    seeds: tuple[int, ...]
+    common: tuple[str, ...]
+    arms: dict[str, tuple[str, ...]]
+    evaluate: dict[str, Any]
+    target_success: float = 0.9
+
+    def overrides(self, arm: str, seed: int) -> list[str]:
+        """The ``--set`` overrides of one run: the common ones, the arm's, its seed and length."""
+        return [*self.common, *self.arms[arm], f"run.seed={seed}", f"run.num_timesteps={self.env_steps}"]
+
+
+def _unknown(data: dict, valid: tuple[str, ...], where: str) -> None:
+    unknown = sorted(set(data) - set(valid))
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; valid keys: {list(valid)}")
+
+
+def load(path: str | Path) -> Sweep:
+    """Read and check a sweep file: every arm's config is built (and so validated) here, before any run."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"sweep file not found: {path}")
+    data = yaml.safe_load(path.read_text()) or {}
+    _unknown(data, KEYS, str(path))
+    missing = [k for k in ("name", "config", "env_steps", "seeds", "arms", "evaluate") if k not in data]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {missing}")
+    evaluate = dict(data["evaluate"] or {})
+    _unknown(evaluate, EVALUATE_KEYS, f"{path}: evaluate")
+    _unknown(evaluate.get("terrain") or {}, TERRAIN_KEYS, f"{path}: evaluate.terrain")
+    arms = {str(k): tuple(v or ()) for k, v in (data["arms"] or {}).items()}
+    seeds = tuple(int(s) for s in data["seeds"])
+    if len(arms) < 1 or len(seeds) < 1 or len(set(seeds)) != len(seeds):
+        raise ValueError(f"{path}: need at least one arm and distinct seeds, got arms {list(arms)}, seeds {seeds}")
+    sweep = Sweep(
+        name=str(data["name"]),
+        question=str(data.get("question", "")),
+        config=str(data["config"]),
+        env_steps=int(data["env_steps"]),
+        seeds=seeds,
+        common=tuple(data.get("set") or ()),
+        arms=arms,
+        evaluate=evaluate,
+        target_success=float(data.get("target_success", 0.9)),
+    )
+    for arm in arms:
+        try:
+            train_config.load(sweep.config, sweep.overrides(arm, seeds[0]))
+        except (ValueError, TypeError) as err:
+            raise ValueError(f"{path}: arm {arm!r} does not build: {err}") from err
+    return sweep
+
+
+@dataclasses.dataclass
+class Job:
+    """One run of the sweep: its arm, seed, folder and commands."""
+
+    arm: str
+    seed: int
+    run_dir: Path
+    train: list[str]
+    evaluate: list[str]
+
+
+def evaluation_args(sweep: Sweep, run_dir: Path) -> list[str]:
+    """``python -m train.evaluate``'s arguments for a run: the mean action, on unseen tiles on terrain."""
+    ev = sweep.evaluate
+    args = [str(run_dir), "--out", str(run_dir / "sweep_eval"), "--seed", str(ev.get("seed", 1000))]
+    args += ["--episodes", str(ev.get("episodes", 128)), "--backend", str(ev.get("backend", "auto"))]
+    if ev.get("steps"):
+        args += ["--steps", str(ev["steps"])]
+    if ev.get("goal_range"):
+        args += ["--goal-range", *(str(v) for v in ev["goal_range"])]
+    terrain = ev.get("terrain")
+    if terrain:
+        args += ["--terrain-types", str(terrain.get("types", "all")), "--levels", str(terrain.get("levels", "1"))]
+        args += ["--tiles", str(terrain.get("tiles", 8)), "--terrain-seed", str(terrain.get("terrain_seed", 1000))]
+    return args
+
+
+def plan(sweep: Sweep, out: Path) -> list[Job]:
+    """Every (arm, seed) run, seeds outermost (so that a cut-off sweep has every arm at its first seeds)."""
+    jobs = []
+    for seed in sweep.seeds:
+        for arm in sweep.arms:
+            run_dir = out / "runs" / arm / f"seed{seed}"
+            train = ["-m", "train", "--config", sweep.config, "--run-dir", str(run_dir), "--quiet"]
+            for item in sweep.overrides(arm, seed):
+                train += ["--set", item]
+            jobs.append(Job(arm, seed, run_dir, train, ["-m", "train.evaluate", *evaluation_args(sweep, run_dir)]))
+    return jobs
+
+
+def trained(job: Job, env_steps: int) -> bool:
+    """Whether the run finished its env steps (its summary says so)."""
+    summary = sweep_report.read_json(job.run_dir / "summary.json")
+    return bool(summary) and not summary.get("interrupted") and int(summary.get("env_steps", 0)) >= env_steps
+
+
+class Runner:
+    """Runs the jobs, one per device at a time, and stops them cleanly at the time limit."""
+
+    def __init__(self, devices: list[str | None], deadline: float | None):
+        self.devices, self.deadline, self.lock = devices, deadline, threading.Lock()
+        self.running: list[subprocess.Popen] = []
+        self.stopping = False
+
+    def _call(self, args: list[str], device: str | None, log: Path) -> int:
+        env = dict(CHILD_ENVIRONMENT, PYTHONUNBUFFERED="1")
+        if device is not None:
+            env["CUDA_VISIBLE_DEVICES"] = device
+        with self.lock:
+            if self.stopping:
+                return -1
+            with open(log, "a") as fh:
+                proc = subprocess.Popen([sys.executable, *args], stdout=fh, stderr=subprocess.STDOUT, env=env)
+            self.running.append(proc)
+        code = proc.wait()
+        with self.lock:
+            self.running.remove(proc)
+        return code
+
+    def _one(self, job: Job, env_steps: int, device: str | None) -> None:
+        job.run_dir.mkdir(parents=True, exist_ok=True)
+        log = job.run_dir / "sweep.log"
+        if not trained(job, env_steps):
+            resume = ["--resume"] if (job.run_dir / "checkpoints").is_dir() else ["--overwrite"]
+            print(f"[{device}] train {job.arm} seed {job.seed}", flush=True)
+            if self._call(job.train + resume, device, log) != 0 or not trained(job, env_steps):
+                return
+        if not (job.run_dir / "sweep_eval").is_dir():
+            print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
+            if self._call(job.evaluate, device, log) != 0:
+                shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
+
+    def _worker(self, device: str | None, queue: list[Job], env_steps: int) -> None:
+        while True:
+            with self.lock:
+                if not queue or self.stopping:
+                    return
+                job = queue.pop(0)
+            self._one(job, env_steps, device)
+
+    def run(self, jobs: list[Job], env_steps: int) -> None:
+        """Every job, each device taking the next as it frees; SIGTERM to all at the deadline."""
+        queue = list(jobs)
+        threads = [threading.Thread(target=self._worker, args=(d, queue, env_steps)) for d in self.devices]
+        for t in threads:
+            t.start()
+        while any(t.is_alive() for t in threads):
+            time.sleep(1.0)
+            if self.deadline is not None and time.monotonic() > self.deadline - GRACE_S and not self.stopping:
+                print("time limit near: stopping the runs (each writes a checkpoint)", flush=True)
+                with self.lock:
+                    self.stopping = True
+                    for proc in self.running:
+                        proc.send_signal(signal.SIGTERM)
+        for t in threads:
+            t.join()
+
+
+def gpu_names() -> list[str]:
+    """The lines of ``nvidia-smi -L`` (one per GPU of the host), or [] without one."""
+    try:
+        listed = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        return []
+    return [line.strip() for line in listed.splitlines() if line.startswith("GPU ")]
+
+
+def local_gpus() -> list[str | None]:
+    """The GPUs to run on (CUDA_VISIBLE_DEVICES respected), or [None] (one CPU run at a time)."""
+    visible = CHILD_ENVIRONMENT.get("CUDA_VISIBLE_DEVICES")
+    if visible:
+        return [d.strip() for d in visible.split(",") if d.strip()]
+    return [str(i) for i in range(len(gpu_names()))] or [None]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m benchmarks.sweep``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("sweep", help="a sweep file (benchmarks/sweeps/*.yaml)")
+    parser.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>)")
+    parser.add_argument("--devices", default=None, help="GPU ids to use, e.g. 0,1 (default: every GPU listed)")
+    parser.add_argument("--time-limit", type=float, default=None, help="seconds; stop the runs cleanly before it")
+    parser.add_argument(
+        "--report-only",
+        action="store_true",
+        help="write the report again from the runs already there (keeping the host and date they recorded)",
+    )
+    args = parser.parse_args(argv)
+    start = time.monotonic()
+    try:
+        sweep = load(args.sweep)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    out = Path(args.out or Path("runs") / "sweeps" / sweep.name)
+    jobs = plan(sweep, out)
+    if not args.report_only:
+        devices = [d.strip() for d in args.devices.split(",")] if args.devices else local_gpus()
+        deadline = None if args.time_limit is None else start + args.time_limit
+        print(f"sweep {sweep.name}: {len(jobs)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
+        Runner(devices, deadline).run(jobs, sweep.env_steps)
+    report = sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only)
+    print(sweep_report.markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

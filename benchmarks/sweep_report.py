@@ -1,0 +1,246 @@
+"""The report of a sweep (``benchmarks.sweep``): every run's evaluation and learning signs, each arm pooled
+over its seeds with a 95 % interval, each arm against the first, a table and plots.
+
+Per run: the evaluated success (goals reached with the mean action, on terrain the mean over its types at
+the evaluated levels, each type's share beside it) with its Wilson interval, the first and the largest
+logged value loss, the logged time to the target (``benchmarks.time_to_target``) and the run's wall-clock.
+Per arm: the successes of all its seeds pooled (Wilson), each seed's figure, and the difference to the
+first arm with Newcombe's interval. The pooled interval counts episodes, not seeds: the seeds' spread is
+listed beside it, and a difference smaller than that spread is not read as a win.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from benchmarks import time_to_target
+from benchmarks.run_info import run_info
+from benchmarks.stats import difference_interval, wilson_interval
+from hsa_mjx_train.logger import read_jsonl
+
+_JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
+
+
+def read_json(path: Path) -> dict:
+    """A JSON file's object, or {} where it is missing or unreadable (a run that did not get that far)."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def evaluation(run_dir: Path) -> dict[str, Any] | None:
+    """A run's evaluation: successes, episodes, rate, interval (and per type on terrain); None before one."""
+    flat, terrain = (
+        read_json(run_dir / "sweep_eval" / "eval.json"),
+        read_json(run_dir / "sweep_eval" / "terrain_eval.json"),
+    )
+    if terrain.get("rows"):
+        rows = terrain["rows"]
+        successes = int(sum(round(r["success_rate"] * r["episodes"]) for r in rows))
+        episodes = int(sum(r["episodes"] for r in rows))
+        per_type: dict[str, list[float]] = {}
+        for r in rows:
+            per_type.setdefault(r["type"], []).append(r["success_rate"])
+        extra = {
+            "per_type": {t: float(np.mean(v)) for t, v in per_type.items()},
+            "terrain_seed": terrain.get("terrain_seed"),
+            "training_terrain_seed": terrain.get("training_terrain_seed"),
+        }
+    elif flat:
+        episodes = int(flat["episodes"])
+        successes, extra = int(round(flat["success_rate"] * episodes)), {"goal_range": flat.get("goal_range")}
+    else:
+        return None
+    low, high = wilson_interval(successes, episodes)
+    rate = successes / episodes
+    return {"successes": successes, "episodes": episodes, "success_rate": rate, "ci95": [low, high], **extra}
+
+
+def learning(run_dir: Path, target_success: float) -> dict[str, Any] | None:
+    """From a run's logs: the first and largest value loss, the time to the target, the wall-clock."""
+    try:
+        config, rows = time_to_target.read_run(run_dir)
+    except (FileNotFoundError, ValueError):
+        return None
+    v_loss = [r["loss/v_loss"] for r in rows if isinstance(r.get("loss/v_loss"), (int, float))]
+    return {
+        "first_v_loss": v_loss[0] if v_loss else None,
+        "max_v_loss": max(v_loss) if v_loss else None,
+        "time_to_target": time_to_target.time_to_target(config, rows, target_success),
+        "env_steps": int(rows[-1]["step"]),
+    }
+
+
+def collect(sweep: Any, jobs: list) -> dict[str, Any]:
+    """Every run's figures and every arm's pooled ones."""
+    runs = []
+    for job in jobs:
+        summary = read_json(job.run_dir / "summary.json")
+        runs.append(
+            {
+                "arm": job.arm,
+                "seed": job.seed,
+                "run_dir": f"runs/{job.arm}/seed{job.seed}",
+                "wall_s": summary.get("wall_s"),
+                "physics_backend": summary.get("physics_backend"),
+                "learning": learning(job.run_dir, sweep.target_success),
+                "evaluation": evaluation(job.run_dir),
+            }
+        )
+    arms = {arm: _pooled([r for r in runs if r["arm"] == arm]) for arm in sweep.arms}
+    base = next(iter(sweep.arms))
+    for arm, pooled in arms.items():
+        if arm != base and pooled and arms[base]:
+            d, low, high = difference_interval(
+                (pooled["successes"], arms[base]["successes"]), (pooled["episodes"], arms[base]["episodes"])
+            )
+            spread = max(pooled["seed_spread"], arms[base]["seed_spread"])
+            verdict = _verdict(d, low, high, spread)
+            pooled["vs_first"] = {"arm": base, "difference": d, "ci95": [low, high], "verdict": verdict}
+    return {"runs": runs, "arms": arms}
+
+
+def _pooled(runs: list[dict]) -> dict[str, Any] | None:
+    """One arm's evaluated runs pooled (None when none was evaluated)."""
+    done = [r for r in runs if r["evaluation"]]
+    if not done:
+        return None
+    successes = sum(r["evaluation"]["successes"] for r in done)
+    episodes = sum(r["evaluation"]["episodes"] for r in done)
+    seeds = {r["seed"]: r["evaluation"]["success_rate"] for r in done}
+    return {
+        "seeds_evaluated": len(done),
+        "successes": successes,
+        "episodes": episodes,
+        "success_rate": successes / episodes,
+        "ci95": list(wilson_interval(successes, episodes)),
+        "per_seed": seeds,
+        "seed_spread": max(seeds.values()) - min(seeds.values()),
+    }
+
+
+def _verdict(difference: float, low: float, high: float, spread: float) -> str:
+    """Better or worse only where the interval excludes 0 and the difference exceeds the seeds' spread."""
+    if abs(difference) <= spread or low <= 0 <= high:
+        return "not separated (within the interval or the seeds' spread)"
+    return "better" if difference > 0 else "worse"
+
+
+def markdown(report: dict[str, Any]) -> str:
+    """The arms' table, then the runs' table."""
+    lines = [f"# sweep {report['name']}", "", report.get("question", ""), ""]
+    lines += [
+        "| arm | seeds | success (pooled) | 95 % interval | per seed | vs first arm (95 %) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for arm, a in report["arms"].items():
+        if not a:
+            lines.append(f"| {arm} | 0 | - | - | - | - |")
+            continue
+        vs = a.get("vs_first")
+        versus = f"{vs['difference']:+.1%} ({vs['ci95'][0]:+.1%}, {vs['ci95'][1]:+.1%}): {vs['verdict']}" if vs else "-"
+        seeds = ", ".join(f"{v:.0%}" for v in a["per_seed"].values())
+        lines.append(
+            f"| {arm} | {a['seeds_evaluated']} | {a['success_rate']:.1%} ({a['successes']}/{a['episodes']}) | "
+            f"{a['ci95'][0]:.1%}-{a['ci95'][1]:.1%} | {seeds} | {versus} |"
+        )
+    lines += ["", "| run | success (95 %) | first value loss | largest value loss | target reached at (s, env steps) |"]
+    lines += ["|---|---|---|---|---|"]
+    for r in report["runs"]:
+        ev, le = r["evaluation"], r["learning"] or {}
+        hit = (le.get("time_to_target") or {}).get("reached")
+        lines.append(
+            f"| {r['arm']} seed {r['seed']} | "
+            + (f"{ev['success_rate']:.1%} ({ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})" if ev else "not evaluated")
+            + f" | {_g(le.get('first_v_loss'))} | {_g(le.get('max_v_loss'))} | "
+            + (f"{hit['wall_s']} s, {hit['env_steps']:,}" if hit else "not reached")
+            + " |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _g(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3g}"
+
+
+def plot_arm(arm: str, jobs: list, out: Path) -> Path:
+    """One arm's seeds: logged success rate and value loss against env steps."""
+    fig = Figure(figsize=(10, 3.6), layout="constrained")
+    axes = fig.subplots(1, 2)
+    for job in jobs:
+        rows = read_jsonl(job.run_dir / "metrics.jsonl") if (job.run_dir / "metrics.jsonl").is_file() else []
+        for ax, key in zip(axes, ("episode/success_rate", "loss/v_loss")):
+            points = [(r["step"], r[key]) for r in rows if isinstance(r.get(key), (int, float))]
+            if points:
+                ax.plot(*zip(*points), label=f"seed {job.seed}")
+    axes[0].set_title(f"{arm}: logged success rate")
+    axes[1].set_title(f"{arm}: value loss (symlog)")
+    axes[1].set_yscale("symlog")
+    for ax in axes:
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+        if ax.get_lines():
+            ax.legend(fontsize=8)
+    path = out / f"arm_{arm}.png"
+    fig.savefig(path, dpi=90)
+    return path
+
+
+def plot_arms(report: dict[str, Any], out: Path) -> Path:
+    """Evaluated success per arm: each seed a dot, the pooled rate with its 95 % interval."""
+    arms = [a for a in report["arms"] if report["arms"][a]]
+    fig = Figure(figsize=(1.8 + 1.6 * max(1, len(arms)), 3.6), layout="constrained")
+    ax = fig.subplots()
+    for i, arm in enumerate(arms):
+        a = report["arms"][arm]
+        ax.errorbar(
+            i,
+            a["success_rate"],
+            yerr=[[a["success_rate"] - a["ci95"][0]], [a["ci95"][1] - a["success_rate"]]],
+            fmt="s",
+            capsize=6,
+            color="k",
+        )
+        ax.plot([i] * len(a["per_seed"]), list(a["per_seed"].values()), "o", alpha=0.6)
+    ax.set_xticks(range(len(arms)), arms)
+    ax.set_ylim(0, 1.02)
+    ax.set_ylabel("evaluated success (mean action)")
+    ax.set_title(report["name"])
+    ax.grid(alpha=0.3)
+    path = out / "sweep.png"
+    fig.savefig(path, dpi=90)
+    return path
+
+
+def write(sweep: Any, jobs: list, out: Path, gpus: list[str] | None = None, rewrite: bool = False) -> dict[str, Any]:
+    """``sweep.json``, ``sweep.md``, ``sweep.png`` and one ``arm_<arm>.png`` per arm into ``out`` (``gpus``: the
+    host's GPUs, recorded). ``rewrite``: a report written again from the runs keeps the host and date its
+    runs were recorded with (the ``sweep.json`` already there), not this machine's."""
+    out.mkdir(parents=True, exist_ok=True)
+    before = read_json(out / "sweep.json") if rewrite else {}
+    report = {
+        "name": sweep.name,
+        "question": sweep.question,
+        "config": sweep.config,
+        "env_steps": sweep.env_steps,
+        "seeds": list(sweep.seeds),
+        "common_overrides": list(sweep.common),
+        "arms_overrides": {k: list(v) for k, v in sweep.arms.items()},
+        "evaluate": sweep.evaluate,
+        "target_success": sweep.target_success,
+        **collect(sweep, jobs),
+        "gpus": before.get("gpus") or gpus or [],
+        "run_info": before.get("run_info") or {k: v for k, v in run_info().items() if k not in _JAX_KEYS},
+    }
+    (out / "sweep.json").write_text(json.dumps(report, indent=1))
+    (out / "sweep.md").write_text(markdown(report))
+    for arm in sweep.arms:
+        plot_arm(arm, [j for j in jobs if j.arm == arm], out)
+    plot_arms(report, out)
+    return report

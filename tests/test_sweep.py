@@ -1,0 +1,125 @@
+"""The sweep tool: a sweep file is checked before anything runs, every (arm, seed) becomes one training and one
+evaluation command, and the report pools each arm's seeds with intervals (on made-up run folders: no training)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+import hsa_mjx_train.config
+from benchmarks import sweep, sweep_report
+
+SWEEP = {
+    "name": "demo",
+    "question": "does b beat a?",
+    "config": "configs/train_flat.yaml",
+    "env_steps": 1_310_720,
+    "seeds": [0, 1],
+    "arms": {"a": [], "b": ["ppo.value_targets=per_iteration"]},
+    "evaluate": {"episodes": 100, "goal_range": [1.5, 4.5]},
+}
+
+
+def _write(tmp_path: Path, **changes) -> Path:
+    path = tmp_path / "sweep.yaml"
+    path.write_text(yaml.safe_dump({**SWEEP, **changes}))
+    return path
+
+
+@pytest.mark.parametrize(
+    "changes, match",
+    [
+        ({"arm": {}}, "unknown key"),
+        ({"evaluate": {"episodes": 4, "tiles": 8}}, "evaluate: unknown key"),
+        ({"arms": {"a": ["ppo.value_targets=per_epoch"]}}, "arm 'a' does not build"),
+        ({"seeds": [0, 0]}, "distinct seeds"),
+    ],
+)
+def test_a_bad_sweep_file_is_refused_before_anything_runs(tmp_path, changes, match):
+    with pytest.raises(ValueError, match=match):
+        sweep.load(_write(tmp_path, **changes))
+    with pytest.raises(FileNotFoundError):
+        sweep.load(tmp_path / "missing.yaml")
+
+
+def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_path):
+    spec = sweep.load(_write(tmp_path, evaluate={"episodes": 8, "terrain": {"levels": "1", "tiles": 8}}))
+    jobs = sweep.plan(spec, tmp_path / "out")
+    assert [(j.seed, j.arm) for j in jobs] == [(0, "a"), (0, "b"), (1, "a"), (1, "b")]  # seeds outermost
+    for job in jobs:
+        assert f"run.num_timesteps={spec.env_steps}" in job.train and f"run.seed={job.seed}" in job.train
+        config = hsa_mjx_train.config.load(spec.config, spec.overrides(job.arm, job.seed))
+        assert config.ppo.value_targets == ("per_iteration" if job.arm == "b" else "per_minibatch")
+        ev = job.evaluate
+        assert ev[ev.index("--terrain-seed") + 1] == "1000" and ev[ev.index("--tiles") + 1] == "8"
+        assert str(job.run_dir) in ev and "--stochastic" not in ev  # the mean action
+
+
+def _fake_run(run_dir: Path, success: float, v_loss: float, episodes: int = 100) -> None:
+    """A run folder as python -m train and train.evaluate leave it, with made-up figures."""
+    run_dir.mkdir(parents=True)
+    config = hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat.yaml"))
+    (run_dir / "config.yaml").write_text(yaml.safe_dump(config))
+    rows = [
+        {
+            "step": 655_360 * (i + 1),
+            "loss/v_loss": v_loss / (i + 1),
+            "episode/success_rate": 0.95,
+            "curriculum/max_distance": 4.5,
+            "training/walltime": 10.0 * (i + 1),
+        }
+        for i in range(3)
+    ]
+    (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (run_dir / "summary.json").write_text(json.dumps({"env_steps": 1_966_080, "wall_s": 30.0, "interrupted": False}))
+    (run_dir / "sweep_eval").mkdir()
+    (run_dir / "sweep_eval" / "eval.json").write_text(json.dumps({"episodes": episodes, "success_rate": success}))
+
+
+def test_the_report_pools_seeds_with_intervals_and_compares_to_the_first_arm(tmp_path):
+    spec = sweep.load(_write(tmp_path))
+    out = tmp_path / "out"
+    jobs = sweep.plan(spec, out)
+    figures = {("a", 0): 0.50, ("a", 1): 0.52, ("b", 0): 0.90, ("b", 1): 0.92}
+    for job in jobs:
+        _fake_run(job.run_dir, figures[(job.arm, job.seed)], v_loss=3e8 if job.arm == "a" else 0.2)
+    report = sweep_report.write(spec, jobs, out)
+    a, b = report["arms"]["a"], report["arms"]["b"]
+    assert (a["successes"], a["episodes"]) == (102, 200) and (b["successes"], b["episodes"]) == (182, 200)
+    assert a["ci95"][0] < 0.51 < a["ci95"][1] and b["ci95"][1] < 1.0
+    assert b["vs_first"]["verdict"] == "better" and b["vs_first"]["ci95"][0] > 0
+    run = next(r for r in report["runs"] if r["arm"] == "b")
+    assert run["learning"]["first_v_loss"] == pytest.approx(0.2)
+    assert run["learning"]["time_to_target"]["reached"]["env_steps"] == 655_360
+    for name in ("sweep.json", "sweep.md", "sweep.png", "arm_a.png", "arm_b.png"):
+        assert (out / name).stat().st_size > 0
+    # a difference inside the seeds' spread is not read as a win
+    for job in jobs:
+        (job.run_dir / "sweep_eval" / "eval.json").write_text(
+            json.dumps(
+                {
+                    "episodes": 1000,
+                    "success_rate": {("a", 0): 0.5, ("a", 1): 0.6, ("b", 0): 0.58, ("b", 1): 0.6}[(job.arm, job.seed)],
+                }
+            )
+        )
+    assert "not separated" in sweep_report.write(spec, jobs, out)["arms"]["b"]["vs_first"]["verdict"]
+
+
+def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path):
+    """The runner takes the next job as a device frees; a run whose summary says it is done only evaluates."""
+    spec = sweep.load(_write(tmp_path))
+    jobs = sweep.plan(spec, tmp_path / "out")[:2]
+    done = json.dumps({"env_steps": spec.env_steps, "interrupted": False})
+    for job in jobs:
+        job.train = ["-c", f"import pathlib; pathlib.Path({str(job.run_dir / 'summary.json')!r}).write_text({done!r})"]
+        job.evaluate = ["-c", f"import pathlib; pathlib.Path({str(job.run_dir / 'sweep_eval')!r}).mkdir()"]
+    sweep.Runner(["0", "1"], deadline=None).run(jobs, spec.env_steps)
+    assert all(sweep.trained(j, spec.env_steps) and (j.run_dir / "sweep_eval").is_dir() for j in jobs)
+    jobs[0].train = ["-c", "raise SystemExit(1)"]  # would fail if run again
+    (jobs[0].run_dir / "sweep_eval").rmdir()
+    sweep.Runner([None], deadline=None).run(jobs[:1], spec.env_steps)
+    assert (jobs[0].run_dir / "sweep_eval").is_dir()
