@@ -93,7 +93,11 @@ def test_the_adaptive_learning_rate_follows_the_kl_within_its_bounds(env):
     assert float(adapted_learning_rate(jnp.asarray(1e-2), jnp.asarray(0.0001), 0.01)) == pytest.approx(LR_BOUNDS[1])
     # in a learning step: each minibatch's KL moves the rate (the first minibatch has none, so it grows)
     metrics, _, _ = _learn_once(
-        env, learning_rate_schedule="adaptive_kl", desired_kl=0.01, value_targets="per_iteration"
+        env,
+        learning_rate_schedule="adaptive_kl",
+        value_targets="per_iteration",
+        batch_size=ENVS // 4,
+        num_minibatches=4,
     )
     assert metrics["learning_rate"] != pytest.approx(3e-4) and LR_BOUNDS[0] <= metrics["learning_rate"] <= LR_BOUNDS[1]
 
@@ -115,8 +119,8 @@ def test_the_clipped_value_loss_is_never_below_the_plain_one(env):
 def test_the_standard_deviation_floor_bounds_what_a_constant_dimension_becomes(env):
     """A dimension constant over the first collection (every env starts facing +x) gets the floor as its
     standard deviation, so its first changes normalise to (change / floor), not to change / 1e-6."""
-    for floor in (1e-6, 1e-2):
-        config = _config(observation_std_min=floor, value_targets="per_iteration")
+    for floor in (1e-6, 1e-2):  # two minibatches, one pass: the statistics do not depend on them
+        config = _config(observation_std_min=floor, batch_size=ENVS // 2, num_minibatches=2, num_updates_per_batch=1)
         learner = PPOLearner(config, env, axis=None)
         key = jax.random.PRNGKey(3)
         ts = init_training_state(config, learner.networks, key, learner.network_input_size)
