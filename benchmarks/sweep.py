@@ -19,26 +19,23 @@ a missing config file are refused with a ValueError naming them.
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
 
-CHILD_ENVIRONMENT = dict(os.environ)  # what the runs get: this process keeps JAX off the GPUs, they are the runs'
-os.environ.setdefault("JAX_PLATFORMS", "cpu")
+import jax
+import yaml
 
-import argparse  # noqa: E402
-import dataclasses  # noqa: E402
-import shutil  # noqa: E402
-import signal  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
-
-import yaml  # noqa: E402
-
-from benchmarks import sweep_report  # noqa: E402
-from hsa_mjx_train import config as train_config  # noqa: E402
+from benchmarks import sweep_report
+from hsa_mjx_train import config as train_config
 
 KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
 EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain")
@@ -162,7 +159,7 @@ class Runner:
         self.stopping = False
 
     def _call(self, args: list[str], device: str | None, log: Path) -> int:
-        env = dict(CHILD_ENVIRONMENT, PYTHONUNBUFFERED="1")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
         if device is not None:
             env["CUDA_VISIBLE_DEVICES"] = device
         with self.lock:
@@ -226,7 +223,7 @@ def gpu_names() -> list[str]:
 
 def local_gpus() -> list[str | None]:
     """The GPUs to run on (CUDA_VISIBLE_DEVICES respected), or [None] (one CPU run at a time)."""
-    visible = CHILD_ENVIRONMENT.get("CUDA_VISIBLE_DEVICES")
+    visible = os.environ.get("CUDA_VISIBLE_DEVICES")
     if visible:
         return [d.strip() for d in visible.split(",") if d.strip()]
     return [str(i) for i in range(len(gpu_names()))] or [None]
@@ -247,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
         help="write the report again from the runs already there (keeping the host and date they recorded)",
     )
     args = parser.parse_args(argv)
+    jax.config.update("jax_platforms", "cpu")  # this process computes nothing: the GPUs stay the runs'
     start = time.monotonic()
     try:
         sweep = load(args.sweep)

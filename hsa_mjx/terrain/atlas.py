@@ -86,6 +86,11 @@ class AtlasLayout:
         """The difficulty level of every tile, (tiles,) int32."""
         return np.asarray([c // self.counts[r] for r, c in self.slots()], np.int32)
 
+    def tile_half(self) -> np.ndarray:
+        """Which half of its cell every tile is in (0: even position, 1: odd), (tiles,) int32: the halves that
+        take turns when tiles are re-drawn (``TerrainPool.draw``'s ``half``, ``hsa_mjx.terrain.regeneration``)."""
+        return np.asarray([c % self.counts[r] % 2 for r, c in self.slots()], np.int32)
+
     def centres(self) -> np.ndarray:
         """Each tile's centre in the atlas frame, (tiles, 2): where the floor moves to put it at the origin."""
         atlas, tile = self.grid, self.tile

@@ -86,9 +86,8 @@ class Regenerator:
             if name in RANDOM_TYPES
         ]
         self.difficulty = np.asarray(self.layout.difficulties, np.float32)[self.layout.tile_level()]
-        slots = self.layout.slots()
-        self.tile_half = np.asarray([c % self.layout.counts[r] % 2 for r, c in slots], np.int32)
-        self.random_tile = np.zeros(len(slots), bool)
+        self.tile_half = self.layout.tile_half()
+        self.random_tile = np.zeros(len(self.tile_half), bool)
         for _, first, count in self.rows:
             self.random_tile[first : first + count] = True
         small = [self.layout.types[r] for r, _, _ in self.rows if self.layout.counts[r] < 2]
