@@ -7,7 +7,9 @@ it reads ``config.yaml`` and ``metrics.jsonl`` and reports the first log at whic
 curriculum has reached its full range (``goal_curriculum.target_range``; a run without the curriculum
 counts from its first log) with a logged episode success rate of at least ``--success``: the
 training loop's wall-clock to it (``training/walltime``, which includes the first epoch's compile;
-a resumed run's calls are added up), the env steps and the PPO iterations to it. Beside it, what the
+a resumed run's calls are added up), the time from the process's launch to it (``training/since_launch``:
+the loop's clock and the start-up before it, imports and the env's build; runs logged before that key
+show ``-``), the env steps and the PPO iterations to it. Beside it, what the
 run had at its last log: wall-clock, env steps, iterations, success, goal range and, on terrain, the
 mean terrain level. A target never met is reported as ``null`` with the last log's figures. The
 first log's wall-clock (the compile and the first epoch) is given too: it depends on the caches
@@ -33,6 +35,8 @@ from hsa_mjx_train.logger import read_jsonl
 SUCCESS = "episode/success_rate"
 GOAL = "curriculum/max_distance"
 LEVEL = "terrain/mean_level"
+WALL = "training/walltime"  # the training loop's clock (the first epoch's compile included)
+LAUNCH = "training/since_launch"  # the process's age: the loop's clock and the start-up before it
 
 
 def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
@@ -55,11 +59,15 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     return config, rows
 
 
-def cumulative_walltime(rows: list[dict[str, Any]]) -> list[float]:
-    """``training/walltime`` of each row, with each resumed call's clock added to the calls before it."""
+def cumulative_walltime(rows: list[dict[str, Any]], key: str = WALL) -> list[float | None]:
+    """``key`` (``training/walltime``) of each row, with each resumed call's clock added to the calls
+    before it; ``None`` for a row without it (``training/since_launch`` of runs older than that key)."""
     total, offset, last = [], 0.0, 0.0
     for row in rows:
-        now = float(row["training/walltime"])
+        if row.get(key) is None:
+            total.append(None)
+            continue
+        now = float(row[key])
         if now < last:  # a resumed call restarts its clock
             offset += last
         last = now
@@ -73,10 +81,11 @@ def iteration_steps(config: dict[str, Any]) -> int:
     return int(ppo["batch_size"]) * int(ppo["num_minibatches"]) * int(ppo["unroll_length"])
 
 
-def _snapshot(row: dict[str, Any], wall: float, per_iteration: int) -> dict[str, Any]:
+def _snapshot(row: dict[str, Any], wall: float, launch: float | None, per_iteration: int) -> dict[str, Any]:
     """The figures of one log row."""
     return {
         "wall_s": round(wall, 1),
+        "since_launch_s": None if launch is None else round(launch, 1),
         "env_steps": int(row["step"]),
         "ppo_iterations": int(row["step"]) // per_iteration,
         "success_rate": row.get(SUCCESS),
@@ -87,14 +96,15 @@ def _snapshot(row: dict[str, Any], wall: float, per_iteration: int) -> dict[str,
 
 def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: float) -> dict[str, Any]:
     """The run's figures at the first log meeting the target (``None`` when none does) and at its last log."""
-    walls, per_iteration = cumulative_walltime(rows), iteration_steps(config)
+    walls, launches = cumulative_walltime(rows), cumulative_walltime(rows, LAUNCH)
+    per_iteration = iteration_steps(config)
     curriculum = hsa_mjx.migrations.training_keys(config).get("goal_curriculum", {})  # older runs: "curriculum"
     goal_max = float(curriculum["target_range"][1]) if curriculum.get("enabled") else None
     hit = None
-    for row, wall in zip(rows, walls):
+    for row, wall, launch in zip(rows, walls, launches):
         at_range = goal_max is None or (row.get(GOAL) or 0.0) >= goal_max - 1e-3
         if at_range and (row.get(SUCCESS) or 0.0) >= success:
-            hit = _snapshot(row, wall, per_iteration)
+            hit = _snapshot(row, wall, launch, per_iteration)
             break
     run = config["run"]
     return {
@@ -105,16 +115,16 @@ def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: 
         "target": {"goal_max_m": goal_max, "success_rate": success},
         "first_log_s": round(walls[0], 1),
         "reached": hit,
-        "last": _snapshot(rows[-1], walls[-1], per_iteration),
+        "last": _snapshot(rows[-1], walls[-1], launches[-1], per_iteration),
     }
 
 
 def markdown(results: dict[str, dict[str, Any]]) -> str:
     """One table row per run: time to the target, and the last log."""
     lines = [
-        "| run | envs | devices | first log (s) | target reached at (s) | env steps | PPO iterations | "
-        "last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |",
-        "|" + "---|" * 13,
+        "| run | envs | devices | first log (s) | target reached at (s) | from launch (s) | env steps | "
+        "PPO iterations | last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |",
+        "|" + "---|" * 14,
     ]
     for name, r in results.items():
         hit, last = r["reached"] or {}, r["last"]
@@ -124,6 +134,7 @@ def markdown(results: dict[str, dict[str, Any]]) -> str:
             r["num_devices"] or "all local",
             r["first_log_s"],
             hit.get("wall_s", "not reached"),
+            hit.get("since_launch_s") or "-",
             f"{hit['env_steps']:,}" if hit else "-",
             hit.get("ppo_iterations", "-"),
             last["wall_s"],

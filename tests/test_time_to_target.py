@@ -22,16 +22,17 @@ def _run(tmp_path, rows, config=CONFIG):
     return tmp_path
 
 
-def _row(step, wall, goal, success):
-    return {"step": step, "training/walltime": wall, "curriculum/max_distance": goal, "episode/success_rate": success}
+def _row(step, wall, goal, success, launch=None):
+    row = {"step": step, "training/walltime": wall, "curriculum/max_distance": goal, "episode/success_rate": success}
+    return row if launch is None else {**row, "training/since_launch": launch}
 
 
 def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path):
     rows = [
-        _row(640, 10.0, 1.8, 0.95),
-        _row(1280, 20.0, 4.5, 0.85),  # range not full, then success too low
-        _row(1920, 5.0, 4.5, 0.92),  # a resumed call: its clock restarts
-        _row(2560, 9.0, 4.5, 0.97),
+        _row(640, 10.0, 1.8, 0.95, launch=14.0),  # 4 s of start-up before the loop
+        _row(1280, 20.0, 4.5, 0.85, launch=24.0),  # range not full, then success too low
+        _row(1920, 5.0, 4.5, 0.92, launch=8.0),  # a resumed call: its clocks restart
+        _row(2560, 9.0, 4.5, 0.97, launch=12.0),
     ]
     result = benchmarks.time_to_target.time_to_target(
         *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
@@ -39,9 +40,10 @@ def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path
     assert result["iteration_env_steps"] == 640
     assert result["first_log_s"] == 10.0
     assert result["reached"]["wall_s"] == 25.0 and result["reached"]["env_steps"] == 1920
+    assert result["reached"]["since_launch_s"] == 32.0 and result["last"]["since_launch_s"] == 36.0
     assert result["reached"]["ppo_iterations"] == 3
     assert result["last"]["wall_s"] == 29.0 and result["last"]["success_rate"] == 0.97
-    assert "| 10.0 | 25.0 | 1,920 | 3 |" in benchmarks.time_to_target.markdown({"run": result})
+    assert "| 10.0 | 25.0 | 32.0 | 1,920 | 3 |" in benchmarks.time_to_target.markdown({"run": result})
 
 
 def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
@@ -50,6 +52,7 @@ def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
         *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
     )
     assert result["reached"] is None and result["last"]["goal_max_m"] == 2.1
+    assert result["last"]["since_launch_s"] is None  # logged before the key existed
     assert "not reached" in benchmarks.time_to_target.markdown({"run": result})
     assert result["physics_backend"] == "warp"
     (tmp_path / "summary.json").write_text(json.dumps({"physics_backend": "jax"}))  # what "auto" resolved to

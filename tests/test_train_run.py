@@ -55,6 +55,7 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
         "nonfinite/states",
     ):
         assert np.isfinite(last[key]), key
+    assert last["training/since_launch"] > last["training/walltime"] > 0  # the process started before the loop
     with_episodes = [r for r in recs if r["episodes"] > 0]
     assert with_episodes and "episode/reward/forward" in with_episodes[0]
     assert "termination/goal_reached" in with_episodes[0]

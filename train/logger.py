@@ -51,6 +51,20 @@ class ProgressBar:
             self.stream.flush()
 
 
+_IMPORTED = time.monotonic()
+
+
+def process_age_s() -> float:
+    """Seconds since this process was launched: from the kernel's process start time on Linux (so the
+    interpreter's start and every import count), else since this module was imported."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")  # field 22: start time after boot, in ticks
+        return float(Path("/proc/uptime").read_text().split()[0]) - started
+    except (OSError, ValueError, IndexError):
+        return time.monotonic() - _IMPORTED
+
+
 def _duration(seconds: float) -> str:
     if not math.isfinite(seconds):
         return "--:--"

@@ -23,7 +23,7 @@ from hsa_mjx.batch.auto_reset import summarize
 from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx_train import checkpoint, distributed, plots, run_state, strategies
 from hsa_mjx_train.config import TrainConfig, to_dict, validate_devices
-from hsa_mjx_train.logger import HEADLINE, MetricsLogger, ProgressBar
+from hsa_mjx_train.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
 from hsa_mjx_train.networks import init_training_state
 from hsa_mjx_train.run_dir import prepare_run_dir
 from hsa_mjx_train.warm_start import describe, read_init_from, warm_start
@@ -208,6 +208,7 @@ def _record(run: Run, out: dict, totals: dict, goal: Any, sps: float, t_start: f
     record.update({k: float(v) for k, v in metrics.items()})
     record["training/env_steps_per_s"] = sps
     record["training/walltime"] = time.perf_counter() - t_start
+    record["training/since_launch"] = process_age_s()  # the walltime and what came before it: imports, env build
     return record
 
 
