@@ -138,7 +138,7 @@ def geometry() -> dict[str, float]:
 
 def _evaluate(args: argparse.Namespace, probe: Probe, levels: str, extra: Sequence[str], out: Path) -> list[dict]:
     """Rows of one ``train.evaluate --terrain-types`` run of ``probe`` (its terrain_eval.json)."""
-    from hsa_mjx_train.evaluation import run
+    from train.evaluation import run
 
     overrides = [f"env.terrain.{o}" for o in (*probe.fixed, *extra)]
     argv = [

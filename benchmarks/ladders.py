@@ -182,9 +182,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--goal-range MIN MAX must satisfy 0 <= MIN < MAX, got {args.goal_range}")
     if not args.config.is_file():
         p.error(f"--config: no such file {args.config}")
-    import hsa_mjx_train.config
+    from train import config as train_config
 
-    env = hsa_mjx_train.config.load(str(args.config), []).env
+    env = train_config.load(str(args.config), []).env
     if env.scene != "terrain":
         p.error(f"--config: {args.config} has no terrain (scene {env.scene!r})")
     goal_range = (float(args.goal_range[0]), float(args.goal_range[1]))

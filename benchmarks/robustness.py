@@ -42,9 +42,9 @@ from hsa_mjx.deploy.loop import latency_steps
 from hsa_mjx.randomization_config import RandomizationConfig
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.randomization import PhysicsScales
-from hsa_mjx_train.config import from_dict
-from hsa_mjx_train.policy_sources import default_goal_range, load_shipped_policy
-from hsa_mjx_train.rollout import rollout, summarize
+from train.config import from_dict
+from train.policy_sources import default_goal_range, load_shipped_policy
+from train.rollout import rollout, summarize
 
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
 RESOLVING_EPISODES = 32  # a cell of 32 successes has its lower bound at 89 %: fewer cannot show 90 %

@@ -35,7 +35,7 @@ import jax
 import yaml
 
 from benchmarks import sweep_report
-from hsa_mjx_train import config as train_config
+from train import config as train_config
 
 KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
 EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain")

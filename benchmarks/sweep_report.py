@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 from benchmarks import time_to_target
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
-from hsa_mjx_train.logger import read_jsonl
+from train.logger import read_jsonl
 
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
 

@@ -30,7 +30,7 @@ from typing import Any
 import yaml
 
 import hsa_mjx.migrations
-from hsa_mjx_train.logger import read_jsonl
+from train.logger import read_jsonl
 
 SUCCESS = "episode/success_rate"
 GOAL = "curriculum/max_distance"

@@ -152,11 +152,11 @@ TINY_RUN = {
 @pytest.fixture(scope="session")
 def tiny_run_dir(tmp_path_factory):
     """The run directory of ``TINY_RUN``, trained once per session on the CPU."""
-    import hsa_mjx_train.config
-    from hsa_mjx_train.trainer import train
+    from train import config as train_config
+    from train.trainer import train
 
     path = tmp_path_factory.mktemp("run")
-    summary = train(hsa_mjx_train.config.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
+    summary = train(train_config.from_dict(json.loads(json.dumps(TINY_RUN))), path, quiet=True)
     assert summary["env_steps"] == 80
     return path
 

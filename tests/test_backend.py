@@ -103,8 +103,8 @@ def test_importing_the_package_and_its_entry_points_prints_nothing(warp):
     hide = "import sys; sys.modules['warp'] = None\n" if warp == "missing" else ""
     modules = (
         "hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
-        "hsa_mjx.adapters.gymnasium_vector, hsa_mjx_train.cli, hsa_mjx_train.trainer, hsa_mjx_train.evaluation, "
-        "hsa_mjx_train.export"
+        "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluation, "
+        "train.export"
     )
     out = subprocess.run([sys.executable, "-c", f"{hide}import {modules}"], capture_output=True, text=True, check=True)
     assert out.stdout == "" and "Failed to import" not in out.stderr, out.stdout + out.stderr
@@ -167,7 +167,7 @@ def test_warp_batch_resets_finished_envs_and_refuses_a_larger_batch():
 def test_a_shipped_policy_evaluates_on_the_warp_backend(tmp_path):
     """``--backend warp`` runs a policy trained on any backend on MuJoCo Warp (checkpoints and policy files
     hold no backend); on a CPU ``auto`` would pick C MuJoCo."""
-    from hsa_mjx_train.evaluate import main
+    from train.evaluate import main
 
     out = tmp_path / "eval"
     args = ["--policy", "flat", "--episodes", "2", "--steps", "12", "--backend", "warp", "--out", str(out)]

@@ -36,7 +36,7 @@ def old_run(tmp_path_factory) -> Path:
 
 def _terrain_levels(run: Path, step: int) -> dict:
     """The terrain levels a checkpoint holds, (envs,) arrays."""
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}"
     envs = checkpoint.read_meta(path)["terrain_envs"]
@@ -45,7 +45,7 @@ def _terrain_levels(run: Path, step: int) -> dict:
 
 
 def test_old_checkpoint_evaluates_the_same(old_run):
-    from hsa_mjx_train.evaluate import main as evaluate
+    from train.evaluate import main as evaluate
 
     assert evaluate([str(old_run), "--episodes", "2", "--steps", "12", "--backend", "c"]) == 0
     now = json.loads((old_run / "eval" / "eval.json").read_text())
@@ -55,13 +55,13 @@ def test_old_checkpoint_evaluates_the_same(old_run):
 
 
 def test_old_checkpoint_resumes_both_curricula(old_run):
-    import hsa_mjx_train.config
-    from hsa_mjx_train.logger import read_jsonl
-    from hsa_mjx_train.trainer import train
+    from train import config as train_config
+    from train.logger import read_jsonl
+    from train.trainer import train
 
     saved = read_jsonl(old_run / "metrics.jsonl")[-1]
     assert saved["step"] == 80 and saved["curriculum/episode_count"] > 0
-    config = hsa_mjx_train.config.load(old_run / "config.yaml", ["run.num_timesteps=120"])
+    config = train_config.load(old_run / "config.yaml", ["run.num_timesteps=120"])
     assert train(config, old_run, resume=True, quiet=True)["env_steps"] == 120
     resumed = read_jsonl(old_run / "metrics.jsonl")[-1]
     # 40 env steps are 10 per env after the resume's fresh episodes of 15 steps: none ends, so both
@@ -88,7 +88,7 @@ TOLERANCE = {"flat": 0.05, "corridor": 0.2}
 @pytest.mark.parametrize("name", sorted(RECORDED))
 def test_shipped_policy_evaluates_as_recorded(name, tmp_path):
     """``python -m train.evaluate --policy NAME`` (C MuJoCo on this CPU) reproduces the cited result."""
-    from hsa_mjx_train.evaluate import main as evaluate
+    from train.evaluate import main as evaluate
 
     assert evaluate(["--policy", name, "--out", str(tmp_path)]) == 0
     now = json.loads((tmp_path / "eval.json").read_text())

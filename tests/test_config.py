@@ -151,13 +151,13 @@ def test_each_shipped_config_states_only_what_differs(name, tmp_path):
     to the dataclass default, the preset's value or the base file's would change nothing)."""
     import yaml
 
-    import hsa_mjx_train.config
     from hsa_mjx import resources
+    from train import config as train_config
 
     path = resources.data_dir("configs") / name
     raw = yaml.safe_load(path.read_text()) or {}
     if name.startswith("train_"):
-        build = lambda p: hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load(p))  # noqa: E731
+        build = lambda p: train_config.to_dict(train_config.load(p))  # noqa: E731
     else:
         build = lambda p: hsa_mjx.config.to_dict(hsa_mjx.config.load_config(p))  # noqa: E731
     if "base" in raw:

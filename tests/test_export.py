@@ -11,20 +11,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hsa_mjx_train.config
 from hsa_mjx.deploy import policy_file
-from hsa_mjx_train import export
+from train import config as train_config
+from train import export
 
 ATOL = 1e-5
 N_OBS, N_ACT = 24, 8  # the default observation (no optional entries) and the 8 servos
 
 
-def random_training_state(config: hsa_mjx_train.config.TrainConfig, seed: int = 0):
+def random_training_state(config: train_config.TrainConfig, seed: int = 0):
     """(networks, TrainingState) with random weights, biases and observation statistics."""
     import jax
     import jax.numpy as jnp
 
-    from hsa_mjx_train.networks import init_training_state, make_networks
+    from train.networks import init_training_state, make_networks
 
     networks = make_networks(config, N_OBS, N_ACT)
     ts = init_training_state(config, networks, jax.random.PRNGKey(seed), N_OBS)
@@ -72,10 +72,10 @@ def export_both(policy: policy_file.NumpyPolicy, tmp_path) -> tuple[policy_file.
     return policy_file.load_policy(tmp_path / "npz"), tmp_path / "onnx"
 
 
-@pytest.mark.parametrize("distribution", hsa_mjx_train.config.DISTRIBUTIONS)
-@pytest.mark.parametrize("activation", hsa_mjx_train.config.ACTIVATIONS)
+@pytest.mark.parametrize("distribution", train_config.DISTRIBUTIONS)
+@pytest.mark.parametrize("activation", train_config.ACTIVATIONS)
 def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_path):
-    config = hsa_mjx_train.config.from_dict(
+    config = train_config.from_dict(
         {
             "ppo": {
                 "activation": activation,
@@ -96,11 +96,11 @@ def test_exported_policies_match_the_jax_policy(activation, distribution, tmp_pa
     np.testing.assert_allclose(onnx_actions(onnx_dir, obs), want, atol=ATOL, rtol=0)
     np.testing.assert_allclose(policy(obs[3]), want[3], atol=ATOL, rtol=0)  # one observation
     assert policy.meta["network"]["output"] == ("tanh" if distribution == "tanh_normal" else "identity")
-    assert hsa_mjx_train.config.from_dict(policy.meta["config"]) == config  # the env and networks can be rebuilt
+    assert train_config.from_dict(policy.meta["config"]) == config  # the env and networks can be rebuilt
 
 
 def test_export_without_observation_normalisation(tmp_path):
-    config = hsa_mjx_train.config.from_dict(
+    config = train_config.from_dict(
         {"ppo": {"normalize_observations": False, "observation_clip": 5.0, "policy_hidden_sizes": [16]}}
     )
     networks, ts = random_training_state(config)
@@ -114,14 +114,14 @@ def test_export_without_observation_normalisation(tmp_path):
 
 
 def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
-    from hsa_mjx_train import checkpoint
-    from hsa_mjx_train.run_state import load_training_state
+    from train import checkpoint
+    from train.run_state import load_training_state
 
     for fmt in export.FORMATS:
         assert export.main([str(tiny_run_dir), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
     assert "env steps" in capsys.readouterr().out
     latest = checkpoint.latest(tiny_run_dir)
-    config = hsa_mjx_train.config.from_dict(checkpoint.read_meta(latest)["config"])
+    config = train_config.from_dict(checkpoint.read_meta(latest)["config"])
     networks, ts = load_training_state(config, latest, N_OBS, N_ACT)
     policy = policy_file.load_policy(tmp_path / "npz")
     # observations as the env gives them, within 3 normaliser stds: the tiny run's stds are tiny in
@@ -135,13 +135,13 @@ def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
     source = policy.meta["source"]
     assert source["step"] == source["env_steps"] == int(latest.name.split("_")[1]) >= 80
     assert source["checkpoint"] == str(latest) and "--format npz" in source["command"]
-    assert hsa_mjx_train.config.from_dict(policy.meta["config"]) == config
+    assert train_config.from_dict(policy.meta["config"]) == config
     assert json.loads((tmp_path / "onnx" / policy_file.META_FILE).read_text())["network"] == policy.meta["network"]
 
 
 def corrupt_copies(run_dir, root):
     """Copies of a run's latest checkpoint, each broken in one way, with the expected error text."""
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     latest = checkpoint.latest(run_dir)
     meta = json.loads((latest / checkpoint.META_FILE).read_text())

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 import hsa_mjx.config
-import hsa_mjx_train.config
 from hsa_mjx.task import observation, privileged
 from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.height_scan import HeightScanConfig
-from hsa_mjx_train.networks import init_training_state, make_networks
-from hsa_mjx_train.run_state import policy_arrays
+from train import config as train_config
+from train.networks import init_training_state, make_networks
+from train.run_state import policy_arrays
 
 DEFAULT = HeightScanConfig(enabled=True)
 POSITION = np.array([1.0, 2.0], np.float32)
@@ -116,8 +116,8 @@ def test_the_scan_is_appended_to_the_observation_and_labelled():
     assert names[0] == "clean_height_scan_x-80_y-60" and names[-1] == "terrain_level"
 
 
-def _privileged_config() -> hsa_mjx_train.config.TrainConfig:
-    return hsa_mjx_train.config.from_dict(
+def _privileged_config() -> train_config.TrainConfig:
+    return train_config.from_dict(
         {
             "env": {
                 "preset": "mixed",

@@ -121,3 +121,55 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
     )
     assert trained.returncode == 0, trained.stderr[-3000:]
     assert "policy file" in trained.stdout and (work / "runs" / "q" / "summary.json").is_file()
+
+
+MARKER = "THE-CHECKOUT-COPY"
+PROBE = (
+    "import runpy, sys\n"
+    "sys.argv = ['train', '--help']\n"
+    "try:\n"
+    "    runpy.run_module('train', run_name='__main__', alter_sys=True)\n"
+    "except SystemExit:\n"
+    "    pass\n"
+    "import hsa_mjx\n"
+    "print(sys.modules['train.cli'].__file__, hsa_mjx.__file__, 'hsa_mjx_train' in sys.modules)\n"
+)
+
+
+def _checkout(tmp_path: Path) -> Path:
+    """The checkout's code, configs and assets copied, the trainer's help marked: whose code runs shows."""
+    copy = tmp_path / "checkout"
+    for folder in ("hsa_mjx", "train", "configs", "assets"):
+        shutil.copytree(ROOT / folder, copy / folder, ignore=shutil.ignore_patterns("__pycache__"))
+    cli = copy / "train" / "cli.py"
+    cli.write_text(cli.read_text().replace('"""Command line:', f'"""{MARKER} Command line:', 1))
+    return copy
+
+
+def _train_help_runs_the_checkout(copy: Path, pythonpath: str) -> None:
+    """``python -m train --help`` in the checkout prints its help, from its own train/ and hsa_mjx/ only."""
+    env = {**os.environ, "PYTHONPATH": pythonpath, "JAX_PLATFORMS": "cpu"}
+    run = dict(cwd=copy, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    shown = subprocess.run([sys.executable, "-m", "train", "--help"], **run)
+    assert shown.returncode == 0 and MARKER in shown.stdout, shown.stderr[-3000:]
+    cli_file, env_file, installed_name = subprocess.run(
+        [sys.executable, "-c", PROBE], check=True, **run
+    ).stdout.split()[-3:]
+    assert Path(cli_file).is_relative_to(copy) and Path(env_file).is_relative_to(copy)
+    assert installed_name == "False"  # the installed trainer's modules never load beside the checkout's
+
+
+def test_python_m_train_in_a_checkout_with_only_pythonpath(tmp_path):
+    copy = _checkout(tmp_path)
+    _train_help_runs_the_checkout(copy, str(copy))
+
+
+def test_python_m_train_in_a_checkout_runs_its_code_beside_an_installed_wheel(wheel, tmp_path):
+    """After ``pip install .`` the checkout's edits are what ``python -m train`` runs there."""
+    site = tmp_path / "site"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-compile", "--target", str(site), str(wheel)],
+        check=True,
+        timeout=TIMEOUT_S,
+    )
+    _train_help_runs_the_checkout(_checkout(tmp_path), str(site))

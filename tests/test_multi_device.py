@@ -101,7 +101,7 @@ def _fresh_traces() -> None:
 
 def _record_saves() -> list[int]:
     """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     saved, save = [], checkpoint.save
     checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
@@ -110,14 +110,14 @@ def _record_saves() -> list[int]:
 
 def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
     """Messages of the configs refused on 2 devices, and whether anything compiled or was written first."""
-    import hsa_mjx_train.config
-    from hsa_mjx_train.trainer import train
+    from train import config as train_config
+    from train.trainer import train
 
     before, messages = len(compiles), {}
     bad = {"indivisible": ["run.num_envs=3", "ppo.batch_size=3"], "too_many": ["run.num_devices=3"]}
     for name, override in bad.items():
         try:
-            train(hsa_mjx_train.config.load(config_path, override), tmp / name, quiet=True)
+            train(train_config.load(config_path, override), tmp / name, quiet=True)
         except ValueError as err:
             messages[name] = str(err)
     made = [name for name in messages if (tmp / name).exists()]
@@ -154,7 +154,7 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
     terrain levels) is equal."""
     from flax import serialization
 
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     def load(run: str) -> dict:
         path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}" / checkpoint.STATE_FILE
@@ -215,16 +215,16 @@ def _curriculum_facts() -> dict:
     import jax
     import jax.numpy as jnp
 
-    import hsa_mjx_train.config
     from hsa_mjx.curricula import goal_curriculum
     from hsa_mjx.curricula.state import CurriculumRules
-    from hsa_mjx_train.learner import AXIS
-    from hsa_mjx_train.placement import replicate
+    from train import config as train_config
+    from train.learner import AXIS
+    from train.placement import replicate
 
     config = goal_curriculum.GoalCurriculumConfig(
         window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2
     )
-    env = hsa_mjx_train.config.from_dict({}).env
+    env = train_config.from_dict({}).env
     rules, start = CurriculumRules(env, config), tuple(env.goal.radial_range)
     done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
 
@@ -262,9 +262,9 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
         nonlocal clock
         phases[name], clock = round(time.perf_counter() - clock, 1), time.perf_counter()
 
-    from hsa_mjx_train.cli import main
-    from hsa_mjx_train.strategies import Pmap
-    from hsa_mjx_train.thread_per_device import ThreadPerDevice
+    from train.cli import main
+    from train.strategies import Pmap
+    from train.thread_per_device import ThreadPerDevice
 
     pmap_seen = _probe(Pmap, compiles)
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
@@ -314,8 +314,8 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
 def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
     """One of two processes (one CPU device each) training through the CLI; process 1 comes late to the loop."""
     saved = _record_saves()
-    from hsa_mjx_train import trainer
-    from hsa_mjx_train.cli import main
+    from train import trainer
+    from train.cli import main
 
     loop = trainer.run_epochs
 
@@ -347,7 +347,7 @@ def _warp_thread_per_device(config_path: str, run_dir: str) -> int:
     backend, through the CLI: one epoch (10 steps per env) with 8-step episodes, so that every env ends
     one episode (Warp runs slowly on a CPU). The physics settings of tests/test_backend.py's Warp rollouts,
     which compile most of Warp's kernels for these ones (into Warp's cache) on the other worker before."""
-    from hsa_mjx_train.cli import main
+    from train.cli import main
 
     overrides = (
         "env.physics.backend=warp",
@@ -380,6 +380,8 @@ def _subprocess_env(devices: int | None) -> dict:
     import jax
 
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    # the scripts run from tests/: the checkout on the path gives them its train/
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p)
     env.pop("JAX_NUM_CPU_DEVICES", None)
     if jax.config.jax_compilation_cache_dir:
         env["JAX_COMPILATION_CACHE_DIR"] = str(jax.config.jax_compilation_cache_dir)
@@ -483,13 +485,13 @@ def _finish_processes(started: list[tuple[subprocess.Popen, Path]]) -> list[dict
 
 def _records(run_dir: Path) -> list[dict]:
     """The run's metrics records."""
-    from hsa_mjx_train.logger import read_jsonl
+    from train.logger import read_jsonl
 
     return read_jsonl(run_dir / "metrics.jsonl")
 
 
 def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_train"] == 0 and facts["rc_resume"] == 0
@@ -527,7 +529,7 @@ def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
 
 def _saved_levels(run_dir: Path, step: int) -> np.ndarray:
     """The per-env terrain levels a checkpoint of the run holds."""
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     path = checkpoint.checkpoint_dir(run_dir) / f"step_{step:012d}"
     count = checkpoint.read_meta(path)["terrain_envs"]
@@ -575,7 +577,7 @@ def test_per_device_learner_trains_exactly_like_pmap(two_devices):
 
 
 def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_per_device"] == 0
@@ -594,7 +596,7 @@ def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
 def test_thread_per_device_trains_on_the_warp_backend(two_devices):
     """The multi-GPU path on MuJoCo Warp, over the two fake CPU devices (last in the scenario: by then
     tests/test_backend.py's rollouts, on the other worker, have compiled Warp's CPU kernels into its cache)."""
-    from hsa_mjx_train.logger import read_jsonl
+    from train.logger import read_jsonl
 
     assert two_devices.facts["rc_warp"] == 0
     run_dir = two_devices.run_dir.parent / "run_warp"
@@ -618,7 +620,7 @@ def test_bad_device_split_refused_before_compile(two_devices):
 
 
 def test_two_processes_train_like_two_devices(two_devices):
-    from hsa_mjx_train import checkpoint
+    from train import checkpoint
 
     facts, run_dir = two_devices.process_facts, two_devices.process_run_dir
     assert [f["rc"] for f in facts] == [0, 0]
@@ -635,8 +637,8 @@ def test_two_processes_train_like_two_devices(two_devices):
 
 
 def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
-    from hsa_mjx_train import checkpoint
-    from hsa_mjx_train.evaluate import main as evaluate
+    from train import checkpoint
+    from train.evaluate import main as evaluate
 
     facts, run_dir = two_devices
     assert facts["rc_one_device"] == 0 and facts["saved_one_device"] == [280]
@@ -682,7 +684,7 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
 
 
 def test_cluster_spec_from_flags_or_environment():
-    from hsa_mjx_train import distributed
+    from train import distributed
 
     assert distributed.resolve_spec(environ={}) is None
     env = {"HSA_COORDINATOR": "10.0.0.1:1234", "HSA_NUM_PROCESSES": "4", "HSA_PROCESS_ID": "3"}
@@ -702,7 +704,7 @@ def test_cluster_spec_from_flags_or_environment():
 def test_one_process_keys_are_the_single_host_split():
     import jax
 
-    from hsa_mjx_train import distributed
+    from train import distributed
 
     devices, key = jax.local_devices()[:1], jax.random.PRNGKey(7)
     np.testing.assert_array_equal(distributed.env_keys(key, 6, devices), jax.random.split(key, 6).reshape(1, 6, 2))

@@ -10,7 +10,7 @@ import pytest
 from hsa_mjx import resources
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.host_physics import HostPhysics
-from hsa_mjx_train import evaluate, policy_sources, rollout
+from train import evaluate, policy_sources, rollout
 
 SHIPPED = list(policy_file.shipped())
 EPISODES, STEPS = 4, 250  # per policy: the corridor policy, slowest between its walls, closes the least
@@ -113,7 +113,7 @@ def test_evaluate_policy_refuses_bad_input(tiny_run_dir, tmp_path, capsys):
 
 
 def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys):
-    from hsa_mjx_train import export
+    from train import export
 
     assert export.main([str(tiny_run_dir), "--format", "npz", "--out", str(tmp_path / "tiny")]) == 0
     out = tmp_path / "eval"
@@ -150,7 +150,7 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
 def test_gif_frames_are_capped(env, tmp_path):
     from PIL import Image
 
-    from hsa_mjx_train import diagnostics
+    from train import diagnostics
 
     steps = 12
     qpos = np.tile(env.robot.mj_model.qpos0, (1, steps, 1))

@@ -12,11 +12,11 @@ import pytest
 from brax.training import types
 
 import hsa_mjx
-import hsa_mjx_train.config
 from hsa_mjx.curricula import goal_curriculum
-from hsa_mjx_train.learner import PPOLearner
-from hsa_mjx_train.networks import init_training_state
-from hsa_mjx_train.ppo_update import LR_BOUNDS, adapted_learning_rate, explained_variance
+from train import config as train_config
+from train.learner import PPOLearner
+from train.networks import init_training_state
+from train.ppo_update import LR_BOUNDS, adapted_learning_rate, explained_variance
 
 ENVS, T, OBS = 512, 20, 28  # the flat task's minibatch layout (32 minibatches x 4 passes), a smaller batch
 
@@ -26,14 +26,10 @@ def env():
     return hsa_mjx.make_env("flat", observation__heading=True)  # the flat training task's 28 values
 
 
-def _config(**ppo) -> hsa_mjx_train.config.TrainConfig:
-    config = hsa_mjx_train.config.load(
-        "configs/train_flat.yaml", [f"run.num_envs={ENVS}", f"ppo.batch_size={ENVS // 32}"]
-    )
-    return hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(
-            hsa_mjx_train.config.to_dict(config), [f"ppo.{k}={v}" for k, v in ppo.items()]
-        )
+def _config(**ppo) -> train_config.TrainConfig:
+    config = train_config.load("configs/train_flat.yaml", [f"run.num_envs={ENVS}", f"ppo.batch_size={ENVS // 32}"])
+    return train_config.from_dict(
+        train_config.apply_overrides(train_config.to_dict(config), [f"ppo.{k}={v}" for k, v in ppo.items()])
     )
 
 
@@ -152,15 +148,15 @@ def test_explained_variance_reads_one_for_a_perfect_critic_and_zero_for_the_mean
 )
 def test_bad_learning_settings_are_named(key, value, match):
     with pytest.raises(ValueError, match=match):
-        hsa_mjx_train.config.from_dict({"ppo": {key: value}})
+        train_config.from_dict({"ppo": {key: value}})
 
 
 def test_a_random_initial_phase_spreads_the_first_episodes(env):
     config = _config()
     keys = jax.random.split(jax.random.PRNGKey(2), 64)
     goal = goal_curriculum.init(config.goal_curriculum, tuple(config.env.goal.radial_range))
-    spread = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(hsa_mjx_train.config.to_dict(config), ["run.random_initial_phase=true"])
+    spread = train_config.from_dict(
+        train_config.apply_overrides(train_config.to_dict(config), ["run.random_initial_phase=true"])
     )
     for cfg, phased in ((config, False), (spread, True)):
         learner = PPOLearner(cfg, env, axis=None)

@@ -5,7 +5,7 @@ import re
 
 
 def test_cpu_quickstart_starts_from_the_flat_policy_and_reaches_goals(tmp_path, capsys):
-    from hsa_mjx_train.cli import main
+    from train.cli import main
 
     assert (
         main(

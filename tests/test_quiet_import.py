@@ -2,7 +2,7 @@
 
 In a fresh interpreter, after the third-party libraries the packages use are imported (their own
 imports may set things: Gymnasium sets ``PYGAME_HIDE_SUPPORT_PROMPT``), importing every module of
-``hsa_mjx``, ``hsa_mjx_train`` and ``benchmarks`` must leave ``os.environ``, the start method of
+``hsa_mjx``, ``train`` and ``benchmarks`` must leave ``os.environ``, the start method of
 ``multiprocessing``, JAX's lowering rules and matplotlib's backend as they were, and read no config
 file. Then ``make_env`` on a headless machine chooses MuJoCo's offscreen platform and installs the CPU
 linear-algebra lowerings, as documented (docs/architecture.md), which shows the check would see such a
@@ -40,7 +40,7 @@ safe_load = yaml.safe_load
 yaml.safe_load = lambda stream: reads.append(getattr(stream, "name", "text")) or safe_load(stream)
 before = state()
 imported = []
-for top in ("hsa_mjx", "hsa_mjx_train", "benchmarks"):
+for top in ("hsa_mjx", "train", "benchmarks"):
     package = importlib.import_module(top)
     imported.append(top)
     for info in pkgutil.walk_packages(package.__path__, top + "."):
@@ -80,9 +80,7 @@ def test_importing_the_packages_changes_nothing_and_make_env_sets_up_what_it_nee
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     facts = json.loads([ln for ln in proc.stdout.splitlines() if ln.startswith("FACTS ")][-1][6:])
-    assert {"hsa_mjx.sim.model", "hsa_mjx_train.trainer", "hsa_mjx_train.evaluation", "benchmarks.scaling"} <= set(
-        facts["imported"]
-    )
+    assert {"hsa_mjx.sim.model", "train.trainer", "train.evaluation", "benchmarks.scaling"} <= set(facts["imported"])
     assert facts["changed"] == {}  # environment, start method, JAX lowerings, matplotlib backend: as before
     assert facts["yaml_reads"] == 0  # no config file is read on import
     assert facts["make_env_lowerings"] == ["cholesky", "triangular_solve"]  # explicit, when an env is built

@@ -293,12 +293,12 @@ def test_the_privileged_critic_sees_the_episodes_true_model():
 
 def test_randomization_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores; a checkpoint without them starts afresh."""
-    import hsa_mjx_train.config
     from hsa_mjx.curricula.state import CurriculumRules, host_levels
-    from hsa_mjx_train import checkpoint
-    from hsa_mjx_train.run_state import payload, restore_levels
+    from train import checkpoint
+    from train import config as train_config
+    from train.run_state import payload, restore_levels
 
-    config = hsa_mjx_train.config.load("configs/train_flat_dr.yaml")
+    config = train_config.load("configs/train_flat_dr.yaml")
     rules = CurriculumRules(config.env, randomization=config.randomization_curriculum)
     state = rules.init(jax.random.split(jax.random.PRNGKey(0), 8))
     state = state.replace(randomization=jnp.linspace(0.25, 1.0, 8, dtype=jnp.float32))
@@ -308,7 +308,7 @@ def test_randomization_levels_round_trip_through_a_checkpoint(tmp_path):
         tmp_path,
         5,
         payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), None, host["randomization"]),
-        hsa_mjx_train.config.to_dict(config),
+        train_config.to_dict(config),
         extra={"randomization_envs": 8},
     )
     meta = {**checkpoint.read_meta(path), "path": path}

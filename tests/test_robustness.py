@@ -95,10 +95,10 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
 
 
 def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
-    import hsa_mjx_train.config
     from hsa_mjx.deploy import policy_file
     from hsa_mjx.randomization_config import RandomizationConfig
-    from hsa_mjx_train import policy_sources
+    from train import config as train_config
+    from train import policy_sources
 
     trained = policy_file.load_policy(policy_file.locate("flat_dr")).meta["config"]
     assert trained["env"]["randomization"]["push_speed"] > 0  # it trained with pushes and noise
@@ -106,13 +106,13 @@ def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
     overrides = robustness.env_overrides(nominal[:36], 0.02, qacc_rule=False)
     overridden = {o.split("=")[0].rsplit(".", 1)[1] for o in overrides if ".randomization." in o}
     assert overridden == {f.name for f in dataclasses.fields(RandomizationConfig)}  # no training range leaks in
-    env = hsa_mjx_train.config.from_dict(policy_sources.env_overrides(trained, overrides)).env
+    env = train_config.from_dict(policy_sources.env_overrides(trained, overrides)).env
     assert env.randomization.push_speed == 0 and env.randomization.hsa_damping == env.randomization.servo_gain == (1, 1)
     assert env.randomization.hsa_stiffness == (0.7, 1.3) and env.randomization.latency_steps == (0, 2)
     assert not env.termination.qacc_termination  # simulator health and task failure only
     assert not any(dataclasses.asdict(env.observation.noise).values())
     stress = [c for c in robustness_grids.grid("stress") if c["noise"]]
-    env = hsa_mjx_train.config.from_dict(
+    env = train_config.from_dict(
         policy_sources.env_overrides(trained, robustness.env_overrides(stress, 0.02, qacc_rule=True))
     ).env
     assert dataclasses.asdict(env.observation.noise) == robustness_grids.NOISE and env.termination.qacc_termination
@@ -122,7 +122,7 @@ def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
 def test_a_cell_without_pushes_is_never_pushed():
     import hsa_mjx
     from hsa_mjx.task.randomization import NEVER
-    from hsa_mjx_train.rollout import with_randomization
+    from train.rollout import with_randomization
 
     env = hsa_mjx.make_env("flat", randomization__push_speed=0.3, randomization__push_interval_s=[2.0, 4.0])
     state = env.reset(jax.random.PRNGKey(0))

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-import hsa_mjx_train.config
 from benchmarks import sweep, sweep_report
+from train import config as train_config
 
 SWEEP = {
     "name": "demo",
@@ -51,7 +51,7 @@ def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_pa
     assert [(j.seed, j.arm) for j in jobs] == [(0, "a"), (0, "b"), (1, "a"), (1, "b")]  # seeds outermost
     for job in jobs:
         assert f"run.num_timesteps={spec.env_steps}" in job.train and f"run.seed={job.seed}" in job.train
-        config = hsa_mjx_train.config.load(spec.config, spec.overrides(job.arm, job.seed))
+        config = train_config.load(spec.config, spec.overrides(job.arm, job.seed))
         assert config.ppo.value_targets == ("per_iteration" if job.arm == "b" else "per_minibatch")
         ev = job.evaluate
         assert ev[ev.index("--terrain-seed") + 1] == "1000" and ev[ev.index("--tiles") + 1] == "8"
@@ -61,7 +61,7 @@ def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_pa
 def _fake_run(run_dir: Path, success: float, v_loss: float, episodes: int = 100) -> None:
     """A run folder as python -m train and train.evaluate leave it, with made-up figures."""
     run_dir.mkdir(parents=True)
-    config = hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat.yaml"))
+    config = train_config.to_dict(train_config.load("configs/train_flat.yaml"))
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config))
     rows = [
         {

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 import hsa_mjx.config
-import hsa_mjx_train.config
 from hsa_mjx.curricula import terrain_curriculum
 from hsa_mjx.terrain import TERRAIN_TYPES, Grid, TerrainConfig, generate
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, GENERATORS
-from hsa_mjx_train import checkpoint
+from train import checkpoint
+from train import config as train_config
 
 GRID = Grid()
 HARD_TYPES = tuple(t for t in TERRAIN_TYPES if t != "flat")
@@ -104,15 +104,15 @@ def test_bad_terrain_levels_are_refused_at_load(override, key):
     ],
 )
 def test_bad_terrain_curriculum_is_refused_at_load(section, key):
-    data = hsa_mjx_train.config.read_yaml("configs/train_rough.yaml")
+    data = train_config.read_yaml("configs/train_rough.yaml")
     data["terrain_curriculum"] = {**data["terrain_curriculum"], **section}
     with pytest.raises(ValueError, match=key):
-        hsa_mjx_train.config.from_dict(data)
+        train_config.from_dict(data)
 
 
 def test_terrain_curriculum_needs_per_env_terrain():
     with pytest.raises(ValueError, match="per-env terrain"):
-        hsa_mjx_train.config.from_dict({"env": {"preset": "flat_radial"}, "terrain_curriculum": {"enabled": True}})
+        train_config.from_dict({"env": {"preset": "flat_radial"}, "terrain_curriculum": {"enabled": True}})
 
 
 def test_types_split_by_proportion_and_levels_spread_at_start():
@@ -197,9 +197,9 @@ def test_level_logs_per_type_and_top_share():
 
 def test_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores (the same batch), or the same mix (another batch)."""
-    from hsa_mjx_train.run_state import payload, restore_terrain
+    from train.run_state import payload, restore_terrain
 
-    config = hsa_mjx_train.config.load("configs/train_rough.yaml")
+    config = train_config.load("configs/train_rough.yaml")
     levels = terrain_curriculum.init(
         jax.random.split(jax.random.PRNGKey(2), 64), config.terrain_curriculum, config.env.terrain
     )
@@ -208,7 +208,7 @@ def test_levels_round_trip_through_a_checkpoint(tmp_path):
         tmp_path,
         5,
         payload({"w": np.zeros(2)}, {"c": np.zeros(1)}, np.zeros(2, np.uint32), host),
-        hsa_mjx_train.config.to_dict(config),
+        train_config.to_dict(config),
         extra={"terrain_envs": 64},
     )
     meta = {**checkpoint.read_meta(path), "path": path}
@@ -223,14 +223,14 @@ def test_levels_round_trip_through_a_checkpoint(tmp_path):
     ) == {"row", "level"}
     more = restore_terrain(config, meta, 256)
     assert more.level.shape == (256,) and set(np.asarray(more.level).tolist()) <= set(np.asarray(levels.level).tolist())
-    off = hsa_mjx_train.config.load("configs/train_rough.yaml", ["terrain_curriculum.enabled=false"])
+    off = train_config.load("configs/train_rough.yaml", ["terrain_curriculum.enabled=false"])
     assert restore_terrain(off, meta, 64) is None
 
 
 def test_terrain_evaluation_arguments():
-    from hsa_mjx_train import terrain_eval
+    from train import terrain_eval
 
-    rough = hsa_mjx_train.config.load("configs/train_rough.yaml").env
+    rough = train_config.load("configs/train_rough.yaml").env
     assert terrain_eval.parse_types("all", rough) == tuple(rough.terrain.types)
     assert terrain_eval.parse_types("stairs, poles", rough) == ("stairs", "poles")
     assert terrain_eval.parse_levels("0,0.5,1") == (0.0, 0.5, 1.0)
@@ -248,7 +248,7 @@ def test_terrain_evaluation_arguments():
 
 
 def test_terrain_table_rows_and_means():
-    from hsa_mjx_train import terrain_eval
+    from train import terrain_eval
 
     rows = [
         {"type": t, "difficulty": d, "success_rate": s, "mean_progress_m": p}

@@ -194,12 +194,12 @@ def test_a_reset_episode_carries_nothing_of_the_one_before(batch, start, step):
 
 
 def test_regeneration_needs_per_env_terrain_with_a_random_type():
-    import hsa_mjx_train.config
+    from train import config as train_config
 
     with pytest.raises(ValueError, match="regenerate_terrain_every"):
-        hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": 5}})  # the default env: a plane
+        train_config.from_dict({"run": {"regenerate_terrain_every": 5}})  # the default env: a plane
     with pytest.raises(ValueError, match="regenerate_terrain_every"):
-        hsa_mjx_train.config.from_dict({"run": {"regenerate_terrain_every": -1}})
+        train_config.from_dict({"run": {"regenerate_terrain_every": -1}})
 
 
 def test_regeneration_refuses_c_mujoco_physics(batch):

@@ -9,33 +9,31 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import hsa_mjx_train.config
 from hsa_mjx.task.observation import observation_size
-from hsa_mjx_train import checkpoint, compat, policy_sources, rollout
+from train import checkpoint, compat, policy_sources, rollout
+from train import config as train_config
 
 
 def test_default_and_shipped_configs_validate():
-    assert hsa_mjx_train.config.from_dict({}).run.num_envs == 1024
+    assert train_config.from_dict({}).run.num_envs == 1024
     for name in ("train_quickstart_cpu", "train_flat"):
-        config = hsa_mjx_train.config.load(f"configs/{name}.yaml")
+        config = train_config.load(f"configs/{name}.yaml")
         assert config.goal_curriculum.enabled and config.env.goal.mode == "radial"
-        assert hsa_mjx_train.config.from_dict(hsa_mjx_train.config.to_dict(config)) == config  # round trip
-    flat = hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_flat.yaml"))
+        assert train_config.from_dict(train_config.to_dict(config)) == config  # round trip
+    flat = train_config.to_dict(train_config.load("configs/train_flat.yaml"))
     assert flat["env"]["observation"]["heading"]
-    plain = hsa_mjx_train.config.to_dict(
-        hsa_mjx_train.config.from_dict({**flat, "env": {**flat["env"], "observation": {"heading": False}}})
+    plain = train_config.to_dict(
+        train_config.from_dict({**flat, "env": {**flat["env"], "observation": {"heading": False}}})
     )
     assert checkpoint.incompatibilities(plain, flat) == ["env.observation.heading"]  # resume refuses
     for name, goal_mode in (("train_corridor", "random"), ("train_spiral", "spiral")):
-        config = hsa_mjx_train.config.validate(hsa_mjx_train.config.load(f"configs/{name}.yaml"))
+        config = train_config.validate(train_config.load(f"configs/{name}.yaml"))
         assert config.env.scene == "terrain" and config.env.goal.mode == goal_mode
         assert not config.goal_curriculum.enabled  # the curriculum needs radial goals
         assert (config.env.physics.integrator, config.env.physics.iterations) == ("implicitfast", 8)
         assert not config.env.terrain.per_env  # one shared track (exact: test_terrain_env)
-    corridor = hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_corridor.yaml"))
-    rough = hsa_mjx_train.config.load(
-        "configs/train_rough.yaml"
-    )  # perception: the scan, a privileged critic, top re-draws
+    corridor = train_config.to_dict(train_config.load("configs/train_corridor.yaml"))
+    rough = train_config.load("configs/train_rough.yaml")  # perception: the scan, a privileged critic, top re-draws
     assert rough.env.observation.height_scan.enabled and rough.env.observation.height_scan.noise > 0
     assert rough.ppo.privileged_critic and rough.terrain_curriculum.top_redraw
     assert not corridor["env"]["observation"].pop("height_scan")["enabled"]
@@ -50,27 +48,25 @@ def test_default_and_shipped_configs_validate():
     }
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
     # the corridor with perception continues the rough policy: its inputs and servo range, radial goals
-    scan = hsa_mjx_train.config.validate(hsa_mjx_train.config.load("configs/train_corridor_scan.yaml"))
+    scan = train_config.validate(train_config.load("configs/train_corridor_scan.yaml"))
     assert scan.run.init_from == "rough" and scan.ppo.privileged_critic and not scan.goal_curriculum.enabled
     assert observation_size(scan.env.observation) == observation_size(rough.env.observation) == 91
     assert scan.env.control.servo_target_limit == 3141.5 and scan.env.goal.mode == "radial"
     assert (
         scan.env.terrain.types == ("corridor",)
-        and scan.env.physics == hsa_mjx_train.config.load("configs/train_corridor.yaml").env.physics
+        and scan.env.physics == train_config.load("configs/train_corridor.yaml").env.physics
     )
     # the spiral starts from a flat run's networks: the flat task's servo range and 28 observation slots
-    spiral = hsa_mjx_train.config.to_dict(hsa_mjx_train.config.load("configs/train_spiral.yaml"))
+    spiral = train_config.to_dict(train_config.load("configs/train_spiral.yaml"))
     assert spiral["env"]["control"]["servo_target_limit"] == flat["env"]["control"]["servo_target_limit"] == 3141.5
     assert spiral["env"]["observation"] == {**flat["env"]["observation"], "hinge_angles": "wrapped"}
-    assert observation_size(hsa_mjx_train.config.load("configs/train_spiral.yaml").env.observation) == 28
+    assert observation_size(train_config.load("configs/train_spiral.yaml").env.observation) == 28
     assert all(spiral["ppo"][k] == flat["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
     assert (spiral["env"]["goal"]["num_checkpoints"], spiral["env"]["goal"]["track_starts"]) == (20, 19)
     assert all(spiral["ppo"][k] == corridor["ppo"][k] for k in spiral["ppo"])  # the track tasks' PPO settings
     # evaluation defaults to the goals each was trained on
-    assert policy_sources.default_goal_range(hsa_mjx_train.config.load("configs/train_flat.yaml")) == (1.5, 4.5)
-    turn = hsa_mjx_train.config.from_dict(
-        {"env": {"goal": {"radial_range": [0.8, 1.2]}}, "curriculum": {"enabled": False}}
-    )
+    assert policy_sources.default_goal_range(train_config.load("configs/train_flat.yaml")) == (1.5, 4.5)
+    turn = train_config.from_dict({"env": {"goal": {"radial_range": [0.8, 1.2]}}, "curriculum": {"enabled": False}})
     assert policy_sources.default_goal_range(turn) == (0.8, 1.2)
 
 
@@ -79,7 +75,7 @@ def test_training_configs_use_the_guarded_physics():
     from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
 
     for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_corridor_scan", "train_spiral"):
-        physics = hsa_mjx_train.config.load(f"configs/{name}.yaml").env.physics
+        physics = train_config.load(f"configs/{name}.yaml").env.physics
         shipped = SETTINGS[SHIPPED_BY_SCENE["terrain" if "corridor" in name or "spiral" in name else "flat"]]
         assert {k: getattr(physics, k.split(".")[1]) for k in shipped} == shipped, name
 
@@ -111,37 +107,37 @@ def test_training_configs_use_the_guarded_physics():
 )
 def test_bad_config_is_named(data, match):
     with pytest.raises(ValueError, match=match):
-        hsa_mjx_train.config.from_dict(data)
+        train_config.from_dict(data)
 
 
 def test_device_split_checked():
-    config = hsa_mjx_train.config.from_dict({"run": {"num_envs": 1024}, "ppo": {"batch_size": 256}})
+    config = train_config.from_dict({"run": {"num_envs": 1024}, "ppo": {"batch_size": 256}})
     with pytest.raises(ValueError, match="divisible by the 3 devices"):
-        hsa_mjx_train.config.validate_devices(config, 3)
-    assert hsa_mjx_train.config.validate_devices(config, 2) is config
-    one = hsa_mjx_train.config.from_dict({"run": {"collection": "one_device"}})
+        train_config.validate_devices(config, 3)
+    assert train_config.validate_devices(config, 2) is config
+    one = train_config.from_dict({"run": {"collection": "one_device"}})
     with pytest.raises(ValueError, match="one_device runs on one device, but 2"):
-        hsa_mjx_train.config.validate_devices(one, 2)
+        train_config.validate_devices(one, 2)
 
 
 def test_set_overrides():
     given = {"ppo": {"learning_rate": 1.0}, "env": {"reward": {"forward": 6.0}}}
-    data = hsa_mjx_train.config.apply_overrides(given, ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"])
+    data = train_config.apply_overrides(given, ["ppo.learning_rate=2e-4", "env.reward.forward=3", "run.seed=7"])
     assert given == {"ppo": {"learning_rate": 1.0}, "env": {"reward": {"forward": 6.0}}}  # the caller's data kept
-    config = hsa_mjx_train.config.from_dict(data)
+    config = train_config.from_dict(data)
     assert config.ppo.learning_rate == pytest.approx(2e-4)
     assert config.env.reward.forward == 3.0 and config.run.seed == 7
     with pytest.raises(ValueError, match="section.key=value"):
-        hsa_mjx_train.config.apply_overrides({}, ["ppo.learning_rate"])
+        train_config.apply_overrides({}, ["ppo.learning_rate"])
     with pytest.raises(ValueError, match="must start with one of"):
-        hsa_mjx_train.config.apply_overrides({}, ["learning_rate=1"])
+        train_config.apply_overrides({}, ["learning_rate=1"])
     with pytest.raises(ValueError, match="unknown config key"):
-        hsa_mjx_train.config.from_dict(hsa_mjx_train.config.apply_overrides({}, ["run.epochs=3"]))
+        train_config.from_dict(train_config.apply_overrides({}, ["run.epochs=3"]))
 
 
 def test_missing_config_file():
     with pytest.raises(FileNotFoundError, match="training config not found"):
-        hsa_mjx_train.config.load("configs/does_not_exist.yaml")
+        train_config.load("configs/does_not_exist.yaml")
 
 
 def _payload(scale: float = 1.0):
@@ -164,7 +160,7 @@ def test_checkpoint_round_trip_prune_and_no_temp_left(tmp_path):
     assert int(restored["inner"]["n"]) == 3
     assert checkpoint.read_meta(latest)["step"] == 40
     # a hard stop (second Ctrl-C) names the checkpoint --resume continues from, or says there is none
-    from hsa_mjx_train.cli import interrupted_message
+    from train.cli import interrupted_message
 
     assert interrupted_message(tmp_path).endswith("continues from " + str(latest))
     assert "before any checkpoint" in interrupted_message(tmp_path / "nothing")
@@ -174,7 +170,7 @@ def test_stop_flag_takes_a_forwarded_duplicate_as_one_request_and_a_later_one_as
     import os
     import signal
 
-    from hsa_mjx_train.trainer import StopFlag
+    from train.trainer import StopFlag
 
     with StopFlag(repeat_s=60.0) as stop:
         os.kill(os.getpid(), signal.SIGTERM)
@@ -207,13 +203,11 @@ def test_checkpoint_of_other_shape_refused(tmp_path):
 
 
 def test_incompatibilities():
-    saved = json.loads(json.dumps(hsa_mjx_train.config.to_dict(hsa_mjx_train.config.from_dict({}))))
-    same = hsa_mjx_train.config.to_dict(
-        hsa_mjx_train.config.from_dict({"run": {"num_timesteps": 5}, "ppo": {"learning_rate": 1e-5}})
-    )
+    saved = json.loads(json.dumps(train_config.to_dict(train_config.from_dict({}))))
+    same = train_config.to_dict(train_config.from_dict({"run": {"num_timesteps": 5}, "ppo": {"learning_rate": 1e-5}}))
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(same))) == []
-    other = hsa_mjx_train.config.to_dict(
-        hsa_mjx_train.config.from_dict({"env": {"reward": {"forward": 1.0}}, "ppo": {"policy_hidden_sizes": [8]}})
+    other = train_config.to_dict(
+        train_config.from_dict({"env": {"reward": {"forward": 1.0}}, "ppo": {"policy_hidden_sizes": [8]}})
     )
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(other))) == [
         "env.reward.forward",
@@ -235,13 +229,11 @@ def test_compat_shim_replicates_onto_devices(monkeypatch):
 
 def test_incompatibilities_keys_added_later_match_their_default():
     """A checkpoint written before a config key existed resumes when that key keeps its default."""
-    defaults = json.loads(json.dumps(hsa_mjx_train.config.to_dict(hsa_mjx_train.config.from_dict({}))))
+    defaults = json.loads(json.dumps(train_config.to_dict(train_config.from_dict({}))))
     saved = json.loads(json.dumps(defaults))
     del saved["env"]["termination"]["qacc_every_substep"]
     assert checkpoint.incompatibilities(saved, defaults, defaults) == []
-    changed = hsa_mjx_train.config.to_dict(
-        hsa_mjx_train.config.from_dict({"env": {"termination": {"qacc_every_substep": True}}})
-    )
+    changed = train_config.to_dict(train_config.from_dict({"env": {"termination": {"qacc_every_substep": True}}}))
     assert checkpoint.incompatibilities(saved, json.loads(json.dumps(changed)), defaults) == [
         "env.termination.qacc_every_substep"
     ]
@@ -250,18 +242,14 @@ def test_incompatibilities_keys_added_later_match_their_default():
     del without_section["env"]["observation"]  # written before the observation section existed
     assert checkpoint.incompatibilities(without_section, defaults, defaults) == []
     heading = json.loads(
-        json.dumps(
-            hsa_mjx_train.config.to_dict(hsa_mjx_train.config.from_dict({"env": {"observation": {"heading": True}}}))
-        )
+        json.dumps(train_config.to_dict(train_config.from_dict({"env": {"observation": {"heading": True}}})))
     )
     assert checkpoint.incompatibilities(without_section, heading, defaults) == ["env.observation"]
     older = json.loads(json.dumps(defaults))
     del older["ppo"]["distribution_type"], older["ppo"]["noise_std_type"]  # written before these keys
     assert checkpoint.incompatibilities(older, defaults, defaults) == []
     normal = json.loads(
-        json.dumps(
-            hsa_mjx_train.config.to_dict(hsa_mjx_train.config.from_dict({"ppo": {"distribution_type": "normal"}}))
-        )
+        json.dumps(train_config.to_dict(train_config.from_dict({"ppo": {"distribution_type": "normal"}})))
     )
     assert checkpoint.incompatibilities(older, normal, defaults) == ["ppo.distribution_type"]
 
@@ -270,9 +258,9 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
     """distribution_type normal + noise_std_type log: SB3-like exploration (the env clips to [-1, 1])."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from hsa_mjx_train.networks import init_training_state, make_networks
+    from train.networks import init_training_state, make_networks
 
-    config = hsa_mjx_train.config.from_dict(
+    config = train_config.from_dict(
         {
             "ppo": {
                 "distribution_type": "normal",
@@ -289,7 +277,7 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
     keys = jax.random.split(jax.random.PRNGKey(1), 256)
     actions, _ = jax.vmap(lambda k: policy(jnp.zeros(5), k))(keys)
     assert float(jnp.std(actions)) == pytest.approx(3.0, rel=0.2) and float(jnp.max(jnp.abs(actions))) > 1.0
-    squashed = hsa_mjx_train.config.from_dict(
+    squashed = train_config.from_dict(
         {"ppo": {"policy_hidden_sizes": [8], "value_hidden_sizes": [8], "init_noise_std": 3.0}}
     )
     nets = make_networks(squashed, 5, 2)
@@ -300,10 +288,10 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
 
 def test_observation_clip_bounds_what_the_networks_see():
     """ppo.observation_clip: a feature far outside its statistics reaches the networks clipped (0: unclipped)."""
-    from hsa_mjx_train.networks import init_training_state, make_networks
+    from train.networks import init_training_state, make_networks
 
     def values(clip: float) -> np.ndarray:
-        config = hsa_mjx_train.config.from_dict(
+        config = train_config.from_dict(
             {"ppo": {"observation_clip": clip, "policy_hidden_sizes": [8], "value_hidden_sizes": [8]}}
         )
         networks = make_networks(config, 3, 2)
@@ -321,12 +309,12 @@ def test_observation_clip_bounds_what_the_networks_see():
 def test_collection_option_is_checked_resolved_and_its_old_name_mapped():
     import jax
 
-    from hsa_mjx_train.strategies import resolve_collection
+    from train.strategies import resolve_collection
 
     with pytest.raises(ValueError, match=r"run.collection.*'one_device', 'pmap', 'thread_per_device'"):
-        hsa_mjx_train.config.from_dict({"run": {"collection": "shard_map"}})
+        train_config.from_dict({"run": {"collection": "shard_map"}})
     with pytest.raises(ValueError, match=r"run.multi_device.*'auto', 'pmap', 'per_device'"):
-        hsa_mjx_train.config.from_dict({"run": {"multi_device": "shard_map"}})
+        train_config.from_dict({"run": {"multi_device": "shard_map"}})
     cpu = jax.devices("cpu")[:1]
 
     class FakeGpu:
@@ -340,16 +328,16 @@ def test_collection_option_is_checked_resolved_and_its_old_name_mapped():
         ("thread_per_device", cpu, "thread_per_device"),
         ("pmap", [FakeGpu(), FakeGpu()], "pmap"),
     ):
-        config = hsa_mjx_train.config.from_dict({"run": {"collection": mode}})
+        config = train_config.from_dict({"run": {"collection": mode}})
         assert resolve_collection(config, devices) == expected, (mode, len(devices))
     for old, new in (("per_device", "thread_per_device"), ("pmap", "pmap"), ("auto", "auto")):  # older configs
-        assert hsa_mjx_train.config.from_dict({"run": {"multi_device": old}}).run.collection == new
+        assert train_config.from_dict({"run": {"multi_device": old}}).run.collection == new
 
 
 def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     from brax.training.acme import running_statistics as rs
 
-    from hsa_mjx_train.warm_start import restart_count
+    from train.warm_start import restart_count
 
     old = rs.init_state(jnp.zeros(3))
     old = rs.update(old, jax.random.normal(jax.random.PRNGKey(0), (100_000, 3)) * jnp.array([1.0, 0.1, 2.0]))
@@ -367,7 +355,7 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
 
 def test_terrain_evaluation_counts_how_episodes_ended():
     from hsa_mjx.task import termination
-    from hsa_mjx_train import terrain_eval
+    from train import terrain_eval
 
     reasons = np.zeros((4, len(termination.REASONS)), bool)
     reasons[0, termination.REASONS.index("goal_reached")] = reasons[1, termination.REASONS.index("goal_reached")] = True
@@ -423,10 +411,10 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     from brax.training.agents.ppo import networks as ppo_networks
 
     from hsa_mjx.deploy import policy_file
-    from hsa_mjx_train.networks import init_training_state, make_networks
-    from hsa_mjx_train.warm_start import read_init_from, warm_start
+    from train.networks import init_training_state, make_networks
+    from train.warm_start import read_init_from, warm_start
 
-    config = hsa_mjx_train.config.load("configs/train_quickstart_cpu.yaml")
+    config = train_config.load("configs/train_quickstart_cpu.yaml")
     init = read_init_from(config)
     assert init["path"].name == "flat" and init["step"] > 60_000_000 and "policy" in init
     networks = make_networks(config, 28, 8)
@@ -439,8 +427,8 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     act = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
     np.testing.assert_allclose(np.asarray(act(jnp.asarray(obs), jax.random.PRNGKey(2))[0]), shipped(obs), atol=1e-5)
     assert jax.tree.all(jax.tree.map(np.array_equal, ts.params.value, fresh.params.value))  # the critic is new
-    smaller = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(hsa_mjx_train.config.to_dict(config), ["ppo.policy_hidden_sizes=[32, 32]"])
+    smaller = train_config.from_dict(
+        train_config.apply_overrides(train_config.to_dict(config), ["ppo.policy_hidden_sizes=[32, 32]"])
     )
     with pytest.raises(ValueError, match=r"policy in .*flat does not fit.*ppo.policy_hidden_sizes"):
         read_init_from(smaller)
@@ -452,10 +440,10 @@ def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
     from brax.training.agents.ppo import networks as ppo_networks
 
     from hsa_mjx.deploy import policy_file
-    from hsa_mjx_train.networks import init_training_state, make_networks
-    from hsa_mjx_train.warm_start import read_init_from, warm_start
+    from train.networks import init_training_state, make_networks
+    from train.warm_start import read_init_from, warm_start
 
-    config = hsa_mjx_train.config.load("configs/train_quickstart_cpu.yaml", ["env.observation.history_steps=2"])
+    config = train_config.load("configs/train_quickstart_cpu.yaml", ["env.observation.history_steps=2"])
     size = observation_size(config.env.observation)
     assert size == 28 + 2 * (28 + 8)
     networks = make_networks(config, size, 8)
@@ -466,7 +454,7 @@ def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
     obs = np.concatenate([now, rng.normal(size=(16, size - 28)).astype(np.float32)], axis=1)
     act = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=True)
     np.testing.assert_allclose(np.asarray(act(jnp.asarray(obs), jax.random.PRNGKey(2))[0]), shipped(now), atol=1e-5)
-    clock = hsa_mjx_train.config.load("configs/train_quickstart_cpu.yaml", ["env.observation.clock_period_s=2.0"])
+    clock = train_config.load("configs/train_quickstart_cpu.yaml", ["env.observation.clock_period_s=2.0"])
     with pytest.raises(ValueError, match="observation size"):
         read_init_from(clock)
 
@@ -474,10 +462,10 @@ def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
 def test_learner_refuses_an_env_built_for_another_batch():
     """The env is sized for the batch a device steps in one place (strategies.build); another size is refused."""
     from hsa_mjx.task.env import HSAEnv
-    from hsa_mjx_train import strategies
-    from hsa_mjx_train.learner import PPOLearner
+    from train import strategies
+    from train.learner import PPOLearner
 
-    config = hsa_mjx_train.config.from_dict({"run": {"num_envs": 8}, "ppo": {"batch_size": 8, "num_minibatches": 1}})
+    config = train_config.from_dict({"run": {"num_envs": 8}, "ppo": {"batch_size": 8, "num_minibatches": 1}})
     devices = jax.local_devices()[:1]
     strategy = strategies.build(config, devices)
     assert strategy.name == "one_device" and strategy.learner.env.num_envs == 8 and strategy.learner.axis is None
@@ -492,28 +480,28 @@ def test_goal_curriculum_starts_from_the_env_goal_range():
     from hsa_mjx.curricula import goal_curriculum
 
     near = {"dead_zone_radius": 0.5}
-    config = hsa_mjx_train.config.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "goal_curriculum": near})
+    config = train_config.from_dict({"env": {"goal": {"radial_range": [0.6, 0.9]}}, "goal_curriculum": near})
     assert not hasattr(config.goal_curriculum, "initial_range")  # one key: the env's
     start = tuple(config.env.goal.radial_range)
     assert float(goal_curriculum.init(config.goal_curriculum, start).max_distance) == pytest.approx(0.9)
-    old = hsa_mjx_train.config.from_dict({"curriculum": {**near, "initial_range": [0.7, 1.0]}})  # older keys
+    old = train_config.from_dict({"curriculum": {**near, "initial_range": [0.7, 1.0]}})  # older keys
     assert old.env.goal.radial_range == (0.7, 1.0) and old.goal_curriculum == config.goal_curriculum
     with pytest.raises(ValueError, match="differs from env.goal.radial_range"):
-        hsa_mjx_train.config.from_dict(
+        train_config.from_dict(
             {"env": {"goal": {"radial_range": [0.6, 0.9]}}, "curriculum": {**near, "initial_range": [0.7, 1.0]}}
         )
-    off = hsa_mjx_train.config.from_dict(
+    off = train_config.from_dict(
         {"curriculum": {"enabled": False, "initial_range": [0.7, 1.0]}}
     )  # had no effect: dropped
     assert off.env.goal.radial_range == (1.5, 1.8)
-    assert hsa_mjx_train.config.from_dict(hsa_mjx_train.config.to_dict(old)) == old  # a saved config reloads
+    assert train_config.from_dict(train_config.to_dict(old)) == old  # a saved config reloads
 
 
 def test_progress_counts_to_the_last_whole_epoch():
     import io
 
-    from hsa_mjx_train.logger import ProgressBar
-    from hsa_mjx_train.trainer import final_step
+    from train.logger import ProgressBar
+    from train.trainer import final_step
 
     assert final_step(0, 1600, 640) == 1920  # whole epochs: 3 of 640 steps pass 1,600
     assert final_step(1280, 1600, 640) == 1920 and final_step(1920, 1600, 640) == 1920  # resumed, or already done

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from conftest import TINY_RUN as TINY
 
-import hsa_mjx_train.config
-from hsa_mjx_train import checkpoint
+from train import checkpoint
+from train import config as train_config
 
 
-def tiny(**run) -> hsa_mjx_train.config.TrainConfig:
+def tiny(**run) -> train_config.TrainConfig:
     data = json.loads(json.dumps(TINY))
     data["run"].update(run)
-    return hsa_mjx_train.config.from_dict(data)
+    return train_config.from_dict(data)
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def run_dir(tiny_run_dir):
 
 
 def records(path):
-    from hsa_mjx_train.logger import read_jsonl
+    from train.logger import read_jsonl
 
     return read_jsonl(path / "metrics.jsonl")
 
@@ -68,7 +68,7 @@ def test_curriculum_updates_inside_training(run_dir):
 
 
 def test_resume_continues_step_and_curriculum(run_dir):
-    from hsa_mjx_train.trainer import train
+    from train.trainer import train
 
     before = records(run_dir)[-1]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
@@ -80,10 +80,10 @@ def test_resume_continues_step_and_curriculum(run_dir):
 
 
 def test_resume_refuses_other_config_and_overwrite(run_dir):
-    from hsa_mjx_train.trainer import train
+    from train.trainer import train
 
-    other = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"])
+    other = train_config.from_dict(
+        train_config.apply_overrides(json.loads(json.dumps(TINY)), ["env.reward.forward=1.0"])
     )
     with pytest.raises(ValueError, match="env.reward.forward"):
         train(other, run_dir, resume=True, quiet=True)
@@ -105,7 +105,7 @@ def _crashed_copy(run_dir, tmp_path):
 
 
 def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
-    from hsa_mjx_train.trainer import train
+    from train.trainer import train
 
     copy, step = _crashed_copy(run_dir, tmp_path)
     summary = train(tiny(num_timesteps=step + 80), copy, resume=True, quiet=True)
@@ -118,7 +118,7 @@ def test_resume_after_a_crash_logs_every_step_once_in_order(run_dir, tmp_path):
 
 
 def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, capsys):
-    from hsa_mjx_train.trainer import train
+    from train.trainer import train
 
     copy, step = _crashed_copy(run_dir, tmp_path)
     (checkpoint.latest(copy) / checkpoint.STATE_FILE).write_bytes(b"\x00 not msgpack")
@@ -136,7 +136,7 @@ def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, 
 
 
 def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
-    from hsa_mjx_train.run_dir import prepare_run_dir
+    from train.run_dir import prepare_run_dir
 
     early = tmp_path / "early"  # killed before its first checkpoint: logs only
     early.mkdir()
@@ -152,7 +152,7 @@ def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
 
 
 def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_process(tmp_path, monkeypatch):
-    from hsa_mjx_train import distributed, trainer
+    from train import distributed, trainer
 
     started = tmp_path / "started"  # process 0 has already written its config.yaml when process 1 looks
     started.mkdir()
@@ -166,7 +166,7 @@ def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_proc
 
 
 def test_cli_errors_before_compile(run_dir, capsys):
-    from hsa_mjx_train.cli import main
+    from train.cli import main
 
     assert main(["--config", "configs/nope.yaml"]) == 2
     assert main(["--config", "configs/train_quickstart_cpu.yaml", "--set", "ppo.nope=1"]) == 2
@@ -178,7 +178,7 @@ def test_cli_errors_before_compile(run_dir, capsys):
 
 
 def test_evaluate_writes_summary_and_plots(run_dir):
-    from hsa_mjx_train.evaluate import main
+    from train.evaluate import main
 
     assert main([str(run_dir), "--episodes", "2", "--steps", "12"]) == 0  # auto: C MuJoCo substeps on this CPU
     result = json.loads((run_dir / "eval" / "eval.json").read_text())
@@ -211,8 +211,8 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
 
     config = tiny()
     env = HSAEnv(
-        hsa_mjx_train.config.from_dict(
-            hsa_mjx_train.config.apply_overrides(json.loads(json.dumps(TINY)), ["env.termination.max_episode_steps=3"])
+        train_config.from_dict(
+            train_config.apply_overrides(json.loads(json.dumps(TINY)), ["env.termination.max_episode_steps=3"])
         ).env
     )
     batch, rules = AutoResetEnv(env), CurriculumRules(env.config, config.goal_curriculum)
@@ -242,7 +242,7 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
 
 
 def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):
-    from hsa_mjx_train.trainer import train
+    from train.trainer import train
 
     config = tiny(num_timesteps=40, init_from=str(run_dir))  # the tiny run's programs: no new compile
     summary = train(config, tmp_path / "ft", quiet=True)
@@ -271,25 +271,25 @@ def load_payload(path):
 
 
 def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
-    from hsa_mjx_train.cli import main
-    from hsa_mjx_train.warm_start import read_init_from
+    from train.cli import main
+    from train.warm_start import read_init_from
 
-    heading = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(
+    heading = train_config.from_dict(
+        train_config.apply_overrides(
             json.loads(json.dumps(TINY)), ["env.observation.heading=true", f"run.init_from={run_dir}"]
         )
     )
     with pytest.raises(ValueError, match="observation size"):
         read_init_from(heading)
-    wider = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(
+    wider = train_config.from_dict(
+        train_config.apply_overrides(
             json.loads(json.dumps(TINY)), ["ppo.policy_hidden_sizes=[16]", f"run.init_from={run_dir}"]
         )
     )
     with pytest.raises(ValueError, match="policy_hidden_sizes"):
         read_init_from(wider)
-    other_task = hsa_mjx_train.config.from_dict(
-        hsa_mjx_train.config.apply_overrides(
+    other_task = train_config.from_dict(
+        train_config.apply_overrides(
             json.loads(json.dumps(TINY)),
             ["env.reward.forward=1.0", "ppo.learning_rate=0.0", f"run.init_from={run_dir}"],
         )

@@ -17,14 +17,10 @@ import sys
 import time
 from pathlib import Path
 
-import jax
+from . import checkpoint, distributed
+from .config import CPU_CONFIG, GPU_CONFIG, TrainConfig, default_config, load
+from .trainer import train
 
-from hsa_mjx_train import checkpoint, distributed
-from hsa_mjx_train.config import TrainConfig, load
-from hsa_mjx_train.trainer import train
-
-CPU_CONFIG = "configs/train_quickstart_cpu.yaml"
-GPU_CONFIG = "configs/train_flat.yaml"
 DEFAULT_CONFIG = "auto"
 
 
@@ -87,11 +83,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help=f"this process, 0..N-1; 0 writes the run dir (env {distributed.ENV_VARS['process_id']})",
     )
     return parser.parse_args(argv)
-
-
-def default_config() -> str:
-    """The full-size GPU config when JAX sees a GPU, else the CPU quickstart."""
-    return GPU_CONFIG if jax.default_backend() == "gpu" else CPU_CONFIG
 
 
 def resolve(args: argparse.Namespace) -> tuple[TrainConfig, Path]:

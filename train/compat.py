@@ -2,7 +2,7 @@
 
 Brax 0.14.2's trainers (``ppo``, ``sac``, ``apg``, ``training/pmap.py``) call
 ``jax.device_put_replicated``, which JAX 0.10 removed: they fail with ``AttributeError`` right
-after the first reset. hsa_mjx's own trainer (``hsa_mjx_train.learner``) does not need it; ``install()``
+after the first reset. hsa_mjx's own trainer (``train.learner``) does not need it; ``install()``
 restores the function, so Brax's trainers also run on our env. It is a no-op where JAX still has
 the function. Remove this module once a Brax release with the upstream fix is required.
 """

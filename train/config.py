@@ -34,13 +34,16 @@ from hsa_mjx.curricula import goal_curriculum, randomization_curriculum, terrain
 from hsa_mjx.deploy.policy_file import ACTIVATIONS
 from hsa_mjx.terrain.params import RANDOM_TYPES
 
+CPU_CONFIG = "configs/train_quickstart_cpu.yaml"  # python -m train on a CPU: the quickstart
+GPU_CONFIG = "configs/train_flat.yaml"  # and on a GPU: the flat task from scratch
+
 DISTRIBUTIONS = ("tanh_normal", "normal")
-VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (hsa_mjx_train.ppo_update)
+VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (train.ppo_update)
 LR_SCHEDULES = ("fixed", "adaptive_kl")  # ppo.learning_rate_schedule
 NOISE_STD_TYPES = ("scalar", "log")
 SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "randomization_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
-COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (hsa_mjx_train.strategies)
+COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (train.strategies)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +74,7 @@ class PPOConfig:
     normalize_advantage: bool = True
     max_grad_norm: float = 1.0
     vf_loss_coefficient: float = 0.5
-    # when the value targets and advantages are computed (hsa_mjx_train.ppo_update): "per_minibatch" at every
+    # when the value targets and advantages are computed (train.ppo_update): "per_minibatch" at every
     # minibatch from the critic being trained (Brax's PPO, the default: its values chase their own bootstrap,
     # the first value losses of 1e8-1e10), or "per_iteration" once per collection from the critic that
     # collected it (rsl_rl, CleanRL, SB3: first value loss 0.2-0.4). On the flat task the held targets did
@@ -110,7 +113,7 @@ class RunConfig:
     checkpoint_every: int = 1_000_000  # env steps between checkpoints
     keep_checkpoints: int = 3
     num_devices: int = 0  # local devices to use; 0 = all
-    # how the devices share an epoch (hsa_mjx_train.strategies): "one_device", "pmap" (one pmapped
+    # how the devices share an epoch (train.strategies): "one_device", "pmap" (one pmapped
     # epoch), "thread_per_device" (one env collection per GPU, pmapped update), "auto" (one_device on
     # one device, thread_per_device on 2+ GPUs, pmap otherwise)
     collection: str = "auto"
@@ -347,6 +350,14 @@ def _parse_value(raw: str) -> Any:
 def read_yaml(path: str | Path) -> dict:
     """A training YAML file (or a shipped config's name) as nested dicts, merged over its ``base:``."""
     return resources.read_yaml(path, "training config")
+
+
+def default_config() -> str:
+    """The config a run without ``--config`` trains: the full-size GPU one when JAX sees a GPU, else the
+    CPU quickstart."""
+    import jax  # the backend, not at import: reading a config needs no device
+
+    return GPU_CONFIG if jax.default_backend() == "gpu" else CPU_CONFIG
 
 
 def load(path: str | Path, overrides: list[str] | None = None) -> TrainConfig:

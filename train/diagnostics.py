@@ -97,7 +97,7 @@ def render_gif(
 ) -> Path:
     """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
     ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames (MuJoCo's
-    offscreen platform is the one chosen before it was imported: ``hsa_mjx_train.evaluate``)."""
+    offscreen platform is the one chosen before it was imported: ``train.evaluate``)."""
     model = env.robot.mj_model
     data = mujoco.MjData(model)
     qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")

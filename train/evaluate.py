@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ``--video`` is chosen here, before the evaluation (which imports MuJoCo) is.
     """
     gl.choose_platform()
-    from hsa_mjx_train.evaluation import run
+    from .evaluation import run
 
     return run(argv, description=__doc__)
 

@@ -1,8 +1,8 @@
 """What ``python -m train.evaluate`` does: its arguments, the run or policy they name, the episodes and files.
 
-The command itself is ``hsa_mjx_train.evaluate`` (it sets up offscreen rendering before this module,
-which imports MuJoCo, is imported). The episodes are played by ``hsa_mjx_train.rollout``, per terrain
-type and difficulty by ``hsa_mjx_train.terrain_eval``.
+The command itself is ``train.evaluate`` (it sets up offscreen rendering before this module,
+which imports MuJoCo, is imported). The episodes are played by ``train.rollout``, per terrain
+type and difficulty by ``train.terrain_eval``.
 """
 
 from __future__ import annotations
@@ -22,15 +22,16 @@ from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx_train import diagnostics, terrain_eval
-from hsa_mjx_train.config import TrainConfig
-from hsa_mjx_train.policy_sources import (
+
+from . import diagnostics, terrain_eval
+from .config import TrainConfig
+from .policy_sources import (
     default_goal_range,
     evaluation_env_config,
     load_policy,
     load_shipped_policy,
 )
-from hsa_mjx_train.rollout import rollout, summarize
+from .rollout import rollout, summarize
 
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
@@ -180,7 +181,7 @@ def _episodes(args: argparse.Namespace, shipped: bool) -> int:
 
 
 def run(argv: list[str] | None = None, description: str | None = None) -> int:
-    """``python -m train.evaluate``'s work, once the process is set up for rendering (``hsa_mjx_train.evaluate``)."""
+    """``python -m train.evaluate``'s work, once the process is set up for rendering (``train.evaluate``)."""
     args = parse_args(argv, description)
     args.backend = for_one_env(args.backend)  # auto: C MuJoCo on a CPU, where MJX batches of one env are slow
     try:

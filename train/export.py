@@ -23,8 +23,9 @@ from pathlib import Path
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.model import SERVOS
 from hsa_mjx.task import observation
-from hsa_mjx_train import checkpoint, onnx_policy, run_state
-from hsa_mjx_train.config import TrainConfig, from_dict, to_dict
+
+from . import checkpoint, onnx_policy, run_state
+from .config import TrainConfig, from_dict, to_dict
 
 FORMATS = ("npz", "onnx")
 ONNX_FILE = "policy.onnx"
@@ -49,7 +50,7 @@ def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyP
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
     ppo = config.ppo
     params = run_state.policy_arrays(config, ts, len(SERVOS))
-    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as hsa_mjx_train.networks.make_networks
+    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.networks.make_networks
     meta = policy_file.describe(
         params,
         ppo.activation,

@@ -1,6 +1,6 @@
 """Where the learner's state lives on several devices: copies along a leading device axis.
 
-Shared by the collection strategies (``hsa_mjx_train.strategies``, ``hsa_mjx_train.thread_per_device``).
+Shared by the collection strategies (``train.strategies``, ``train.thread_per_device``).
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from typing import Any
 
 import jax
 
-from hsa_mjx_train import compat
-from hsa_mjx_train.learner import AXIS, PPOLearner
+from . import compat
+from .learner import AXIS, PPOLearner
 
 
 def replicate(tree: Any, devices: Sequence[jax.Device]) -> Any:
@@ -36,5 +36,5 @@ def check_env_size(learner: PPOLearner, devices: Sequence[jax.Device]) -> None:
         raise ValueError(
             f"the env is built for batches of {learner.env.num_envs}, but each of the {len(devices)} devices "
             f"steps {per_device} envs (run.num_envs {learner.config.run.num_envs}): build it with "
-            f"HSAEnv(config.env, num_envs={per_device}) (hsa_mjx_train.strategies.build does)"
+            f"HSAEnv(config.env, num_envs={per_device}) (train.strategies.build does)"
         )

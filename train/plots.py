@@ -6,7 +6,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from hsa_mjx_train.logger import read_jsonl
+from .logger import read_jsonl
 
 PANELS = (
     ("episode/return", "episode return"),
@@ -23,7 +23,7 @@ PANELS = (
     ("terrain/mean_level", "terrain level (mean over envs)"),
     ("terrain/top_share", "share of envs at the top terrain level"),
 )
-# what a PPO engineer reads first (hsa_mjx_train.ppo_update), in a figure of their own
+# what a PPO engineer reads first (train.ppo_update), in a figure of their own
 PPO_PANELS = (
     ("loss/v_loss", "value loss (symlog)"),
     ("loss/explained_variance", "explained variance of the returns"),

@@ -19,8 +19,9 @@ from brax.training.agents.ppo import networks as ppo_networks
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx_train import checkpoint, run_state
-from hsa_mjx_train.config import TrainConfig, apply_overrides, from_dict, to_dict
+
+from . import checkpoint, run_state
+from .config import TrainConfig, apply_overrides, from_dict, to_dict
 
 
 def evaluation_env_config(config: EnvConfig, backend: str | None = None) -> EnvConfig:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import yaml
 
-from hsa_mjx_train import checkpoint, distributed
-from hsa_mjx_train.config import TrainConfig, from_dict, to_dict
+from . import checkpoint, distributed
+from .config import TrainConfig, from_dict, to_dict
 
 RUN_FILES = (
     "checkpoints",

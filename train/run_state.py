@@ -1,6 +1,6 @@
 """The run state a checkpoint holds, and every way of reading it back into a training state.
 
-A checkpoint's payload (``hsa_mjx_train.checkpoint`` writes and reads the files) is one pytree:
+A checkpoint's payload (``train.checkpoint`` writes and reads the files) is one pytree:
 
 - ``training_state``: the learner's :class:`TrainingState` (parameters, optimiser, observation statistics);
 - ``curriculum``: the goal curriculum's state (its on-disk name since format 1);
@@ -26,9 +26,10 @@ from brax.training.agents.ppo import networks as ppo_networks
 
 from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
 from hsa_mjx.curricula.state import EnvLevels
-from hsa_mjx_train import checkpoint
-from hsa_mjx_train.config import TrainConfig
-from hsa_mjx_train.networks import TrainingState, init_training_state, make_networks, privileged_size
+
+from . import checkpoint
+from .config import TrainConfig
+from .networks import TrainingState, init_training_state, make_networks, privileged_size
 
 ON_DISK_TERRAIN = {"terrain_type": "row", "level": "level"}  # TerrainLevels field -> payload key
 

@@ -1,12 +1,12 @@
 """How the devices share a training epoch: the collection strategies of ``run.collection``.
 
-One learner (``hsa_mjx_train.learner.PPOLearner``: collect, learn, drain as pure functions) and one
+One learner (``train.learner.PPOLearner``: collect, learn, drain as pure functions) and one
 of these strategies, which place its state and call its functions:
 
 - ``one_device``: the epoch jitted for the one device, no collective at all;
 - ``pmap``: the epoch ``pmap``-ed over this process's devices (and every process's, with several
   hosts): gradients, observation statistics and curriculum outcomes are reduced over all of them;
-- ``thread_per_device`` (``hsa_mjx_train.thread_per_device``): each GPU its own env copy and jitted
+- ``thread_per_device`` (``train.thread_per_device``): each GPU its own env copy and jitted
   collection, called from one host thread per GPU, and the learning step ``pmap``-ed;
 - ``auto`` (the default): ``one_device`` for one device, ``thread_per_device`` for several local GPUs,
   ``pmap`` otherwise (several CPU devices, or several hosts of one GPU each).
@@ -26,12 +26,13 @@ import jax.numpy as jnp
 from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx_train import compat
-from hsa_mjx_train.config import TrainConfig
-from hsa_mjx_train.learner import AXIS, LoopState, PPOLearner
-from hsa_mjx_train.networks import TrainingState
-from hsa_mjx_train.placement import check_env_size, first_copy, replicate
-from hsa_mjx_train.thread_per_device import ThreadPerDevice
+
+from . import compat
+from .config import TrainConfig
+from .learner import AXIS, LoopState, PPOLearner
+from .networks import TrainingState
+from .placement import check_env_size, first_copy, replicate
+from .thread_per_device import ThreadPerDevice
 
 
 class OneDevice:

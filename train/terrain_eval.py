@@ -25,7 +25,8 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.task import termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
-from hsa_mjx_train.plots import terrain_grid
+
+from .plots import terrain_grid
 
 TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral
 
@@ -100,7 +101,7 @@ def evaluate(
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
-    (``hsa_mjx_train.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
+    (``train.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
     difficulty, the episodes of a cell spread over them by their keys.
     """
     rows = []

@@ -31,9 +31,10 @@ from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
-from hsa_mjx_train.learner import AXIS, LoopState, PPOLearner
-from hsa_mjx_train.networks import TrainingState
-from hsa_mjx_train.placement import check_env_size, first_copy, replicate
+
+from .learner import AXIS, LoopState, PPOLearner
+from .networks import TrainingState
+from .placement import check_env_size, first_copy, replicate
 
 
 @struct.dataclass

@@ -1,9 +1,9 @@
 """The training run: set-up, resume, the host loop over jitted epochs, logging and checkpoints.
 
-``train(config, run_dir)`` builds the learner and its collection strategy (``hsa_mjx_train.strategies``),
+``train(config, run_dir)`` builds the learner and its collection strategy (``train.strategies``),
 starts from scratch, a checkpoint (``--resume``) or another run's networks (``run.init_from``), and
 runs epochs until ``run.num_timesteps``, logging and checkpointing between them (the run state a
-checkpoint holds: ``hsa_mjx_train.run_state``). Several processes (``hsa_mjx_train.distributed``):
+checkpoint holds: ``train.run_state``). Several processes (``train.distributed``):
 every process runs the same loop on its local devices; only process 0 writes the run dir.
 """
 
@@ -21,12 +21,13 @@ import numpy as np
 
 from hsa_mjx.batch.auto_reset import summarize
 from hsa_mjx.curricula import goal_curriculum
-from hsa_mjx_train import checkpoint, distributed, plots, run_state, strategies
-from hsa_mjx_train.config import TrainConfig, to_dict, validate_devices
-from hsa_mjx_train.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
-from hsa_mjx_train.networks import init_training_state
-from hsa_mjx_train.run_dir import prepare_run_dir
-from hsa_mjx_train.warm_start import describe, read_init_from, warm_start
+
+from . import checkpoint, distributed, plots, run_state, strategies
+from .config import TrainConfig, to_dict, validate_devices
+from .logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
+from .networks import init_training_state
+from .run_dir import prepare_run_dir
+from .warm_start import describe, read_init_from, warm_start
 
 
 class StopFlag:

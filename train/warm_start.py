@@ -22,9 +22,10 @@ import jax.numpy as jnp
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.task import history
 from hsa_mjx.task.observation import observation_labels, observation_size
-from hsa_mjx_train import checkpoint, run_state
-from hsa_mjx_train.config import TrainConfig, from_dict
-from hsa_mjx_train.networks import TrainingState, privileged_size
+
+from . import checkpoint, run_state
+from .config import TrainConfig, from_dict
+from .networks import TrainingState, privileged_size
 
 POLICY_NORMALIZER_COUNT = 100_000  # samples the shipped statistics count as when a run starts from a policy file
 
