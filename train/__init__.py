@@ -6,8 +6,8 @@ installed or not. ``python -m train`` (in a checkout) or ``hsa-train`` trains (`
 train.evaluate`` or ``hsa-evaluate`` evaluates a run or a shipped policy, ``python -m train.export``
 or ``hsa-export`` exports one; ``docs/training.md`` describes them.
 
-Its modules import Brax, and Brax imports MJX, which prints "Failed to import warp" where warp-lang is
-not installed: MJX is imported here first, through ``hsa_mjx.sim.backend``, which keeps that quiet.
+Importing the package imports neither MuJoCo nor Brax: ``python -m train.evaluate --video`` chooses
+MuJoCo's offscreen platform before MuJoCo is first imported. Brax imports MJX, which prints "Failed to
+import warp" where warp-lang is not installed: each module that imports Brax imports MJX first, through
+``hsa_mjx.sim.backend``, which keeps that quiet.
 """
-
-import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before any Brax import)

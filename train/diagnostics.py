@@ -9,6 +9,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from PIL import Image
 
+from hsa_mjx.task import goals
+
 SERVO_LABELS = ("1A", "2A", "3A", "4A", "1C", "2C", "3C", "4C")
 # Frames per GIF at most: offscreen rendering without a GPU (Mesa's llvmpipe) takes a good part of a
 # second a frame, so a 1,000-step episode at every 2nd step would take minutes to draw.
@@ -92,23 +94,60 @@ def plot_trajectories(traces: dict, path: Path) -> Path:
     return path
 
 
+GOAL_RGBA = (1.0, 0.0, 1.0, 0.9)  # the goal: a magenta pole (a colour the robot and ground do not have)
+CHECKPOINT_RGBA = (0.0, 0.9, 0.9, 0.6)  # the spiral's checkpoints: cyan poles
+
+
+def _pole(scene: mujoco.MjvScene, xy: np.ndarray, rgba: tuple, height: float = 0.8, radius: float = 0.04) -> None:
+    """Stand a marker pole on ``xy`` in ``scene`` (a geom of the scene only: the model is unchanged)."""
+    if scene.ngeom >= scene.maxgeom:
+        return
+    mujoco.mjv_initGeom(
+        scene.geoms[scene.ngeom],
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        np.array([radius, height / 2, 0.0]),
+        np.array([xy[0], xy[1], height / 2]),
+        np.eye(3).reshape(-1),
+        np.asarray(rgba, np.float32),
+    )
+    scene.ngeom += 1
+
+
+def _framing_camera(robot_xy: np.ndarray, goal_xy: np.ndarray) -> mujoco.MjvCamera:
+    """A camera looking down at the robot and its goal together, from the same side every frame."""
+    camera = mujoco.MjvCamera()
+    camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+    camera.lookat[:] = [*(0.5 * (robot_xy + goal_xy)), 0.0]
+    camera.distance = 1.5 + 1.1 * float(np.linalg.norm(goal_xy - robot_xy))
+    camera.azimuth, camera.elevation = 90.0, -50.0
+    return camera
+
+
 def render_gif(
     traces: dict, env, path: Path, every: int = 2, size: tuple[int, int] = (360, 480), max_frames: int = GIF_FRAMES
 ) -> Path:
-    """Render episode 0 offscreen (``track`` camera) to an animated GIF playing in real time, every
-    ``every``-th step, fewer for long episodes so that it holds at most ``max_frames`` frames (MuJoCo's
-    offscreen platform is the one chosen before it was imported: ``train.evaluate``)."""
+    """Render episode 0 offscreen to an animated GIF playing in real time, every ``every``-th step,
+    fewer for long episodes so that it holds at most ``max_frames`` frames. The camera frames the robot
+    and its goal, marked by a magenta pole (the spiral's checkpoints by cyan ones). MuJoCo's offscreen
+    platform is the one chosen before it was imported (``train.evaluate``)."""
     model = env.robot.mj_model
     data = mujoco.MjData(model)
     qpos, goal = _episode(traces, "qpos"), _episode(traces, "goal")
     every = max(every, -(-len(qpos) // max_frames))
+    goal_config = env.config.goal
+    checkpoints = (
+        goals.spiral_checkpoints(goal_config, env.config.terrain.spiral) if goal_config.mode == "spiral" else []
+    )
     frames = []
     with mujoco.Renderer(model, *size) as renderer:
         for t in range(0, len(qpos), every):
             data.qpos[:] = qpos[t]
             data.mocap_pos[env.index.goal_mocap, :2] = goal[t]
             mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera="track")
+            renderer.update_scene(data, camera=_framing_camera(data.subtree_com[0, :2], np.asarray(goal[t])))
+            for xy in checkpoints:
+                _pole(renderer.scene, xy, CHECKPOINT_RGBA, height=0.5)
+            _pole(renderer.scene, goal[t], GOAL_RGBA)
             frames.append(Image.fromarray(renderer.render()))
     duration_ms = int(1000 * env.dt * every)
     frames[0].save(path, save_all=True, append_images=frames[1:], duration=duration_ms, loop=0)

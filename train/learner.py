@@ -14,6 +14,9 @@ one thread per GPU. Every reduction over devices names the learner's ``axis``; w
 
 from __future__ import annotations
 
+import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
+
+# isort: split
 import functools
 from typing import Any
 

@@ -6,6 +6,9 @@ statistics); ``train.run_state`` saves and restores it, the learner updates it.
 
 from __future__ import annotations
 
+import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
+
+# isort: split
 import functools
 from collections.abc import Callable
 

@@ -8,6 +8,9 @@ for, with ``env.KEY=VALUE`` overrides), and ``policy(obs, key) -> (action, extra
 
 from __future__ import annotations
 
+import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
+
+# isort: split
 import dataclasses
 import functools
 from pathlib import Path

@@ -16,6 +16,9 @@ PPO engineer reads first: KL, clip fraction, explained variance, gradient norm, 
 
 from __future__ import annotations
 
+import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
+
+# isort: split
 from typing import Any
 
 import jax

@@ -16,6 +16,9 @@ Brax policy sits in its parameters.
 
 from __future__ import annotations
 
+import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
+
+# isort: split
 from pathlib import Path
 from typing import Any
 
