@@ -147,18 +147,19 @@ def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, di
             **({"env_overrides": args.overrides} if args.overrides else {}),
         }
         return config, env, policy, header, out
-    run_dir = Path(args.run_dir)
-    if not run_dir.is_dir():
-        raise FileNotFoundError(f"run directory not found: {run_dir}")
     config, env, policy, path, step = load_policy(
-        run_dir,
+        Path(args.run_dir),
         deterministic=not args.stochastic,
         backend=args.backend,
         num_envs=_episodes(args, False),
         overrides=tuple(args.overrides),
     )
-    header = {"checkpoint": str(path), "step": step, **({"env_overrides": args.overrides} if args.overrides else {})}
-    return config, env, policy, header, Path(args.out) if args.out else run_dir / "eval"
+    header = {
+        "checkpoint": str(path),
+        "step": step,
+        **({"env_overrides": args.overrides} if args.overrides else {}),
+    }
+    return config, env, policy, header, Path(args.out) if args.out else Path(args.run_dir) / "eval"
 
 
 def check_goal_range(goal_range: list[float] | None, config: TrainConfig) -> None:

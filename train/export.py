@@ -25,25 +25,10 @@ from hsa_mjx.sim.model import SERVOS
 from hsa_mjx.task import observation
 
 from . import checkpoint, onnx_policy, run_state
-from .config import TrainConfig, from_dict, to_dict
+from .config import TrainConfig, to_dict
 
 FORMATS = ("npz", "onnx")
 ONNX_FILE = "policy.onnx"
-
-
-def read_checkpoint(run_dir: Path, checkpoint_path: Path | None) -> tuple[TrainConfig, Path, int]:
-    """(config, checkpoint path, step) of a run's latest or given checkpoint; errors name the problem."""
-    if not run_dir.is_dir():
-        raise FileNotFoundError(f"run directory not found: {run_dir}")
-    path = checkpoint_path or checkpoint.latest(run_dir)
-    if not path.is_dir():
-        raise FileNotFoundError(f"checkpoint directory not found: {path}")
-    meta = checkpoint.read_meta(path)
-    try:
-        config = from_dict(meta["config"])
-    except ValueError as err:
-        raise ValueError(f"checkpoint {path} was written with a config this code cannot build: {err}") from err
-    return config, path, int(meta["step"])
 
 
 def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyPolicy:
@@ -68,7 +53,7 @@ def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyP
 
 def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> policy_file.NumpyPolicy:
     """The deterministic policy of a run's latest (or given) checkpoint, with its provenance."""
-    config, path, step = read_checkpoint(run_dir, checkpoint_path)
+    config, path, step = run_state.open_run(run_dir, checkpoint_path)
     _, ts = run_state.load_training_state(
         config, path, observation.observation_size(config.env.observation), len(SERVOS)
     )

@@ -23,7 +23,7 @@ from hsa_mjx.config import EnvConfig
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.task.env import HSAEnv
 
-from . import checkpoint, run_state
+from . import run_state
 from .config import TrainConfig, apply_overrides, from_dict, to_dict
 
 
@@ -45,13 +45,11 @@ def load_policy(
     """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training;
     ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer,
     ``overrides`` (``env.KEY=VALUE``, ``env_overrides``) change the env it is evaluated on."""
-    path = checkpoint_path or checkpoint.latest(run_dir)
-    meta = checkpoint.read_meta(path)
-    config = from_dict(env_overrides(meta["config"], overrides))
+    config, path, step = run_state.open_run(run_dir, checkpoint_path, lambda data: env_overrides(data, overrides))
     env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
     networks, ts = run_state.load_training_state(config, path, env.observation_size, env.action_size)
     policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
-    return config, env, policy, path, int(meta["step"])
+    return config, env, policy, path, step
 
 
 def check_env_overrides(overrides: tuple[str, ...] | list[str]) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imports it)
 
 # isort: split
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,7 @@ from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
 from hsa_mjx.curricula.state import EnvLevels
 
 from . import checkpoint
-from .config import TrainConfig
+from .config import TrainConfig, from_dict
 from .networks import TrainingState, init_training_state, make_networks, privileged_size
 
 ON_DISK_TERRAIN = {"terrain_type": "row", "level": "level"}  # TerrainLevels field -> payload key
@@ -180,3 +181,27 @@ def with_policy_layers(ts: TrainingState, kernels: tuple, biases: tuple) -> Trai
         layer["kernel"] = weights.at[:rows, :out].set(kernel)
         layer["bias"] = jnp.asarray(layer["bias"]).at[:out].set(bias)
     return ts.replace(params=ts.params.replace(policy={**ts.params.policy, "params": new}))
+
+
+def open_run(
+    source: Path, checkpoint_path: Path | None = None, edit: Callable[[dict], dict] | None = None
+) -> tuple[TrainConfig, Path, int]:
+    """(config, checkpoint dir, step) of a run: ``source`` is a run dir (its newest readable checkpoint,
+    or ``checkpoint_path``) or one checkpoint dir. ``edit`` changes the saved config's data before it is
+    built (an evaluation's env overrides). A missing folder is a FileNotFoundError, a config this code
+    cannot build a ValueError, each naming the path."""
+    source = Path(source)
+    if not source.is_dir():
+        raise FileNotFoundError(f"run directory not found: {source}")
+    path = Path(checkpoint_path) if checkpoint_path else None
+    if path is None:
+        path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
+    if not path.is_dir():
+        raise FileNotFoundError(f"checkpoint directory not found: {path}")
+    meta = checkpoint.read_meta(path)
+    data = meta["config"] if edit is None else edit(meta["config"])
+    try:
+        config = from_dict(data)
+    except ValueError as err:
+        raise ValueError(f"checkpoint {path} was written with a config this code cannot build: {err}") from err
+    return config, path, int(meta["step"])

@@ -24,7 +24,7 @@ from hsa_mjx.task import history
 from hsa_mjx.task.observation import observation_labels, observation_size
 
 from . import checkpoint, run_state
-from .config import TrainConfig, from_dict
+from .config import TrainConfig
 from .networks import TrainingState, privileged_size
 
 POLICY_NORMALIZER_COUNT = 100_000  # samples the shipped statistics count as when a run starts from a policy file
@@ -43,9 +43,7 @@ def read_init_from(config: TrainConfig) -> dict | None:
             f"run.init_from: {source} not found (give a run dir, one of its checkpoint dirs, "
             "a policy dir or a shipped policy's name)"
         )
-    path = source if (source / checkpoint.META_FILE).is_file() else checkpoint.latest(source)
-    meta = checkpoint.read_meta(path)
-    src = from_dict(meta["config"])
+    src, path, step = run_state.open_run(source)
     bad = [
         f"ppo.{k} ({getattr(src.ppo, k)!r} vs {getattr(config.ppo, k)!r})"
         for k in checkpoint.COMPATIBLE_PPO_KEYS
@@ -59,7 +57,7 @@ def read_init_from(config: TrainConfig) -> dict | None:
         )
     if bad:
         raise ValueError(f"run.init_from: the networks of {path} do not fit this config: {bad}")
-    return {**meta, "path": path, "source": src, "count": config.run.init_normalizer_count}
+    return {"path": path, "step": step, "source": src, "count": config.run.init_normalizer_count}
 
 
 def _observation_mismatch(size: int, config: TrainConfig) -> list[str]:
