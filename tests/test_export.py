@@ -134,7 +134,8 @@ def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
     np.testing.assert_allclose(onnx_actions(tmp_path / "onnx", obs), want, atol=ATOL, rtol=0)
     source = policy.meta["source"]
     assert source["step"] == source["env_steps"] == int(latest.name.split("_")[1]) >= 80
-    assert source["checkpoint"] == str(latest) and "--format npz" in source["command"]
+    assert source["checkpoint"] == latest.name and "--format npz" in source["command"]  # outside the cwd: its name
+    assert not Path(source["run"]).is_absolute()  # no machine's absolute path in a result file
     assert train_config.from_dict(policy.meta["config"]) == config
     assert json.loads((tmp_path / "onnx" / policy_file.META_FILE).read_text())["network"] == policy.meta["network"]
 

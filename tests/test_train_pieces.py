@@ -524,3 +524,15 @@ def test_health_and_task_failures_are_grouped_apart():
         "simulator_health": False,
         "task_failure": True,
     }
+
+
+def test_result_files_record_no_absolute_paths(tmp_path, monkeypatch):
+    from pathlib import Path
+
+    from train.run_dir import portable
+
+    monkeypatch.chdir(tmp_path)
+    assert portable(tmp_path / "runs" / "flat" / "checkpoints") == "runs/flat/checkpoints"
+    assert portable(Path("runs/flat")) == "runs/flat"
+    assert portable(tmp_path.parent / "elsewhere" / "rough") == "rough"  # outside: its name
+    assert portable(tmp_path / "r" / "checkpoints" / "step_1", tmp_path / "r") == "checkpoints/step_1"

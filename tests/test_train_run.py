@@ -73,6 +73,7 @@ def test_resume_continues_step_and_curriculum(run_dir):
     before = records(run_dir)[-1]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
     assert summary["env_steps"] == 160
+    assert summary["checkpoint"] == "checkpoints/step_000000000160"  # within the run dir, no absolute path
     after = records(run_dir)[-1]
     assert after["step"] == 160
     assert after["curriculum/episode_count"] > before["curriculum/episode_count"]

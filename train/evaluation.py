@@ -32,6 +32,7 @@ from .policy_sources import (
     load_shipped_policy,
 )
 from .rollout import rollout, summarize
+from .run_dir import portable
 
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
@@ -141,7 +142,7 @@ def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, di
         )
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {
-            "policy_dir": str(directory),
+            "policy_dir": portable(directory),
             "source": shipped.meta.get("source", {}),
             "step": shipped.meta.get("source", {}).get("env_steps"),
             **({"env_overrides": args.overrides} if args.overrides else {}),
@@ -155,7 +156,7 @@ def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, di
         overrides=tuple(args.overrides),
     )
     header = {
-        "checkpoint": str(path),
+        "checkpoint": portable(path),
         "step": step,
         **({"env_overrides": args.overrides} if args.overrides else {}),
     }

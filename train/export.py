@@ -26,6 +26,7 @@ from hsa_mjx.task import observation
 
 from . import checkpoint, onnx_policy, run_state
 from .config import TrainConfig, to_dict
+from .run_dir import portable
 
 FORMATS = ("npz", "onnx")
 ONNX_FILE = "policy.onnx"
@@ -59,8 +60,8 @@ def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> pol
     )
     trained_on = checkpoint.read_meta(path).get("physics_backend", config.env.physics.backend)
     source = {
-        "run": str(run_dir),
-        "checkpoint": str(path),
+        "run": portable(run_dir),
+        "checkpoint": portable(path),
         "step": step,
         "env_steps": step,
         "physics_backend": trained_on,
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.checkpoint:
                 raise ValueError("--checkpoint needs a run directory; a policy directory holds one policy")
             policy = policy_file.load_policy(run_dir)
-            policy.meta["source"]["converted_from"] = str(run_dir)
+            policy.meta["source"]["converted_from"] = portable(run_dir)
         else:
             policy = load_numpy_policy(run_dir, Path(args.checkpoint) if args.checkpoint else None)
         policy.meta["source"]["command"] = " ".join(["python -m train.export", *(argv or sys.argv[1:])])

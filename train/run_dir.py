@@ -18,6 +18,14 @@ import yaml
 from . import checkpoint, distributed
 from .config import TrainConfig, from_dict, to_dict
 
+
+def portable(path: Path, base: Path | None = None) -> str:
+    """``path`` as a result file records it: relative to ``base`` (default: the working directory) when
+    inside it, else its name alone, so no file carries a machine's absolute paths."""
+    path, base = Path(path).absolute(), Path(base if base is not None else Path.cwd()).absolute()
+    return str(path.relative_to(base)) if path.is_relative_to(base) else path.name
+
+
 RUN_FILES = (
     "checkpoints",
     "metrics.jsonl",

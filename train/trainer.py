@@ -26,7 +26,7 @@ from . import checkpoint, distributed, plots, run_state, strategies
 from .config import TrainConfig, to_dict, validate_devices
 from .logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
 from .networks import init_training_state
-from .run_dir import prepare_run_dir
+from .run_dir import portable, prepare_run_dir
 from .warm_start import describe, read_init_from, warm_start
 
 
@@ -195,7 +195,7 @@ def _finish(run_dir: Path, summary: dict) -> dict:
     """Process 0: learning curves, PPO diagnostics and ``summary.json`` (with the latest checkpoint)."""
     plots.learning_curves(run_dir / "metrics.jsonl", run_dir / "learning_curve.png")
     plots.ppo_diagnostics(run_dir / "metrics.jsonl", run_dir / "ppo_diagnostics.png")
-    summary = {**summary, "checkpoint": str(checkpoint.latest(run_dir))}
+    summary = {**summary, "checkpoint": portable(checkpoint.latest(run_dir), run_dir)}  # within the run dir
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
