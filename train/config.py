@@ -100,6 +100,11 @@ class PPOConfig:
     # the policy, and every exported policy, reads the observation alone
     privileged_critic: bool = False
 
+    @property
+    def applied_observation_clip(self) -> float:
+        """The clip the networks apply to their inputs: ``observation_clip``, 0 (none) without normalisation."""
+        return self.observation_clip if self.normalize_observations else 0.0
+
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:

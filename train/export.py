@@ -36,12 +36,11 @@ def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyP
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
     ppo = config.ppo
     params = run_state.policy_arrays(config, ts, len(SERVOS))
-    clip = ppo.observation_clip if ppo.normalize_observations else 0.0  # as train.networks.make_networks
     meta = policy_file.describe(
         params,
         ppo.activation,
         ppo.distribution_type,
-        clip,
+        ppo.applied_observation_clip,
         list(observation.observation_labels(config.env.observation)),
     )
     # the policy runs wherever it is loaded: the physics backend is picked there (the training's is in source)

@@ -55,7 +55,7 @@ def make_networks(
     ppo = config.ppo
     normalize = types.identity_observation_preprocessor
     if ppo.normalize_observations:
-        normalize = functools.partial(running_statistics.normalize, max_abs_value=ppo.observation_clip or None)
+        normalize = functools.partial(running_statistics.normalize, max_abs_value=ppo.applied_observation_clip or None)
     actor_normalize = normalize if privileged_size == 0 else _actor_view(normalize, observation_size)
     networks = ppo_networks.make_ppo_networks(  # the policy's parameters are sized for the observation alone
         observation_size,

@@ -97,7 +97,7 @@ def _read_policy(config: TrainConfig, directory: Path) -> dict:
         (
             "observation_clip",
             float(net["observation_clip"]),
-            ppo.observation_clip if ppo.normalize_observations else 0.0,
+            ppo.applied_observation_clip,
         ),
     ):
         if theirs != ours:
