@@ -147,14 +147,14 @@ def _checkout(tmp_path: Path) -> Path:
 
 
 def _train_help_runs_the_checkout(copy: Path, pythonpath: str) -> None:
-    """``python -m train --help`` in the checkout prints its help, from its own train/ and hsa_mjx/ only."""
+    """``python -m train --help`` in the checkout (run as ``-m`` does, through runpy, so that the same
+    process then says which files it loaded) prints its help from its own train/ and hsa_mjx/ only."""
     env = {**os.environ, "PYTHONPATH": pythonpath, "JAX_PLATFORMS": "cpu"}
-    run = dict(cwd=copy, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
-    shown = subprocess.run([sys.executable, "-m", "train", "--help"], **run)
+    shown = subprocess.run(
+        [sys.executable, "-c", PROBE], cwd=copy, env=env, capture_output=True, text=True, timeout=TIMEOUT_S
+    )
     assert shown.returncode == 0 and MARKER in shown.stdout, shown.stderr[-3000:]
-    cli_file, env_file, installed_name = subprocess.run(
-        [sys.executable, "-c", PROBE], check=True, **run
-    ).stdout.split()[-3:]
+    cli_file, env_file, installed_name = shown.stdout.split()[-3:]
     assert Path(cli_file).is_relative_to(copy) and Path(env_file).is_relative_to(copy)
     assert installed_name == "False"  # the installed trainer's modules never load beside the checkout's
 
