@@ -11,12 +11,19 @@ can reach from its spawn, the median detour (path over straight-line distance) t
 and the steepest slope over the robot's length on the reachable ground. A level whose goals cannot be
 reached grades nothing; a ladder whose levels all read alike grades little. Writes
 ``ladders_<config>.{json,md}``.
+
+``--speeds TERRAIN_EVAL.json`` (a ``python -m train.evaluate ... --terrain-types`` result) also counts
+time: the robot's measured speed on each type and level (how fast the goals it reached were reached,
+interpolated between the evaluated difficulties), the time the farthest goals need at it (the ring's
+outer radius times the median detour) and whether that fits in the config's episode. A level whose
+goals need more than the episode's time is not feasible, however reachable its ground.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -122,25 +129,66 @@ def ladder_rows(config: TerrainConfig, goal_range: tuple[float, float]) -> list[
     return rows
 
 
+def read_speeds(path: Path) -> dict[str, list[tuple[float, float | None]]]:
+    """Per type, (difficulty, speed of the reached goals in m/s, or None) from a terrain evaluation."""
+    if not path.is_file():
+        raise FileNotFoundError(f"--speeds: no such file {path}")
+    rows = json.loads(path.read_text()).get("rows") or []
+    if not rows or any("success_speed_m_s" not in r for r in rows):
+        raise ValueError(f"--speeds: {path} holds no per-cell success_speed_m_s (evaluate with today's train.evaluate)")
+    speeds: dict[str, list[tuple[float, float | None]]] = {}
+    for r in sorted(rows, key=lambda r: r["difficulty"]):
+        speeds.setdefault(r["type"], []).append((float(r["difficulty"]), r["success_speed_m_s"]))
+    return speeds
+
+
+def speed_at(measured: list[tuple[float, float | None]], difficulty: float) -> float | None:
+    """The speed at ``difficulty``, linear between the evaluated difficulties; None outside them or where the
+    nearest evaluated cell reached no goal (its speed was not measured)."""
+    nearest = min(measured, key=lambda m: abs(m[0] - difficulty))
+    known = [(d, v) for d, v in measured if v is not None]
+    if nearest[1] is None or not known or not known[0][0] <= difficulty <= known[-1][0]:
+        return None
+    return float(np.interp(difficulty, [d for d, _ in known], [v for _, v in known]))
+
+
+def add_time(rows: list[dict[str, Any]], speeds: dict, goal_max: float, episode_s: float) -> list[dict[str, Any]]:
+    """``rows`` with each level's measured speed, the farthest goals' time at it and whether it fits."""
+    out = []
+    for r in rows:
+        speed = speed_at(speeds[r["type"]], r["difficulty"]) if r["type"] in speeds else None
+        far = None if speed is None or r["median_detour"] is None else goal_max * r["median_detour"] / speed
+        out.append({**r, "speed_m_s": speed, "far_goal_s": far, "in_time": None if far is None else far <= episode_s})
+    return out
+
+
 def markdown(result: dict[str, Any]) -> str:
     """The rows as one table per type."""
+    timed = "speeds" in result
     lines = [
         f"# Terrain ladders of `{result['config']}` on the robot's map",
         "",
         f"{result['date']}; command `{result['command']}`; goal ring {result['goal_range']} m (straight line); "
-        f"limits {result['limits']}.",
+        f"limits {result['limits']}."
+        + (f" Speeds measured in `{result['speeds']}`; episodes of {result['episode_s']:g} s." if timed else ""),
         "",
         "| type | level | parameter | reachable share of the goal ring | worst tile | median detour | "
-        "steepest reachable slope deg |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "steepest reachable slope deg |" + (" speed m/s | farthest goals s | in time |" if timed else ""),
+        "| --- " * (10 if timed else 7) + "|",
     ]
     for r in result["rows"]:
         detour = "-" if r["median_detour"] is None else f"{r['median_detour']:.2f}"
         slope = "-" if r["steepest_reachable_slope_deg"] is None else f"{r['steepest_reachable_slope_deg']:.1f}"
-        lines.append(
+        line = (
             f"| {r['type']} | {r['level']} | {r['parameter']} | {r['reachable_share']:.0%} | "
             f"{r['worst_tile_share']:.0%} | {detour} | {slope} |"
         )
+        if timed:
+            fits = {None: "not measured", True: "yes", False: "**no**"}[r["in_time"]]
+            speed = "-" if r["speed_m_s"] is None else f"{r['speed_m_s']:.3f}"
+            far = "-" if r["far_goal_s"] is None else f"{r['far_goal_s']:.0f}"
+            line += f" {speed} | {far} | {fits} |"
+        lines.append(line)
     return "\n".join(lines) + "\n"
 
 
@@ -177,6 +225,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--goal-range", type=float, nargs=2, default=(1.5, 4.5), metavar=("MIN", "MAX"))
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/ladders"))
     p.add_argument("--picture", type=Path, help="also draw a tile of each type at levels 0, 5 and 9 into this PNG")
+    p.add_argument("--speeds", type=Path, help="a terrain evaluation (terrain_eval.json): count time as well")
     args = p.parse_args(argv)
     if not 0.0 <= args.goal_range[0] < args.goal_range[1]:
         p.error(f"--goal-range MIN MAX must satisfy 0 <= MIN < MAX, got {args.goal_range}")
@@ -188,12 +237,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     if env.scene != "terrain":
         p.error(f"--config: {args.config} has no terrain (scene {env.scene!r})")
     goal_range = (float(args.goal_range[0]), float(args.goal_range[1]))
+    try:
+        speeds = read_speeds(args.speeds) if args.speeds else None
+    except (FileNotFoundError, ValueError) as err:
+        p.error(str(err))
+    rows = ladder_rows(env.terrain, goal_range)
+    timing = {}
+    if speeds is not None:
+        episode_s = env.termination.max_episode_steps * env.dt
+        rows = add_time(rows, speeds, goal_range[1], episode_s)
+        timing = {"speeds": str(args.speeds), "episode_s": episode_s}
     result = {
         **run_info(),
         "config": str(args.config),
         "goal_range": list(goal_range),
         "limits": dataclasses.asdict(tv.ROBOT),
-        "rows": ladder_rows(env.terrain, goal_range),
+        **timing,
+        "rows": rows,
     }
     write_result(args.out / f"ladders_{args.config.stem}", result, markdown(result))
     if args.picture:

@@ -677,6 +677,7 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
         (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)
     ]
     assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
+    assert all((r["success_speed_m_s"] is None) == (r["success_rate"] == 0.0) for r in table["rows"])
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
     # evaluated on tiles the run's pool was not drawn from, both seeds recorded
     assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table

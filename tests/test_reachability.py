@@ -111,3 +111,30 @@ def test_the_ladder_audit_reads_each_level_on_the_robots_map():
     assert rows[("corridor", 0)]["reachable_share"] == 1.0 and rows[("corridor", 1)]["reachable_share"] == 0.0
     assert rows[("stairs", 1)]["parameter"] == "step_height 0.04 m" and rows[("stairs", 1)]["reachable_share"] == 1.0
     assert rows[("corridor", 1)]["median_detour"] is None and 1.0 <= rows[("stairs", 0)]["median_detour"] < 1.1
+
+
+def test_the_ladder_audit_counts_time_at_the_measured_speed(tmp_path):
+    """``benchmarks.ladders --speeds``: a level is in time when its farthest goals, along the ground, take
+    no longer than an episode at the speed measured there (interpolated between evaluated difficulties)."""
+    import json
+
+    from benchmarks import ladders
+
+    cells = [("poles", 0.0, 0.2), ("poles", 0.5, 0.1), ("poles", 1.0, None), ("flat", 0.0, 0.2)]
+    path = tmp_path / "terrain_eval.json"
+    path.write_text(json.dumps({"rows": [{"type": t, "difficulty": d, "success_speed_m_s": v} for t, d, v in cells]}))
+    speeds = ladders.read_speeds(path)
+    assert ladders.speed_at(speeds["poles"], 0.25) == pytest.approx(0.15)
+    assert ladders.speed_at(speeds["poles"], 1.0) is None  # no goal reached there: not measured
+    rows = [
+        {"type": "poles", "difficulty": 0.25, "median_detour": 1.2},  # 4.5 m x 1.2 / 0.15 m/s = 36 s
+        {"type": "poles", "difficulty": 0.5, "median_detour": 2.0},  # 90 s: longer than the episode
+        {"type": "poles", "difficulty": 1.0, "median_detour": 1.1},
+        {"type": "flat", "difficulty": 0.0, "median_detour": None},  # no reachable goal: no time
+    ]
+    timed = ladders.add_time(rows, speeds, goal_max=4.5, episode_s=80.0)
+    assert [r["in_time"] for r in timed] == [True, False, None, None]
+    assert timed[0]["far_goal_s"] == pytest.approx(36.0)
+    path.write_text(json.dumps({"rows": [{"type": "flat", "difficulty": 0.0}]}))  # an older evaluation
+    with pytest.raises(ValueError, match="success_speed_m_s"):
+        ladders.read_speeds(path)

@@ -262,3 +262,25 @@ def test_terrain_table_rows_and_means():
     lines = terrain_eval.table(rows).splitlines()
     assert lines[2].split() == ["flat", "100%", "2.00", "100%", "2.00"]
     assert lines[-1].split() == ["mean", "100%", "2.00", "75%", "1.50"]
+
+
+def test_the_speed_of_reached_goals_counts_only_the_episodes_that_reached_them():
+    from train import terrain_eval
+
+    steps = 6
+    alive = np.zeros((3, steps))
+    alive[0, :5] = alive[1, :] = alive[2, :2] = 1  # reached at step 5; out of steps; reached at step 2
+    success = np.zeros((3, steps))
+    success[0, 4] = success[2, 1] = 1
+    traces = {
+        "alive": alive,
+        "success": success,
+        "distance": np.ones((3, steps)),
+        "start_distance": np.array([2.0, 3.0, 0.5]),
+        "reasons": np.zeros((3, steps, 1)),
+    }
+    outcome = terrain_eval.episode_outcomes(traces)
+    assert outcome["steps"].tolist() == [5, 6, 2] and outcome["success"].tolist() == [True, False, True]
+    speed = terrain_eval._success_speed(outcome, np.array([True, True, True]), dt=0.1)
+    assert speed == pytest.approx((2.0 / 0.5 + 0.5 / 0.2) / 2)  # the failure's 6 steps do not count
+    assert terrain_eval._success_speed(outcome, np.array([False, True, False]), dt=0.1) is None

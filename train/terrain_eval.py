@@ -98,7 +98,9 @@ def evaluate(
     seed: int,
     tiles: int = 1,
 ) -> list[dict[str, Any]]:
-    """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes.
+    """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes,
+    and how fast the goals that were reached were reached (``success_speed_m_s``: start distance over the
+    episode's time, the mean over those episodes; ``None`` where none was; ``benchmarks.ladders`` reads it).
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
     (``train.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
@@ -125,6 +127,7 @@ def evaluate(
                     "mean_progress_m": float(outcome["progress"][mine].mean()),
                     "mean_final_distance": float(outcome["final_distance"][mine].mean()),
                     "ended_by": ended_by(outcome["reasons"][mine]),
+                    "success_speed_m_s": _success_speed(outcome, mine, env.dt),
                 }
             )
     return sorted(rows, key=lambda r: (types.index(r["type"]), r["difficulty"]))
@@ -141,7 +144,17 @@ def episode_outcomes(traces: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         "progress": traces["start_distance"] - final,
         "final_distance": final,
         "reasons": traces["reasons"][rows, last] > 0.5,
+        "steps": last + 1,
+        "start_distance": np.asarray(traces["start_distance"]),
     }
+
+
+def _success_speed(outcome: dict[str, np.ndarray], mine: np.ndarray, dt: float) -> float | None:
+    """Mean speed (m/s, start distance over episode time) of a cell's episodes that reached their goal."""
+    reached = mine & outcome["success"]
+    if not reached.any():
+        return None
+    return float(np.mean(outcome["start_distance"][reached] / (outcome["steps"][reached] * dt)))
 
 
 def ended_by(reasons: np.ndarray) -> dict[str, float]:
