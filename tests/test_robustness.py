@@ -193,3 +193,20 @@ def test_a_stability_run_without_the_ceiling_is_reported_with_empty_ceiling_cell
     later = {**row, "observation": "stress_corner2"}
     rows = throughput_report.upsert(throughput_report.load_rows(paths[0]), later)
     assert [r["observation"] for r in rows] == ["stress_corner1", "stress_corner2"]
+
+
+def test_the_randomised_config_trains_over_the_stress_grid_it_is_scored_on():
+    """configs/train_flat_dr.yaml's ranges are the stress grid's (stated there as data, checked here, not
+    restated): each scale spans its stress ends, latency, pushes and noise reach the grid's hardest cell."""
+    from train import config as train_config
+
+    env = train_config.load("configs/train_flat_dr.yaml").env
+    for name, ends in robustness_grids.STRESS_ENDS.items():
+        assert tuple(getattr(env.randomization, name)) == ends, name
+    stress = robustness_grids.grid("stress")
+    worst_latency_steps = max(c["latency_ms"] for c in stress) / 1000.0 / env.dt
+    assert env.randomization.latency_steps[1] == pytest.approx(worst_latency_steps)
+    assert env.randomization.servo_force_limit[0] == robustness_grids.STRESS_TORQUE_LIMIT
+    assert env.randomization.push_speed == robustness_grids.PUSH_SPEED
+    assert tuple(env.randomization.push_interval_s) == robustness_grids.PUSH_INTERVAL_S
+    assert dataclasses.asdict(env.observation.noise) == robustness_grids.NOISE
