@@ -31,7 +31,7 @@ from . import compat
 from .config import TrainConfig
 from .learner import AXIS, LoopState, PPOLearner
 from .networks import TrainingState
-from .placement import check_env_size, first_copy, replicate
+from .placement import PmapWithoutEmpty, check_env_size, first_copy, replicate
 from .thread_per_device import ThreadPerDevice
 
 
@@ -106,9 +106,9 @@ class Pmap:
             raise ValueError(f"run.collection pmap needs a learner with the device axis {AXIS!r}")
         check_env_size(learner, devices)
         self.learner, self.devices = learner, list(devices)
-        self._reset = jax.pmap(learner.reset, axis_name=AXIS)
-        self._epoch = jax.pmap(learner.epoch, axis_name=AXIS, donate_argnums=(0, 1))
-        self._collect_epoch = jax.pmap(learner.collect_epoch, axis_name=AXIS)
+        self._reset = PmapWithoutEmpty(learner.reset, axis_name=AXIS)
+        self._epoch = PmapWithoutEmpty(learner.epoch, axis_name=AXIS, donate_argnums=(0, 1))
+        self._collect_epoch = PmapWithoutEmpty(learner.collect_epoch, axis_name=AXIS)
 
     def place(self, ts: TrainingState) -> TrainingState:
         """One copy of the learner state per device."""

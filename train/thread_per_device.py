@@ -34,7 +34,7 @@ from hsa_mjx.task.env import HSAEnv
 
 from .learner import AXIS, LoopState, PPOLearner
 from .networks import TrainingState
-from .placement import check_env_size, first_copy, replicate
+from .placement import PmapWithoutEmpty, check_env_size, first_copy, replicate
 
 
 @struct.dataclass
@@ -104,8 +104,8 @@ class ThreadPerDevice:
         ]
         self._reset = [jax.jit(functools.partial(learner.reset, batch_env=b)) for b in self.batch_envs]
         self._drain = [jax.jit(functools.partial(self._drain_piece, batch_env=b)) for b in self.batch_envs]
-        self._learn = jax.pmap(learner.learn, axis_name=AXIS)
-        self._sum = jax.pmap(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
+        self._learn = PmapWithoutEmpty(learner.learn, axis_name=AXIS)
+        self._sum = PmapWithoutEmpty(lambda t: jax.lax.psum(t, AXIS), axis_name=AXIS)
         self.pool = ThreadPoolExecutor(len(self.devices), thread_name_prefix="hsa-mjx-device")
         self._called: set[str] = set()  # the per-device programs called once already (compiled)
 
