@@ -684,35 +684,6 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     assert table["tiles_per_cell"] == 2
 
 
-def test_cluster_spec_from_flags_or_environment():
-    from train import distributed
-
-    assert distributed.resolve_spec(environ={}) is None
-    env = {"HSA_COORDINATOR": "10.0.0.1:1234", "HSA_NUM_PROCESSES": "4", "HSA_PROCESS_ID": "3"}
-    assert distributed.resolve_spec(environ=env) == distributed.ClusterSpec("10.0.0.1:1234", 4, 3)
-    assert distributed.resolve_spec(process_id=0, environ=env).process_id == 0  # a flag wins
-    for kwargs, match in (
-        ({"coordinator": "h:1", "num_processes": 2}, "--process-id"),
-        ({"coordinator": "host", "num_processes": 2, "process_id": 0}, "HOST:PORT"),
-        ({"coordinator": "h:1", "num_processes": 2, "process_id": 2}, "0 <= --process-id"),
-    ):
-        with pytest.raises(ValueError, match=match):
-            distributed.resolve_spec(**kwargs, environ={})
-    with pytest.raises(ValueError, match="HSA_NUM_PROCESSES must be an integer"):
-        distributed.resolve_spec(environ={**env, "HSA_NUM_PROCESSES": "four"})
-
-
-def test_one_process_keys_are_the_single_host_split():
-    import jax
-
-    from train import distributed
-
-    devices, key = jax.local_devices()[:1], jax.random.PRNGKey(7)
-    np.testing.assert_array_equal(distributed.env_keys(key, 6, devices), jax.random.split(key, 6).reshape(1, 6, 2))
-    np.testing.assert_array_equal(distributed.epoch_keys(key, devices), jax.random.split(key, 1))
-    assert distributed.is_main() and distributed.any_process(True) and not distributed.any_process(False)
-
-
 if __name__ == "__main__":
     faulthandler.enable(all_threads=True)  # a process aborted by JAX's coordinator shows where it was
     sys.path.insert(0, str(ROOT))  # benchmarks/ (not an installed package) for the scaling rows

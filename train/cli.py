@@ -7,7 +7,7 @@ exits; a second Ctrl-C (more than a second after the first) stops at once.
 
 Several hosts: start one process per host with ``--coordinator HOST:PORT --num-processes N
 --process-id I`` (or the ``HSA_COORDINATOR``, ``HSA_NUM_PROCESSES``, ``HSA_PROCESS_ID`` environment
-variables); see docs/scaling.md.
+variables), or under ``srun`` / ``mpirun`` with no flag at all; see docs/scaling.md.
 """
 
 from __future__ import annotations

@@ -7,12 +7,19 @@ one host: ``jax.distributed.initialize`` must run before any other JAX call, the
 over the global device count, every process takes its own slice of the env and epoch keys, only
 process 0 writes the run dir, and a stop request on any process stops all of them together.
 
+Processes find each other from flags (``--coordinator``, ``--num-processes``, ``--process-id``), the
+``HSA_*`` variables, or, with neither, a cluster's own launcher: under ``srun`` (SLURM) or ``mpirun``
+(Open MPI) with more than one task, ``jax.distributed.initialize()`` reads the job's variables.
+Once joined, the processes check that they run the same config on as many devices each.
+
 With one process every function here is the plain single-host behaviour.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import os
 from collections.abc import Mapping
 from typing import Any
@@ -23,13 +30,26 @@ import numpy as np
 ENV_VARS = {"coordinator": "HSA_COORDINATOR", "num_processes": "HSA_NUM_PROCESSES", "process_id": "HSA_PROCESS_ID"}
 
 
+# A cluster launcher's variables: (the launcher, its task count, this task's index). JAX's
+# auto-detection (jax.distributed.initialize() with no argument) reads the same ones.
+LAUNCHERS = (
+    ("slurm", "SLURM_STEP_NUM_TASKS", "SLURM_PROCID"),  # srun: one job step of N tasks
+    ("openmpi", "OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),  # mpirun
+)
+
+
 @dataclasses.dataclass(frozen=True)
 class ClusterSpec:
-    """Where the coordinator listens, how many processes take part and which one this is."""
+    """Where the coordinator listens, how many processes take part and which one this is.
 
-    coordinator: str
+    ``coordinator`` None: the processes were started by ``launcher`` (``slurm``, ``openmpi``) and
+    ``jax.distributed.initialize()`` finds the coordinator from its variables.
+    """
+
+    coordinator: str | None
     num_processes: int
     process_id: int
+    launcher: str = "flags"
 
 
 def _int_setting(value: int | str | None, flag: str, env_var: str) -> int | None:
@@ -62,7 +82,7 @@ def resolve_spec(
         ENV_VARS["process_id"],
     )
     if coordinator is None and count is None and index is None:
-        return None
+        return from_launcher(environ)
     if coordinator is None or count is None or index is None:
         raise ValueError(
             "several processes need all of --coordinator HOST:PORT, --num-processes N and "
@@ -77,16 +97,65 @@ def resolve_spec(
     return ClusterSpec(coordinator, count, index)
 
 
+def from_launcher(environ: Mapping[str, str]) -> ClusterSpec | None:
+    """The cluster a launcher (``srun``, ``mpirun``) started with more than one task; None otherwise."""
+    for launcher, count_var, index_var in LAUNCHERS:
+        count = _int_setting(environ.get(count_var), launcher, count_var)
+        if count is not None and count > 1:
+            index = _int_setting(environ.get(index_var), launcher, index_var)
+            if index is None or not 0 <= index < count:
+                raise ValueError(f"{launcher} started {count} tasks but {index_var} is {environ.get(index_var)!r}")
+            return ClusterSpec(None, count, index, launcher)
+    return None
+
+
 def initialize(spec: ClusterSpec | None) -> None:
     """Join the cluster with ``jax.distributed.initialize`` (call before any other JAX call); None: one host."""
     if spec is None:
         return
-    jax.distributed.initialize(
-        coordinator_address=spec.coordinator, num_processes=spec.num_processes, process_id=spec.process_id
-    )
+    if spec.coordinator is None:  # the launcher's variables say where and who (JAX's auto-detection)
+        jax.distributed.initialize()
+    else:
+        jax.distributed.initialize(
+            coordinator_address=spec.coordinator, num_processes=spec.num_processes, process_id=spec.process_id
+        )
+    if jax.process_count() != spec.num_processes:
+        raise ValueError(f"expected {spec.num_processes} processes ({spec.launcher}), JAX joined {jax.process_count()}")
     # Open the collectives now, while the processes are together: a collective's first use waits only
     # 30 s for the others, and later set-up and compiles may keep one process longer than that.
     any_process(False)
+
+
+def _fingerprint(config: dict, local_devices: int) -> np.ndarray:
+    """This process's config digest (32 bytes) and local device count, as one row to all-gather."""
+    digest = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).digest()
+    return np.concatenate([np.frombuffer(digest, np.uint8).astype(np.int32), [local_devices]])
+
+
+def disagreement(rows: np.ndarray) -> str | None:
+    """What the processes' fingerprints (one row each, as :func:`_fingerprint` makes them) disagree
+    on, or None."""
+    problems = []
+    if len({tuple(r[:-1]) for r in rows}) > 1:
+        problems.append(f"configs differ (digest groups by process: {_groups([tuple(r[:-1]) for r in rows])})")
+    if len({int(r[-1]) for r in rows}) > 1:
+        problems.append(f"local device counts differ (by process: {[int(r[-1]) for r in rows]})")
+    return "; ".join(problems) or None
+
+
+def _groups(values: list) -> list[int]:
+    """Each value's group number, in order of first appearance (which processes agree)."""
+    first = {}
+    return [first.setdefault(v, len(first)) for v in values]
+
+
+def check_agreement(config: dict, local_devices: list) -> None:
+    """ValueError on every process unless all run ``config`` on as many local devices (before any compile)."""
+    if jax.process_count() == 1:
+        return
+    problem = disagreement(all_processes(_fingerprint(config, len(local_devices))))
+    if problem:
+        raise ValueError(f"the {jax.process_count()} processes must run one config on as many devices each: {problem}")
 
 
 def is_main() -> bool:

@@ -104,6 +104,7 @@ def train(
     """
     run_dir = Path(run_dir)
     devices = select_devices(config)
+    distributed.check_agreement(to_dict(config), devices)  # every process: one config, as many devices
     init = None if resume else read_init_from(config)
     meta = prepare_run_dir(run_dir, to_dict(config), resume, overwrite)
     if distributed.is_main() and not quiet:
