@@ -58,3 +58,47 @@ def test_scaling_device_counts_and_config():
         scaled_config(flat, 100, 2, iterations=1)
     with pytest.raises(ValueError, match="at least one device"):
         device_counts(0)
+
+
+def test_same_run_names_the_metric_that_differs_and_ignores_the_clock(tmp_path):
+    from benchmarks import same_run
+
+    base = {"step": 10, "loss/v_loss": 2.0, "episode/return": -5.0, "time": 1.0, "training/env_steps_per_s": 100.0}
+    runs = {
+        "a": [base],
+        "b": [{**base, "time": 9.0, "training/env_steps_per_s": 90.0}],
+        "c": [{**base, "loss/v_loss": 2.5}],
+    }
+    for name, records in runs.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert same_run.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "ab")]) == 0
+    written = json.loads((tmp_path / "ab.json").read_text())
+    assert written["same"] and written["steps"][0]["speeds"] == [100.0, 90.0]
+    assert same_run.main([str(tmp_path / "a"), str(tmp_path / "c")]) == 1
+    row = same_run.compare([runs["a"], runs["c"]])[0]
+    assert row["largest_gap_metric"] == "loss/v_loss" and row["equal"] == row["compared"] - 1
+    assert same_run.main([str(tmp_path / "a"), str(tmp_path / "c"), "--tolerance", "0.2"]) == 0
+    with pytest.raises(FileNotFoundError, match="no metrics log"):
+        same_run.read_records(tmp_path / "missing")
+
+
+def test_network_cost_counts_each_collective_as_often_as_it_runs_and_projects_the_ring():
+    import jax
+    import jax.numpy as jnp
+
+    from benchmarks import network_cost
+
+    def fn(x):  # 3 trips of two all-reduces (one round), then one all-gather of 4 float32
+        def body(c, _):
+            return jax.lax.psum(c, "d") + jax.lax.pmax(c, "d"), None
+
+        c, _ = jax.lax.scan(body, x, None, length=3)
+        return jax.lax.all_gather(c, "d")
+
+    traced = jax.make_jaxpr(fn, axis_env=[("d", 2)])(jnp.zeros(4))
+    counted = network_cost.count_collectives(traced.jaxpr)
+    assert counted["all-reduce"] == {"calls": 6.0, "rounds": 3.0, "bytes": 6 * 16.0}
+    assert counted["all-gather"] == {"calls": 1.0, "rounds": 1.0, "bytes": 16.0}
+    seconds = network_cost.project(counted, gpus=4, gbps=8e-9, latency_s=1.0)  # 1 byte/s, 1 s a hop
+    assert seconds == pytest.approx(2 * 3 / 4 * 96 + 2 * 3 * 3 + 3 * 16 + 3 * 1)
