@@ -5,9 +5,10 @@
 Reads each run dir's ``metrics.jsonl`` (or the files given) and, for every step both logged,
 counts the metrics that are equal and names the largest difference; the clock's records (wall
 time, speed, time since launch) are not compared but reported: each run's env steps per second.
-Exit status 0 when every compared metric is within ``--tolerance`` (relative, default 0: equal),
-1 otherwise. Written as JSON and Markdown beside ``--out``. Used to check that several processes
-train exactly as one process over the same devices (docs/scaling.md).
+The JSON holds every compared metric's two values per step. Exit status 0 when every compared
+metric is within ``--tolerance`` (relative, default 0: equal), 1 otherwise. Written as JSON and
+Markdown beside ``--out``. Used to check that several processes train exactly as one process over
+the same devices (docs/scaling.md).
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ def _gap(a: Any, b: Any) -> float:
 
 
 def compare_step(a: dict, b: dict) -> dict:
-    """One step's comparison: metrics compared and equal, the largest gap and its metric, both speeds."""
+    """One step's comparison: metrics compared and equal, the largest gap and its metric, both speeds,
+    and every compared metric's two values side by side."""
     keys = sorted(k for k in a.keys() & b.keys() if k not in CLOCK and isinstance(a[k], (int, float)))
     gaps = {k: _gap(a[k], b[k]) for k in keys}
     worst = max(gaps, key=gaps.get) if gaps else None
@@ -51,6 +53,7 @@ def compare_step(a: dict, b: dict) -> dict:
         "largest_gap": gaps[worst] if worst else 0.0,
         "largest_gap_metric": worst if worst and gaps[worst] > 0 else None,
         "speeds": [a.get(SPEED), b.get(SPEED)],
+        "metrics": {k: [a[k], b[k]] for k in keys},
     }
 
 

@@ -75,6 +75,11 @@ def test_same_run_names_the_metric_that_differs_and_ignores_the_clock(tmp_path):
     assert same_run.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "ab")]) == 0
     written = json.loads((tmp_path / "ab.json").read_text())
     assert written["same"] and written["steps"][0]["speeds"] == [100.0, 90.0]
+    assert written["steps"][0]["metrics"] == {
+        "episode/return": [-5.0, -5.0],
+        "loss/v_loss": [2.0, 2.0],
+        "step": [10, 10],
+    }
     assert same_run.main([str(tmp_path / "a"), str(tmp_path / "c")]) == 1
     row = same_run.compare([runs["a"], runs["c"]])[0]
     assert row["largest_gap_metric"] == "loss/v_loss" and row["equal"] == row["compared"] - 1
