@@ -69,21 +69,23 @@ class ControlConfig:
 
 @dataclasses.dataclass(frozen=True)
 class RewardConfig:
-    """Weights and constants of every reward term (names match the logged components)."""
+    """Weights and constants of every reward term: each weight has its term's name (the logged
+    ``episode/reward/<name>``); older configs' short names (``ctrl``, ``lateral``, ...) are mapped by
+    ``hsa_mjx.migrations``."""
 
     forward: float = 6.0
     forward_rectified: bool = False  # original: max(0, v.u); rewards back-and-forth oscillation
-    lateral: float = 0.0  # subtracted as a cost (the original added it)
-    ctrl: float = 0.001
-    contact: float = 0.0005
+    lateral_cost: float = 0.0  # subtracted as a cost (the original added it)
+    ctrl_cost: float = 0.001
+    contact_cost: float = 0.0005
     contact_force_threshold: float = 50.0
-    constraint: float = 0.05
+    constraint_cost: float = 0.05
     constraint_margin: float = 0.01
     constraint_bonus: float = 0.025
-    acceleration: float = 1e-5
-    joint_velocity: float = 5e-4
+    acceleration_cost: float = 1e-5
+    joint_velocity_cost: float = 5e-4
     distance: float = 10.0
-    stagnation: float = 0.15  # flat_config lacked the key; the class default applied
+    stagnation_cost: float = 0.15  # flat_config lacked the key; the class default applied
     stagnation_window: int = 50
     stagnation_threshold: float = 0.05
     alive: float = 0.03

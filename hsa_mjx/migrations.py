@@ -9,7 +9,9 @@ Env config (``env_keys``):
 - ``terrain_type: X`` is a shorthand for ``terrain.types: [X]`` (``mixed`` for several types, given
   in ``terrain.types``);
 - ``goal.spiral_start_radius`` / ``spiral_end_radius`` / ``spiral_turns`` are ``terrain.spiral``'s
-  ``start_radius`` / ``end_radius`` / ``turns`` (the checkpoints lie on the track).
+  ``start_radius`` / ``end_radius`` / ``turns`` (the checkpoints lie on the track);
+- the reward weights ``lateral``, ``ctrl``, ``contact``, ``constraint``, ``acceleration``,
+  ``joint_velocity`` and ``stagnation`` carry their terms' names: ``lateral_cost``, ``ctrl_cost``, ...
 
 Training config (``training_keys``), after ``env_keys`` on its ``env`` section:
 
@@ -27,6 +29,10 @@ from typing import Any
 MIXED = "mixed"  # terrain_type of a batch drawing from several types
 SPIRAL_GOAL_KEYS = {"spiral_start_radius": "start_radius", "spiral_end_radius": "end_radius", "spiral_turns": "turns"}
 SECTION_NAMES = {"curriculum": "goal_curriculum"}  # older training config section -> today's
+REWARD_WEIGHTS = {  # older reward weight name -> its term's name (the weight's name today)
+    name: f"{name}_cost"
+    for name in ("lateral", "ctrl", "contact", "constraint", "acceleration", "joint_velocity", "stagnation")
+}
 OLD_COLLECTION = {"auto": "auto", "pmap": "pmap", "per_device": "thread_per_device"}  # run.multi_device values
 
 
@@ -42,7 +48,23 @@ def env_keys(data: Mapping[str, Any], terrain_types: tuple[str, ...]) -> dict:
         data["goal"], section["spiral"] = _spiral_keys(dict(goal), dict(section.get("spiral") or {}))
     if section != {} or "terrain" in data:
         data["terrain"] = section
+    if isinstance(data.get("reward"), Mapping):
+        data["reward"] = _renamed("reward", dict(data["reward"]), REWARD_WEIGHTS)
     return data
+
+
+def _renamed(where: str, section: dict, names: Mapping[str, str]) -> dict:
+    """``section`` with each older key moved to today's name (ValueError where both differ)."""
+    for old, new in names.items():
+        if old in section:
+            value = section.pop(old)
+            if new in section and section[new] != value:
+                raise ValueError(
+                    f"config key '{where}.{old}' = {value!r} is the older name of '{where}.{new}' = "
+                    f"{section[new]!r}; set '{where}.{new}' alone"
+                )
+            section.setdefault(new, value)
+    return section
 
 
 def _spiral_keys(goal: dict, spiral: dict) -> tuple[dict, dict]:

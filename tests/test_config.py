@@ -14,9 +14,10 @@ def test_defaults_reproduce_original_flat_config():
     """Weights of the original flat_config.yaml (ORIGINAL_FACTS 6.6)."""
     c = hsa_mjx.config.EnvConfig()
     r = c.reward
-    assert (r.forward, r.ctrl, r.contact, r.lateral, r.constraint) == (6.0, 0.001, 0.0005, 0.0, 0.05)
-    assert (r.acceleration, r.joint_velocity, r.distance, r.alive) == (1e-5, 5e-4, 10.0, 0.03)
-    assert r.stagnation == 0.15 and r.termination == 100.0
+    costs = (r.ctrl_cost, r.contact_cost, r.lateral_cost, r.constraint_cost)
+    assert (r.forward, *costs) == (6.0, 0.001, 0.0005, 0.0, 0.05)
+    assert (r.acceleration_cost, r.joint_velocity_cost, r.distance, r.alive) == (1e-5, 5e-4, 10.0, 0.03)
+    assert r.stagnation_cost == 0.15 and r.termination == 100.0
     assert c.control.frame_skip == 20 and c.control.max_increment == 0.1785
     assert c.control.smooth_positions and c.termination.max_episode_steps == 4000
     assert c.control.servo_target_limit == 3141.5 and c.physics.timestep == 0.001

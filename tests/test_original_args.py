@@ -54,15 +54,15 @@ MAPPED = {
     "max_increment": (0.3, {"control.max_increment": 0.3}),
     "smooth_positions": (False, {"control.smooth_positions": False}),
     "forward_reward_weight": (3.0, {"reward.forward": 3.0}),
-    "ctrl_cost_weight": (0.01, {"reward.ctrl": 0.01}),
-    "contact_cost_weight": (0.002, {"reward.contact": 0.002}),
-    "yvel_cost_weight": (0.5, {"reward.lateral": 0.5}),
-    "constraint_cost_weight": (0.2, {"reward.constraint": 0.2}),
-    "acc_cost_weight": (0.01, {"reward.acceleration": 0.01}),
-    "joint_vel_cost_weight": (0.002, {"reward.joint_velocity": 0.002}),
+    "ctrl_cost_weight": (0.01, {"reward.ctrl_cost": 0.01}),
+    "contact_cost_weight": (0.002, {"reward.contact_cost": 0.002}),
+    "yvel_cost_weight": (0.5, {"reward.lateral_cost": 0.5}),
+    "constraint_cost_weight": (0.2, {"reward.constraint_cost": 0.2}),
+    "acc_cost_weight": (0.01, {"reward.acceleration_cost": 0.01}),
+    "joint_vel_cost_weight": (0.002, {"reward.joint_velocity_cost": 0.002}),
     "distance_reward_weight": (20.0, {"reward.distance": 20.0}),
     "early_termination_penalty": (50.0, {"reward.termination": 50.0}),
-    "stagnation_penalty_weight": (0.1, {"reward.stagnation": 0.1}),
+    "stagnation_penalty_weight": (0.1, {"reward.stagnation_cost": 0.1}),
     "alive_bonus": (0.1, {"reward.alive": 0.1}),
     "checkpoint_reward": (40.0, {"reward.checkpoint": 40.0}),
     "num_checkpoints": (20, {"goal.num_checkpoints": 20}),
@@ -163,7 +163,7 @@ def test_original_arguments_through_gymnasium_make_and_make_vec(env):
         camera_name="overview",
     )
     config = single.unwrapped.env.config
-    assert (config.control.frame_skip, config.control.max_increment, config.reward.lateral) == (10, 0.2, 0.5)
+    assert (config.control.frame_skip, config.control.max_increment, config.reward.lateral_cost) == (10, 0.2, 0.5)
     assert single.unwrapped._camera == "overview" and single.metadata["render_fps"] == 100  # dt = 10 ms
     single.close()
     envs = gymnasium.make_vec(

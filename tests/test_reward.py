@@ -45,14 +45,14 @@ def test_forward_is_signed_unless_rectified():
 
 
 def test_lateral_is_a_cost():
-    w = W.with_weights(lateral=jnp.float32(1.0))
+    w = W.with_weights(lateral_cost=jnp.float32(1.0))
     assert float(hsa_mjx.task.reward.lateral_cost(inputs(velocity=jnp.array([0.0, -0.3])), w)) == pytest.approx(-0.3)
 
 
 def test_ctrl_cost_and_cap():
     x = inputs(action=jnp.ones(8), prev_action=-jnp.ones(8))
     assert float(hsa_mjx.task.reward.ctrl_cost(x, W)) == pytest.approx(-0.001 * 32)
-    assert float(hsa_mjx.task.reward.ctrl_cost(x, W.with_weights(ctrl=jnp.float32(10.0)))) == -20.0
+    assert float(hsa_mjx.task.reward.ctrl_cost(x, W.with_weights(ctrl_cost=jnp.float32(10.0)))) == -20.0
 
 
 def test_contact_cost_uses_force_above_threshold():
@@ -78,7 +78,8 @@ def test_acceleration_and_joint_velocity_clips_and_caps():
     fast = inputs(joint_vel=jnp.full(8, 1e3))
     assert float(hsa_mjx.task.reward.acceleration_cost(fast, W)) == pytest.approx(-1e-5 * 8 * 2500)
     assert float(hsa_mjx.task.reward.joint_velocity_cost(fast, W)) == pytest.approx(-5e-4 * 8 * 2500)
-    assert float(hsa_mjx.task.reward.acceleration_cost(fast, W.with_weights(acceleration=jnp.float32(1.0)))) == -20.0
+    one = W.with_weights(acceleration_cost=jnp.float32(1.0))
+    assert float(hsa_mjx.task.reward.acceleration_cost(fast, one)) == -20.0
 
 
 def test_distance_progress_and_stagnation():
@@ -159,6 +160,7 @@ def test_the_weights_are_one_table_the_config():
 
     floats = tuple(f.name for f in dataclasses.fields(RewardConfig) if f.type in (float, "float"))
     assert hsa_mjx.task.reward.WEIGHT_NAMES == floats and set(W.values) == set(floats)
+    assert set(hsa_mjx.task.reward.TERM_NAMES) <= set(floats)  # every term's weight has the term's name
     tree = ast.parse(inspect.getsource(hsa_mjx.task.reward))
     read = {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute) and getattr(n.value, "id", None) == "w"}
     assert read <= set(floats) and set(floats) <= read | {"termination"}
@@ -167,3 +169,13 @@ def test_the_weights_are_one_table_the_config():
         W.with_weights(speed=1.0)
     with pytest.raises(AttributeError, match="no weight 'speed'"):
         _ = W.speed
+
+
+def test_older_reward_weight_names_load_as_the_terms_names():
+    from hsa_mjx.config import from_dict
+
+    old = from_dict({"reward": {"ctrl": 0.5, "stagnation": 0.2, "lateral": 0.1}}).reward
+    assert (old.ctrl_cost, old.stagnation_cost, old.lateral_cost) == (0.5, 0.2, 0.1)
+    assert from_dict({"reward": {"ctrl": 0.5, "ctrl_cost": 0.5}}).reward.ctrl_cost == 0.5  # the same value twice
+    with pytest.raises(ValueError, match="'reward.ctrl' = 1.0 is the older name of 'reward.ctrl_cost'"):
+        from_dict({"reward": {"ctrl": 1.0, "ctrl_cost": 2.0}})

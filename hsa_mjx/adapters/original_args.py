@@ -95,20 +95,20 @@ ORIGINAL_ARGS: dict[str, OriginalArg] = {
         note="pays the signed velocity towards the goal; the "
         "original paid max(0, v.u) (reward__forward_rectified=True restores it)",
     ),
-    "ctrl_cost_weight": _same("reward.ctrl"),
+    "ctrl_cost_weight": _same("reward.ctrl_cost"),
     "contact_cost_weight": _same(
-        "reward.contact",
+        "reward.contact_cost",
         note="weighs the real foot contact force above 50 N; the original's term read a torque and was always 0",
     ),
-    "yvel_cost_weight": _same("reward.lateral", note="subtracted as a cost; the original added it as a reward"),
-    "constraint_cost_weight": _same("reward.constraint"),
-    "acc_cost_weight": _same("reward.acceleration"),
-    "joint_vel_cost_weight": _same("reward.joint_velocity"),
+    "yvel_cost_weight": _same("reward.lateral_cost", note="subtracted as a cost; the original added it as a reward"),
+    "constraint_cost_weight": _same("reward.constraint_cost"),
+    "acc_cost_weight": _same("reward.acceleration_cost"),
+    "joint_vel_cost_weight": _same("reward.joint_velocity_cost"),
     "distance_reward_weight": _same("reward.distance"),
     "early_termination_penalty": _same(
         "reward.termination", note="acts here; the original ignored it and always subtracted 100 (the default here)"
     ),
-    "stagnation_penalty_weight": _same("reward.stagnation", note="its position window is cleared at reset"),
+    "stagnation_penalty_weight": _same("reward.stagnation_cost", note="its position window is cleared at reset"),
     "alive_bonus": _same("reward.alive"),
     "checkpoint_reward": _same("reward.checkpoint"),
     "num_checkpoints": _same("goal.num_checkpoints"),

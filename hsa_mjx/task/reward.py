@@ -93,18 +93,18 @@ def forward(x: RewardInputs, w: RewardWeights) -> jax.Array:
 
 def lateral_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """World-Y speed as a cost (the original added it as a reward)."""
-    return -w.lateral * jnp.abs(x.velocity[1])
+    return -w.lateral_cost * jnp.abs(x.velocity[1])
 
 
 def ctrl_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Action smoothness: squared change of the normalised action, capped."""
-    return -jnp.minimum(CTRL_CAP, w.ctrl * jnp.sum(jnp.square(x.action - x.prev_action)))
+    return -jnp.minimum(CTRL_CAP, w.ctrl_cost * jnp.sum(jnp.square(x.action - x.prev_action)))
 
 
 def contact_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Foot contact force above the threshold, squared and capped (the original read torques)."""
     excess = jnp.maximum(0.0, x.foot_force - w.contact_force_threshold)
-    return -jnp.minimum(CONTACT_CAP, w.contact * jnp.sum(jnp.square(excess)))
+    return -jnp.minimum(CONTACT_CAP, w.contact_cost * jnp.sum(jnp.square(excess)))
 
 
 def _pair_differences(x: RewardInputs) -> jax.Array:
@@ -116,7 +116,7 @@ def constraint_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Paired hinges (kA, kC) whose angle difference reaches pi - margin: quadratic ramp to 1 each."""
     threshold = CONSTRAINT_LIMIT - w.constraint_margin
     over = jnp.clip((_pair_differences(x) - threshold) / w.constraint_margin, 0.0, 1.0)
-    return -jnp.minimum(CONSTRAINT_CAP, w.constraint * jnp.sum(jnp.square(over)))
+    return -jnp.minimum(CONSTRAINT_CAP, w.constraint_cost * jnp.sum(jnp.square(over)))
 
 
 def constraint_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
@@ -128,13 +128,13 @@ def constraint_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
 def acceleration_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Hinge accelerations over the env step, clipped to +-50 each, squared, capped."""
     acc = jnp.clip((x.joint_vel - x.prev_joint_vel) / x.dt, -ACC_CLIP, ACC_CLIP)
-    return -jnp.minimum(ACC_CAP, w.acceleration * jnp.sum(jnp.square(acc)))
+    return -jnp.minimum(ACC_CAP, w.acceleration_cost * jnp.sum(jnp.square(acc)))
 
 
 def joint_velocity_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Hinge velocities clipped to +-50 each, squared, capped."""
     vel = jnp.clip(x.joint_vel, -JOINT_VEL_CLIP, JOINT_VEL_CLIP)
-    return -jnp.minimum(JOINT_VEL_CAP, w.joint_velocity * jnp.sum(jnp.square(vel)))
+    return -jnp.minimum(JOINT_VEL_CAP, w.joint_velocity_cost * jnp.sum(jnp.square(vel)))
 
 
 def distance(x: RewardInputs, w: RewardWeights) -> jax.Array:
@@ -145,7 +145,7 @@ def distance(x: RewardInputs, w: RewardWeights) -> jax.Array:
 def stagnation_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Linear penalty when the robot moved less than the threshold over the full window."""
     shortfall = jnp.maximum(0.0, 1.0 - x.stagnation_progress / w.stagnation_threshold)
-    return -jnp.where(x.history_full, w.stagnation * shortfall, 0.0)
+    return -jnp.where(x.history_full, w.stagnation_cost * shortfall, 0.0)
 
 
 def checkpoint(x: RewardInputs, w: RewardWeights) -> jax.Array:
