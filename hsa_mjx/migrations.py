@@ -49,35 +49,29 @@ def env_keys(data: Mapping[str, Any], terrain_types: tuple[str, ...]) -> dict:
     if section != {} or "terrain" in data:
         data["terrain"] = section
     if isinstance(data.get("reward"), Mapping):
-        data["reward"] = _renamed("reward", dict(data["reward"]), REWARD_WEIGHTS)
+        reward = dict(data["reward"])
+        _move_keys(reward, reward, REWARD_WEIGHTS, ("reward", "reward"))
+        data["reward"] = reward
     return data
 
 
-def _renamed(where: str, section: dict, names: Mapping[str, str]) -> dict:
-    """``section`` with each older key moved to today's name (ValueError where both differ)."""
+def _move_keys(source: dict, target: dict, names: Mapping[str, str], paths: tuple[str, str], why: str = "") -> None:
+    """Move each older key of ``source`` to today's name in ``target`` (the same dict or another);
+    ``paths``: the two sections' dotted names, for the ValueError where an older and a newer value differ."""
     for old, new in names.items():
-        if old in section:
-            value = section.pop(old)
-            if new in section and section[new] != value:
+        if old in source:
+            value = source.pop(old)
+            if new in target and target[new] != value:
                 raise ValueError(
-                    f"config key '{where}.{old}' = {value!r} is the older name of '{where}.{new}' = "
-                    f"{section[new]!r}; set '{where}.{new}' alone"
+                    f"config key '{paths[0]}.{old}' = {value!r} differs from '{paths[1]}.{new}' = "
+                    f"{target[new]!r}; set '{paths[1]}.{new}' alone{why}"
                 )
-            section.setdefault(new, value)
-    return section
+            target[new] = value
 
 
 def _spiral_keys(goal: dict, spiral: dict) -> tuple[dict, dict]:
     """The goal section's old spiral keys moved into the terrain's spiral section."""
-    for old, new in SPIRAL_GOAL_KEYS.items():
-        if old in goal:
-            value = goal.pop(old)
-            if new in spiral and spiral[new] != value:
-                raise ValueError(
-                    f"config key 'goal.{old}' = {value!r} differs from 'terrain.spiral.{new}' = "
-                    f"{spiral[new]!r}; set 'terrain.spiral.{new}' alone (the checkpoints follow it)"
-                )
-            spiral[new] = value
+    _move_keys(goal, spiral, SPIRAL_GOAL_KEYS, ("goal", "terrain.spiral"), " (the checkpoints follow it)")
     return goal, spiral
 
 

@@ -177,5 +177,5 @@ def test_older_reward_weight_names_load_as_the_terms_names():
     old = from_dict({"reward": {"ctrl": 0.5, "stagnation": 0.2, "lateral": 0.1}}).reward
     assert (old.ctrl_cost, old.stagnation_cost, old.lateral_cost) == (0.5, 0.2, 0.1)
     assert from_dict({"reward": {"ctrl": 0.5, "ctrl_cost": 0.5}}).reward.ctrl_cost == 0.5  # the same value twice
-    with pytest.raises(ValueError, match="'reward.ctrl' = 1.0 is the older name of 'reward.ctrl_cost'"):
+    with pytest.raises(ValueError, match="'reward.ctrl' = 1.0 differs from 'reward.ctrl_cost' = 2.0"):
         from_dict({"reward": {"ctrl": 1.0, "ctrl_cost": 2.0}})
