@@ -33,7 +33,7 @@ LAYERS = (
     tuple(T + m for m in ("checkpoint", "compat", "config", "distributed", "logger", "onnx_policy", "diagnostics")),
     (T + "rollout", T + "networks", T + "ppo_update", T + "plots", T + "run_dir"),
     (T + "learner", T + "run_state", T + "terrain_eval"),
-    (T + "placement", T + "warm_start", T + "policy_sources"),
+    (T + "replicas", T + "warm_start", T + "policy_sources"),
     (T + "thread_per_device",),
     (T + "strategies",),
     (T + "trainer", T + "evaluation"),

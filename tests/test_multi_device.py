@@ -219,7 +219,7 @@ def _curriculum_facts() -> dict:
     from hsa_mjx.curricula.state import CurriculumRules
     from train import config as train_config
     from train.learner import AXIS
-    from train.placement import replicate
+    from train.replicas import replicate
 
     config = goal_curriculum.GoalCurriculumConfig(
         window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2

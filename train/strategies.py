@@ -31,7 +31,7 @@ from . import compat
 from .config import TrainConfig
 from .learner import AXIS, LoopState, PPOLearner
 from .networks import TrainingState
-from .placement import PmapWithoutEmpty, check_env_size, first_copy, replicate
+from .replicas import PmapWithoutEmpty, check_env_size, first_copy, replicate
 from .thread_per_device import ThreadPerDevice
 
 

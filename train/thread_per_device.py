@@ -34,7 +34,7 @@ from hsa_mjx.task.env import HSAEnv
 
 from .learner import AXIS, LoopState, PPOLearner
 from .networks import TrainingState
-from .placement import PmapWithoutEmpty, check_env_size, first_copy, replicate
+from .replicas import PmapWithoutEmpty, check_env_size, first_copy, replicate
 
 
 @struct.dataclass

@@ -15,7 +15,7 @@ from hsa_mjx.curricula import goal_curriculum
 from train import config as train_config
 from train import strategies
 from train.learner import AXIS
-from train.placement import PmapWithoutEmpty
+from train.replicas import PmapWithoutEmpty
 
 ARGUMENT = re.compile(r"%arg\d+: tensor<([^>]*)>")
 
