@@ -9,7 +9,7 @@ underside sits (a wall lower than that meets only the blocks).
 
 **Simulation.** One feature on the terrain heightfield straight ahead of the spawn, the goal straight
 beyond it, a trained policy (its mean action) for ``--episodes`` episodes per value, each through
-``python -m train.evaluate``'s per-terrain evaluation:
+``train.evaluation.evaluate``'s per-terrain evaluation (what ``python -m train.evaluate --terrain-types`` runs):
 
 - **step**: ``flat_with_ramp`` across the whole field, turned to face the robot with its high edge: a
   rise of h over one heightfield cell (0.2 m) at 1.2 m from the spawn, then a gentle slope down; goal
@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -137,19 +136,23 @@ def geometry() -> dict[str, float]:
 
 
 def _evaluate(args: argparse.Namespace, probe: Probe, levels: str, extra: Sequence[str], out: Path) -> list[dict]:
-    """Rows of one ``train.evaluate --terrain-types`` run of ``probe`` (its terrain_eval.json)."""
-    from train.evaluation import run
+    """Rows of one terrain evaluation (``train.evaluation.evaluate`` per type and difficulty) of ``probe``."""
+    from train.evaluation import EvalSpec, evaluate
 
     overrides = [f"env.terrain.{o}" for o in (*probe.fixed, *extra)]
-    argv = [
-        "--policy", args.policy or probe.policy, "--backend", args.backend, "--episodes", str(args.episodes),
-        "--steps", str(args.steps), "--seed", str(args.seed), "--terrain-types", probe.terrain,
-        "--levels", levels, "--goal-range", str(probe.goal_m), str(probe.goal_m), "--out", str(out),
-        "--set", "env.goal.radial_bearing_deg=[0,0]", *(a for o in overrides for a in ("--set", o)),
-    ]  # fmt: skip
-    if run(argv) != 0:
-        raise RuntimeError(f"the {probe.terrain} evaluation failed: python -m train.evaluate {' '.join(argv)}")
-    return json.loads((out / "terrain_eval.json").read_text())["rows"]
+    spec = EvalSpec(
+        policy=args.policy or probe.policy,
+        backend=args.backend,
+        episodes=args.episodes,
+        steps=args.steps,
+        seed=args.seed,
+        terrain_types=probe.terrain,
+        levels=levels,
+        goal_range=(probe.goal_m, probe.goal_m),
+        out=str(out),
+        overrides=("env.goal.radial_bearing_deg=[0,0]", *overrides),
+    )
+    return evaluate(spec)["rows"]
 
 
 def sweep(args: argparse.Namespace, name: str, work: Path) -> list[dict[str, Any]]:
@@ -223,13 +226,14 @@ def markdown(result: dict[str, Any]) -> str:
         "| probe | limit | map agrees |",
         "| --- | --- | --- |",
     ]
-    for name, probe in PROBES.items():
+    measured = {name: probe for name, probe in PROBES.items() if name in result["probes"]}  # --probes: a subset
+    for name, probe in measured.items():
         found = result["limits"][name]
         shown = "none" if found is None else f"{found:g} {probe.unit}"
         rows = result["probes"][name]
         agree = sum(passed(probe, r) == r["map_predicts_pass"] for r in rows)
         lines.append(f"| {name} | {shown} | {agree} of {len(rows)} values |")
-    for name, probe in PROBES.items():
+    for name, probe in measured.items():
         title = f"## {name} ({probe.terrain}.{probe.parameter}, {probe.unit})"
         columns = f"| {probe.parameter} | success | net progress m | past at m | goal m | map |"
         lines += ["", title, "", columns, "| --- | --- | --- | --- | --- | --- |"]

@@ -103,3 +103,22 @@ def test_shipped_policy_evaluates_as_recorded(name, tmp_path):
     assert abs(now["success_rate"] - then["success_rate"]) <= 0.25  # at most one episode of four
     for key in ("mean_progress_m", "mean_episode_steps"):
         assert now[key] == pytest.approx(then[key], rel=TOLERANCE[name]), (key, now[key], then[key])
+
+
+def test_the_evaluation_api_takes_a_spec_and_the_command_is_its_wrapper(tmp_path):
+    """``evaluate(EvalSpec(...))`` gives the command's ``eval.json``; a bad spec is a ValueError before any compile."""
+    from train.evaluate import main as command
+    from train.evaluation import EvalSpec, evaluate
+
+    spec = EvalSpec(policy="flat", episodes=2, steps=20, goal_range=(1.5, 1.6), out=str(tmp_path / "api"))
+    result = evaluate(spec)
+    assert command(["--policy", "flat", "--episodes", "2", "--steps", "20", "--goal-range", "1.5", "1.6",
+                    "--out", str(tmp_path / "cli")]) == 0  # fmt: skip
+    written = json.loads((tmp_path / "cli" / "eval.json").read_text())
+    assert json.loads((tmp_path / "api" / "eval.json").read_text())["episodes"] == result["episodes"] == 2
+    for key in ("success_rate", "mean_progress_m", "mean_start_distance", "goal_range", "max_steps"):
+        assert written[key] == result[key], key
+    with pytest.raises(ValueError, match="give either a RUN_DIR or --policy"):
+        evaluate(EvalSpec())
+    with pytest.raises(FileNotFoundError):
+        evaluate(EvalSpec(policy=str(tmp_path / "nothing_here")))

@@ -1,4 +1,5 @@
-"""What ``python -m train.evaluate`` does: its arguments, the run or policy they name, the episodes and files.
+"""What ``python -m train.evaluate`` does, as a function: ``evaluate(EvalSpec(policy="flat", ...))`` plays the
+episodes of the run or policy it names and writes their files; the command parses its flags into the spec.
 
 The command itself is ``train.evaluate`` (it sets up offscreen rendering before this module,
 which imports MuJoCo, is imported). The episodes are played by ``train.rollout``, per terrain
@@ -38,6 +39,28 @@ CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in 
 
 
 TERRAIN_SEED_OFFSET = 1000  # --terrain-seed's default: the run's terrain seed + this (tiles not trained on)
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalSpec:
+    """What to evaluate and how: ``python -m train.evaluate``'s arguments as a value (the flags'
+    names, ``--set`` as ``overrides``). Give ``run_dir`` or ``policy``; the rest have the CLI's defaults."""
+
+    run_dir: str | None = None
+    policy: str | None = None
+    episodes: int | None = None
+    steps: int | None = None
+    goal_range: tuple[float, float] | None = None
+    stochastic: bool = False
+    video: bool = False
+    out: str | None = None
+    seed: int = 1
+    overrides: tuple[str, ...] = ()
+    backend: str = "auto"
+    terrain_types: str | None = None
+    levels: str | None = None
+    terrain_seed: int | None = None
+    tiles: int = 1
 
 
 def parse_args(argv: list[str] | None, description: str | None = None) -> argparse.Namespace:
@@ -125,7 +148,7 @@ def parse_args(argv: list[str] | None, description: str | None = None) -> argpar
     return parser.parse_args(argv)
 
 
-def load_subject(args: argparse.Namespace) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
+def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
     """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
     if (args.run_dir is None) == (args.policy is None):
         raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
@@ -177,64 +200,74 @@ def check_goal_range(goal_range: list[float] | None, config: TrainConfig) -> Non
         )
 
 
-def _episodes(args: argparse.Namespace, shipped: bool) -> int:
+def _episodes(args: EvalSpec, shipped: bool) -> int:
     """Episodes to play: as asked, else 16 for a run and CPU_EPISODES for a shipped policy."""
     return args.episodes or (CPU_EPISODES if shipped else 16)
 
 
-def run(argv: list[str] | None = None, description: str | None = None) -> int:
-    """``python -m train.evaluate``'s work, once the process is set up for rendering (``train.evaluate``)."""
-    args = parse_args(argv, description)
-    args.backend = for_one_env(args.backend)  # auto: C MuJoCo on a CPU, where MJX batches of one env are slow
-    try:
-        config, env, policy, header, out = load_subject(args)
-        check_goal_range(args.goal_range, config)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    shipped = args.policy is not None
-    if args.terrain_types is not None or args.levels is not None:
-        return by_terrain(args, config, policy, header, out)
-    episodes = _episodes(args, shipped)
-    steps = args.steps or (
-        min(CPU_STEPS, config.env.termination.max_episode_steps)
-        if shipped
-        else config.env.termination.max_episode_steps
-    )
-    goal_range = args.goal_range or default_goal_range(config)
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), episodes)
+def evaluate(spec: EvalSpec) -> dict:
+    """Play the episodes ``spec`` asks for and write their files; returns what the JSON file holds
+    (``eval.json``, or ``terrain_eval.json`` with ``rows`` per terrain type and difficulty).
+
+    Raises:
+        ValueError, FileNotFoundError: a bad argument, a missing run or policy (before any compile).
+    """
+    spec = dataclasses.replace(spec, backend=for_one_env(spec.backend))  # auto: C MuJoCo on a CPU
+    config, env, policy, header, out = load_subject(spec)
+    check_goal_range(spec.goal_range, config)
+    if spec.terrain_types is not None or spec.levels is not None:
+        return by_terrain(spec, config, policy, header, out)
+    shipped = spec.policy is not None
+    episodes = _episodes(spec, shipped)
+    limit = config.env.termination.max_episode_steps
+    steps = spec.steps or (min(CPU_STEPS, limit) if shipped else limit)
+    goal_range = spec.goal_range or default_goal_range(config)
+    keys = jax.random.split(jax.random.PRNGKey(spec.seed), episodes)
     traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
     traces = {k: np.asarray(v) for k, v in traces.items()}
     radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
     result = {
         **header,
         "goal_range": list(goal_range) if radial else None,
-        "policy": "stochastic" if args.stochastic else "deterministic",
+        "policy": "stochastic" if spec.stochastic else "deterministic",
         "max_steps": steps,
         "physics": "c_mujoco" if env.physics_backend == "c" else f"mjx_{env.physics_backend}",
         **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral"),
     }
     out.mkdir(parents=True, exist_ok=True)
-
-    written = diagnostics.write_all(traces, env, out, video=args.video)
+    written = diagnostics.write_all(traces, env, out, video=spec.video)
     result["files"] = [str(p) for p in written]
     (out / "eval.json").write_text(json.dumps(result, indent=1))
-    for key, value in result.items():
-        if key not in ("files", "source"):
-            print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
-    print(f"wrote {len(written)} files to {out}")
+    return result
+
+
+def run(argv: list[str] | None = None, description: str | None = None) -> int:
+    """``python -m train.evaluate``'s work, once the process is set up for rendering (``train.evaluate``):
+    the arguments parsed into an :class:`EvalSpec`, :func:`evaluate`, the result printed."""
+    args = vars(parse_args(argv, description))
+    args["goal_range"] = tuple(args["goal_range"]) if args["goal_range"] else None
+    args["overrides"] = tuple(args["overrides"])
+    try:
+        result = evaluate(EvalSpec(**args))
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    if "rows" in result:
+        print(terrain_eval.table(result["rows"]))
+    else:
+        for key, value in result.items():
+            if key not in ("files", "source"):
+                print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
+    files = result["files"]
+    print(f"wrote {len(files)} files" + (f" to {Path(files[0]).parent}" if files else ""))
     return 0
 
 
-def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: dict, out: Path) -> int:
-    """``--terrain-types`` / ``--levels``: the table of success and progress per terrain type and difficulty."""
-
-    try:
-        types = terrain_eval.parse_types(args.terrain_types or "all", config.env)
-        levels = terrain_eval.parse_levels(args.levels or str(config.env.terrain.difficulty))
-    except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
+def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: Path) -> dict:
+    """``terrain_types`` / ``levels``: success and progress per terrain type and difficulty
+    (``terrain_eval.json``'s content, with the files written)."""
+    types = terrain_eval.parse_types(args.terrain_types or "all", config.env)
+    levels = terrain_eval.parse_levels(args.levels or str(config.env.terrain.difficulty))
     episodes = _episodes(args, args.policy is not None)
     steps = args.steps or config.env.termination.max_episode_steps
     goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
@@ -247,7 +280,6 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
         return rollout(env, policy, keys, goal_range, steps, cells=cells)
 
     rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed, args.tiles)
-    print(terrain_eval.table(rows))
     header = {
         **header,
         "goal_range": [float(v) for v in goal_range],
@@ -260,5 +292,4 @@ def by_terrain(args: argparse.Namespace, config: TrainConfig, policy, header: di
         "training_seed": config.run.seed,
     }
     written = terrain_eval.write(rows, header, out)
-    print(f"wrote {len(written)} files to {out}")
-    return 0
+    return {**header, "rows": rows, "files": [str(p) for p in written]}
