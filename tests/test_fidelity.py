@@ -1,7 +1,7 @@
 """Fidelity guard, small: the shipped fast physics setting against C MuJoCo at the original settings.
 
 The full comparison (10 s, three gaits, every candidate setting) is ``python -m benchmarks.fidelity``;
-its CPU results are in ``benchmarks/results/fidelity_cpu.json`` and ``docs/speed.md``.
+its CPU results are in ``benchmarks/results/fidelity/`` and ``docs/speed.md``.
 """
 
 import jax.numpy as jnp
