@@ -1,7 +1,7 @@
 """What the GPUs exchange in one PPO iteration, and what that would cost over a network.
 
     python -m benchmarks.network_cost [--config configs/train_flat.yaml] [--gpus 8,64]
-        [--links-gbps 100,400] [--latency-us 5] [--iteration-s S] [--out FILE]
+        [--links-gbps 100,400] [--latency-us 5] [--iteration-s S] [--out FILE [--append]]
 
 Traces the learner's epoch with its device axis (nothing runs; a CPU does) and adds up every
 collective in it per iteration: the calls, the bytes each GPU puts in, and what for (the
@@ -18,7 +18,6 @@ NCCL's tree algorithms, overlap with compute and congestion all move it.
 from __future__ import annotations
 
 import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import jax
 import numpy as np
 from jax.extend.core import ClosedJaxpr, Jaxpr
 
+from benchmarks.run_info import report
 from hsa_mjx.curricula import goal_curriculum
 from train import config as train_config
 from train import strategies
@@ -176,15 +176,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--latency-us", type=float, default=5.0, help="one hop's latency (an assumption)")
     p.add_argument("--iteration-s", type=float, default=None, help="one iteration's time on one GPU (measured)")
     p.add_argument("--out", type=Path, default=None, help="write FILE.json and FILE.md")
+    p.add_argument("--append", action="store_true", help="add this result to what --out's files hold")
     args = p.parse_args(argv)
     if any(g < 2 for g in args.gpus):
         raise ValueError(f"--gpus must all be >= 2, got {args.gpus}")
     result = run(args)
-    print(to_markdown(result))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
-        args.out.with_suffix(".md").write_text(to_markdown(result))
+    report(args.out, result, to_markdown(result), append=args.append)
     return 0
 
 

@@ -88,10 +88,25 @@ def _module_name() -> str:
     return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")
 
 
-def write_result(stem: Path, result: dict[str, Any], text: str) -> None:
+def write_result(stem: Path, result: dict[str, Any], text: str, append: bool = False) -> None:
     """Write ``result`` to ``stem``.json and its markdown ``text`` to ``stem``.md (the folder made), and print
-    the text."""
+    the text. ``append``: keep what the files hold and add this result after it (the JSON becomes
+    ``{"results": [...]}``, its earlier result first; the Markdown gets the text below the old)."""
     stem.parent.mkdir(parents=True, exist_ok=True)
-    stem.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-    stem.with_suffix(".md").write_text(text)
     print(text)
+    json_path, md_path = stem.with_suffix(".json"), stem.with_suffix(".md")
+    if append and json_path.is_file():
+        old = json.loads(json_path.read_text())
+        result = {"results": [*(old["results"] if set(old) == {"results"} else [old]), result]}
+        text = (md_path.read_text().rstrip("\n") + "\n\n" if md_path.is_file() else "") + text
+    json_path.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    md_path.write_text(text)
+
+
+def report(out: Path | None, result: dict[str, Any], text: str, append: bool = False) -> None:
+    """A tool's ``--out FILE [--append]``: :func:`write_result` beside ``out`` (its suffix dropped), or
+    print ``text`` when no file is asked for."""
+    if out is None:
+        print(text)
+    else:
+        write_result(out.with_suffix(""), result, text, append=append)

@@ -1,6 +1,6 @@
 """Are two training runs the same run? Their logged metrics side by side, step by step, and their speed.
 
-    python -m benchmarks.same_run RUN_A RUN_B [--names A B] [--out FILE.json]
+    python -m benchmarks.same_run RUN_A RUN_B [--names A B] [--note TEXT] [--out FILE.json [--append]]
 
 Reads each run dir's ``metrics.jsonl`` (or the files given) and, for every step both logged,
 counts the metrics that are equal and names the largest difference; the clock's records (wall
@@ -19,6 +19,8 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from benchmarks.run_info import report
 
 CLOCK = ("time", "training/walltime", "training/env_steps_per_s", "training/since_launch")
 SPEED = "training/env_steps_per_s"
@@ -89,6 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--tolerance", type=float, default=0.0, help="largest relative gap counted as the same")
     p.add_argument("--note", default="", help="where and how the runs were made (kept in the files)")
     p.add_argument("--out", type=Path, default=None, help="write FILE.json and FILE.md")
+    p.add_argument("--append", action="store_true", help="add this comparison to what --out's files hold")
     args = p.parse_args(argv)
     if args.tolerance < 0:
         raise ValueError(f"--tolerance must be >= 0, got {args.tolerance}")
@@ -103,11 +106,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "note": args.note,
         "steps": steps,
     }
-    print(to_markdown(result))
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-        args.out.with_suffix(".md").write_text(to_markdown(result))
+    report(args.out, result, to_markdown(result), append=args.append)
     return 0 if same else 1
 
 

@@ -1,18 +1,18 @@
 """Several devices on the CPU: training, resume, the curricula and envs over devices, the per-device
-learner, two processes, scaling (and the scenario of tests/test_backend.py's per-device Warp run).
+learner, two processes and their preemption (and the scenario of tests/test_backend.py's per-device
+Warp run).
 
-Fake CPU devices (``JAX_NUM_CPU_DEVICES``) exist only when set before JAX starts, so the multi-device
-work runs this file as a script in fresh interpreters (``python tests/test_multi_device.py SCENARIO ...``)
-that print one JSON line of facts; the tests assert on those facts. Compiles go through the persistent
-cache configured in tests/conftest.py.
+The work runs in fresh interpreters (tests/multi_device_scenarios.py: fake CPU devices exist only when
+set before JAX starts), each printing one JSON line of facts; the tests assert on those facts.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import faulthandler
+import functools
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -22,48 +22,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from test_train_run import TINY
+from multi_device_scenarios import FACTS, ROOT, TWO_DEVICE_CONFIG
 
-ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = Path(__file__).with_name("multi_device_scenarios.py")
 FAKE_DEVICES = 2
 SUBPROCESS_TIMEOUT_S = 480  # cold compiles on a 2-core CPU take minutes; a hang fails instead of stalling CI
-FACTS = "FACTS "
-# 8 envs over 2 devices, one PPO iteration (80 env steps) per epoch: 160 steps = one 15-step episode per env.
-# The solver runs to convergence (20 iterations, not TINY's 4): the pmap and per-device programs are
-# compiled separately and may round differently (seen on an AVX2 CI CPU), and the under-converged
-# 4-iteration solver turned a 6e-6 m difference into 5e-3 m in one step; converged, it stays ~1e-7.
-# On terrain with the terrain curriculum: two types over 3 levels, start levels spread over all three;
-# a random 15-step episode covers far less than demote_progress of its goal distance, so every episode
-# end moves its env down one level (the facts below check it, and that a resume keeps the levels).
-TERRAIN = {"types": ["flat", "stairs"], "proportions": [0.5, 0.5], "levels": 3, "tiles_per_type": 1}
-TWO_DEVICE_CONFIG = {
-    **TINY,
-    "env": {**TINY["env"], "preset": "mixed", "terrain": TERRAIN, "physics": {"iterations": 20, "ls_iterations": 20}},
-    "terrain_curriculum": {"enabled": True, "initial_spread": 1.0},
-    "ppo": {**TINY["ppo"], "batch_size": 8},
-    "run": {"num_timesteps": 160, "num_envs": 8, "checkpoint_every": 80, "seed": 1},
-}
 # Largest leaf difference, relative to max(1, |leaf|), between the pmap and per-device runs (and the
 # tolerance of their episode totals): float rounding gives ~3e-6 on the leaves and 1.3e-5 on a summed
 # reward term after 2 epochs, while the diverged 4-iteration runs differed by 2e-2.
 SAME_RUN_TOLERANCE = 1e-4
-# How late the second training process starts: more than Gloo's 30 s wait, which the barriers cover.
-PROCESS_1_LATE_S = 40
-# The resume on one device: 4 envs with TINY's minibatch, checkpoints every 40 steps, 240 -> 280 steps,
-# by the thread-per-device strategy, whose collection on device 0 then has the geometry of the two-device
-# run's (4 envs, 2 unrolls of 5): its compile is a cache hit. (A persistent cache entry of a process with
-# two CPU devices does not serve one with one: JAX keys it on the device topology.)
-ONE_DEVICE_RESUME = [
-    f"--set={key}={value}"
-    for key, value in (
-        ("run.num_devices", 1),
-        ("run.num_envs", 4),
-        ("ppo.batch_size", TINY["ppo"]["batch_size"]),
-        ("run.checkpoint_every", 40),
-        ("run.num_timesteps", 280),
-        ("run.collection", "thread_per_device"),
-    )
-]
 # What the per-device learner's log must share with pmap's: everything but speed and wall-clock.
 LEARNING_PREFIXES = ("episode", "curriculum/", "loss/", "step/", "termination/", "terrain", "reward", "nonfinite/")
 COMPARED_METRICS = (
@@ -74,297 +41,11 @@ COMPARED_METRICS = (
     "curriculum/max_distance",
     "curriculum/episode_count",
 )
+# How long the survivor of a SIGKILL may take to stop: Gloo sees the closed connection at its next
+# collective, long before the coordination service's heartbeat (100 s) would give up on the peer.
+SURVIVOR_S = 60
 
 
-# ----- run in the subprocess --------------------------------------------------------------------
-def _compile_counter() -> list:
-    """A list that gains one entry per XLA compile request from now on (cache hits included)."""
-    import jax
-
-    events: list = []
-    jax.monitoring.register_event_duration_secs_listener(
-        lambda name, secs, **_: events.append(name) if name == "/jax/core/compile/backend_compile_duration" else None
-    )
-    return events
-
-
-def _fresh_traces() -> None:
-    """Forget this process's traces before a phase, so that it compiles the same program text as the first.
-
-    JAX shares private functions inside one lowered module through caches keyed by in-memory objects,
-    so the same epoch traced again later in a process can lower to different (equivalent) text and
-    miss the persistent compilation cache: a second 30-s compile per phase on a 2-core CPU."""
-    import jax
-
-    jax.clear_caches()
-
-
-def _record_saves() -> list[int]:
-    """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
-    from train import checkpoint
-
-    saved, save = [], checkpoint.save
-    checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
-    return saved
-
-
-def _refusals(config_path: str, tmp: Path, compiles: list) -> dict:
-    """Messages of the configs refused on 2 devices, and whether anything compiled or was written first."""
-    from train import config as train_config
-    from train.trainer import train
-
-    before, messages = len(compiles), {}
-    bad = {"indivisible": ["run.num_envs=3", "ppo.batch_size=3"], "too_many": ["run.num_devices=3"]}
-    for name, override in bad.items():
-        try:
-            train(train_config.load(config_path, override), tmp / name, quiet=True)
-        except ValueError as err:
-            messages[name] = str(err)
-    made = [name for name in messages if (tmp / name).exists()]
-    return {"refusals": messages, "refusal_compiles": len(compiles) - before, "refusal_dirs": made}
-
-
-def _probe(cls: type, compiles: list) -> dict:
-    """From now on, record each ``reset`` and ``epoch`` of the trainer's learner class ``cls``: what they
-    return (copied to the host) and, per epoch, the compile requests it made."""
-    import jax
-
-    seen: dict = {"resets": [], "epochs": [], "epoch_compiles": []}
-    reset, epoch = cls.reset, cls.epoch
-
-    def probed_reset(self, *args, **kwargs):
-        state = reset(self, *args, **kwargs)
-        seen["resets"].append(jax.device_get(state))
-        return state
-
-    def probed_epoch(self, *args, **kwargs):
-        before = len(compiles)
-        out = epoch(self, *args, **kwargs)
-        seen["epoch_compiles"].append(len(compiles) - before)
-        seen["epochs"].append(jax.device_get(out))
-        return out
-
-    cls.reset, cls.epoch = probed_reset, probed_epoch
-    return seen
-
-
-def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
-    """How far apart two runs' checkpoints at ``step`` are: the learner's largest leaf difference relative
-    to max(1, |leaf|) (parameters, optimiser, normaliser), and whether the rest (curriculum, PRNG key,
-    terrain levels) is equal."""
-    from flax import serialization
-
-    from train import checkpoint
-
-    def load(run: str) -> dict:
-        path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}" / checkpoint.STATE_FILE
-        return serialization.msgpack_restore(path.read_bytes())
-
-    a, b = load(run_a), load(run_b)
-    pairs = list(zip(_float_leaves(a.pop("training_state")), _float_leaves(b.pop("training_state"))))
-    gap = max(float(np.max(np.abs(x - y)) / max(1.0, float(np.max(np.abs(x))))) for x, y in pairs)
-    rest_equal = sorted(a) == sorted(b) and all(
-        np.array_equal(x, y) for x, y in zip(_float_leaves(a), _float_leaves(b))
-    )
-    return {"same_run_param_gap": gap, "same_run_leaves": len(pairs), "same_run_rest_equal": rest_equal}
-
-
-def _float_leaves(tree: dict) -> list[np.ndarray]:
-    """The leaves of a restored checkpoint tree as float64 arrays, in key order."""
-    import jax
-
-    return [np.asarray(x, np.float64) for x in jax.tree.leaves(tree)]
-
-
-def _learner_facts(seen: dict) -> dict:
-    """From the probed pmap learner of a fresh two-epoch run: goals per device after the reset, terrain
-    cells before and after, recompiles at the second epoch, replicas after it."""
-    import jax
-
-    start, (ts, state, out) = seen["resets"][0], seen["epochs"][1]
-    terrain = {
-        "terrain_rows": start.curricula.terrain.terrain_type.tolist(),
-        "terrain_start": start.curricula.terrain.level.tolist(),
-        "terrain_after": state.curricula.terrain.level.tolist(),
-        "terrain_totals": {k: np.asarray(v).tolist() for k, v in out["totals"].items() if k.startswith("terrain_")},
-    }
-    leaves = jax.tree_util.tree_leaves_with_path({"learner": ts, "curriculum": state.curricula.goal})
-    differing = [
-        jax.tree_util.keystr(path)
-        for path, x in leaves
-        if not all(np.array_equal(np.asarray(x)[0], copy) for copy in np.asarray(x))
-    ]
-    return {
-        "goals": start.envs.env.pipeline_state.task.goal_xy.tolist(),
-        "epoch_compiles": list(seen["epoch_compiles"]),
-        "leaves": len(leaves),
-        "replicas_differing": differing,
-        "episodes_seen": int(state.curricula.goal.episode_count[0]),
-        **terrain,
-    }
-
-
-# Episode ends of 3 batch steps on 2 devices x 4 envs: 6 per device (under the window of 8), 12 in all.
-DONE = [[[1, 1, 0, 0], [1, 0, 1, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[1, 0, 0, 1], [1, 1, 0, 0]]]
-SUCCESS = [[[1, 1, 0, 0], [1, 0, 0, 0]], [[0, 1, 1, 0], [0, 0, 1, 1]], [[0, 0, 0, 1], [1, 0, 0, 0]]]
-
-
-def _curriculum_facts() -> dict:
-    """The goal curriculum under pmap from per-device outcomes gathered over the devices (as the learner
-    gathers a collection's); one update over all of them; each device alone."""
-    import jax
-    import jax.numpy as jnp
-
-    from hsa_mjx.curricula import goal_curriculum
-    from hsa_mjx.curricula.state import CurriculumRules
-    from train import config as train_config
-    from train.learner import AXIS
-    from train.replicas import replicate
-
-    config = goal_curriculum.GoalCurriculumConfig(
-        window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2
-    )
-    env = train_config.from_dict({}).env
-    rules, start = CurriculumRules(env, config), tuple(env.goal.radial_range)
-    done, success = np.asarray(DONE, bool), np.asarray(SUCCESS, bool)  # (steps, devices, envs)
-
-    def steps(cstate, success, done):  # (steps, envs) per device -> (steps, all envs), device order
-        def gather(x):
-            return jax.lax.all_gather(x, AXIS, axis=1, tiled=True)
-
-        return rules.after_collection(cstate, gather(success), gather(done))
-
-    first = replicate(goal_curriculum.init(config, start), jax.local_devices()[: done.shape[1]])
-    gathered = jax.pmap(steps, axis_name=AXIS)(first, jnp.swapaxes(success, 0, 1), jnp.swapaxes(done, 0, 1))
-    reference = goal_curriculum.init(config, start)
-    alone = [goal_curriculum.init(config, start) for _ in range(done.shape[1])]
-    for s, d in zip(success, done):  # device 0's envs, then device 1's
-        reference = goal_curriculum.update(reference, s.reshape(-1), d.reshape(-1), config, start)
-        alone = [goal_curriculum.update(a, s[i], d[i], config, start) for i, a in enumerate(alone)]
-
-    def as_lists(tree):
-        return {k: np.asarray(v).tolist() for k, v in vars(tree).items()}
-
-    return {
-        "curriculum_pmapped": as_lists(gathered),
-        "curriculum_reference": as_lists(reference),
-        "curriculum_alone": [as_lists(a) for a in alone],
-    }
-
-
-def scenario_two_devices(config_path: str, run_dir: str) -> dict:
-    """Train through the CLI on two devices of one process, resume, refusals, per-device facts, the
-    thread-per-device strategy on the Warp backend last (``phase_s``: each part's seconds)."""
-    compiles, saved = _compile_counter(), _record_saves()
-    clock, phases = time.perf_counter(), {}
-
-    def phase(name: str) -> None:
-        nonlocal clock
-        phases[name], clock = round(time.perf_counter() - clock, 1), time.perf_counter()
-
-    from train.cli import main
-    from train.strategies import Pmap
-    from train.thread_per_device import ThreadPerDevice
-
-    pmap_seen = _probe(Pmap, compiles)
-    args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]
-    rc_train = main(args)
-    phase("pmap_train")
-    saved_first = list(saved)
-    learner = _learner_facts(pmap_seen)
-    _fresh_traces()
-    rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
-    phase("pmap_resume")
-    facts = {
-        "rc_train": rc_train,
-        "rc_resume": rc_resume,
-        "saved_first": saved_first,
-        "saved_resume": saved[len(saved_first) :],
-    }
-    facts.update(learner)
-    facts.update(_refusals(config_path, Path(run_dir).parent, compiles))
-    phase("refusals")
-    # the same run (config, seed, keys) with one jitted collection per device: checkpoints and logs as pmap's
-    per_device_dir = str(Path(run_dir).parent / "run_per_device")
-    _fresh_traces()
-    per_device_seen = _probe(ThreadPerDevice, compiles)
-    facts["rc_per_device"] = main(
-        ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.collection=thread_per_device"]
-    )
-    phase("thread_per_device_train")
-    facts.update(
-        _checkpoint_gap(run_dir, per_device_dir, 160),
-        per_device_run_dir=per_device_dir,
-        per_device_epoch_compiles=list(per_device_seen["epoch_compiles"]),
-    )
-    # the two-device checkpoint resumed on one device by the thread-per-device strategy (see ONE_DEVICE_RESUME)
-    _fresh_traces()
-    before = len(saved)
-    facts["rc_one_device"] = main(args + ["--resume", *ONE_DEVICE_RESUME])
-    facts["saved_one_device"] = saved[before:]
-    phase("one_device_resume")
-    facts.update(_curriculum_facts())
-    phase("curriculum")
-    _fresh_traces()
-    facts["rc_warp"] = _warp_thread_per_device(config_path, str(Path(run_dir).parent / "run_warp"))
-    phase("warp_thread_per_device")
-    return {**facts, "phase_s": phases}
-
-
-def scenario_process(config_path: str, run_dir: str, port: str, process_id: str) -> dict:
-    """One of two processes (one CPU device each) training through the CLI; process 1 comes late to the loop."""
-    saved = _record_saves()
-    from train import trainer
-    from train.cli import main
-
-    loop = trainer.run_epochs
-
-    def late_loop(*args, **kwargs):  # later than the 30 s a collective's first use waits for the other processes
-        time.sleep(PROCESS_1_LATE_S if process_id == "1" else 0)
-        return loop(*args, **kwargs)
-
-    trainer.run_epochs = late_loop
-    rc = main(
-        [
-            "--config",
-            config_path,
-            "--run-dir",
-            run_dir,
-            "--quiet",
-            "--coordinator",
-            f"127.0.0.1:{port}",
-            "--num-processes",
-            "2",
-            "--process-id",
-            process_id,
-        ]
-    )
-    return {"rc": rc, "saved": saved}
-
-
-def _warp_thread_per_device(config_path: str, run_dir: str) -> int:
-    """The thread-per-device strategy (one env copy and one jitted collection per device) on the Warp
-    backend, through the CLI: one epoch (10 steps per env) with 8-step episodes, so that every env ends
-    one episode (Warp runs slowly on a CPU). The physics settings of tests/test_backend.py's Warp rollouts,
-    which compile most of Warp's kernels for these ones (into Warp's cache) on the other worker before."""
-    from train.cli import main
-
-    overrides = (
-        "env.physics.backend=warp",
-        "env.physics.integrator=implicitfast",
-        "env.physics.iterations=8",
-        "env.physics.ls_iterations=8",
-        "run.collection=thread_per_device",
-        "run.num_timesteps=80",
-        "env.termination.max_episode_steps=8",
-    )
-    return main(["--config", config_path, "--run-dir", run_dir, "--quiet", *(f"--set={o}" for o in overrides)])
-
-
-SCENARIOS = {"two_devices": scenario_two_devices, "process": scenario_process}
-
-
-# ----- the tests ------------------------------------------------------------------------------
 def _free_port() -> int:
     """A TCP port on localhost that nothing listens on now (for the coordinator)."""
     with socket.socket() as s:
@@ -391,12 +72,6 @@ def _subprocess_env(devices: int | None) -> dict:
     return env
 
 
-def _check(proc: subprocess.CompletedProcess) -> str:
-    """The stdout of a subprocess that must have succeeded (its output tails in the failure message)."""
-    assert proc.returncode == 0, f"exit {proc.returncode}\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}"
-    return proc.stdout
-
-
 def write_config(path: Path, data: dict) -> str:
     """Write a training config as YAML; its path."""
     path.write_text(yaml.safe_dump(data))
@@ -408,26 +83,14 @@ def _facts(stdout: str) -> dict:
     return json.loads([ln for ln in stdout.splitlines() if ln.startswith(FACTS)][-1][len(FACTS) :])
 
 
-def run_scenario(name: str, *args: str) -> dict:
-    """Run ``SCENARIOS[name](*args)`` in a fresh interpreter with the fake devices; the facts it printed."""
-    proc = subprocess.run(
-        [sys.executable, __file__, name, *args],
-        cwd=ROOT,
-        env=_subprocess_env(FAKE_DEVICES),
-        capture_output=True,
-        text=True,
-        timeout=SUBPROCESS_TIMEOUT_S,
-    )
-    return _facts(_check(proc))
-
-
 @dataclasses.dataclass
 class Runs:
-    """What the module's tests read: the two-device scenario's facts and run dirs, and the two processes'."""
+    """What the module's tests read: the two-device scenario's facts and run dir, and the two processes'
+    launches (``launches[name]``: each process's facts or exit status) and run dir."""
 
     facts: dict
     run_dir: Path
-    process_facts: list[dict]
+    launches: dict
     process_run_dir: Path
 
     def __iter__(self):  # facts, run_dir = two_devices
@@ -436,43 +99,66 @@ class Runs:
 
 @pytest.fixture(scope="module")
 def two_devices(tmp_path_factory):
-    """The two-device scenario in one subprocess and, beside it, the same training run in two processes of
-    one device each (started first: their deliberate wait overlaps the scenario's compiles)."""
+    """The two-device scenario in one subprocess and, beside it, a training run of two processes of one
+    device each through three launches (``PROCESS_STEPS`` in tests/multi_device_scenarios.py). The
+    processes start first: process 1's deliberate wait overlaps the scenario's compiles."""
     tmp = tmp_path_factory.mktemp("two_devices")
     config = write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
-    processes = _start_processes(
-        [sys.executable, __file__, "process", config, str(tmp / "processes"), str(_free_port())], 2, tmp
-    )
+    launch = functools.partial(_launch_processes, config, tmp)
+    first = launch("term", ("none", "late,term@2"))
+    scenario = _start([[sys.executable, str(SCENARIOS), "two_devices", config, str(tmp / "run")]], tmp / "scenario")
     try:
-        facts = run_scenario("two_devices", config, str(tmp / "run"))
+        launches = {"term": _finish_processes(first)}
+        launches["term"][0]["summary"] = json.loads((tmp / "processes" / "summary.json").read_text())
+        killed = launch("kill", ("kill@2", "none"))
+        _wait(killed[:1], SUBPROCESS_TIMEOUT_S)  # process 0 dies at its second epoch...
+        launches["kill"] = {"survivor_s": _wait(killed[1:], SURVIVOR_S)}  # ...process 1 must follow, not hang
+        launches["kill"].update(returncodes=[p.returncode for p, _ in killed], steps=_steps(tmp / "processes"))
+        launches["resume"] = _finish_processes(launch("resume", ("none", "none")))
     finally:
-        process_facts = _finish_processes(processes)
-    return Runs(facts, tmp / "run", process_facts, tmp / "processes")
+        facts = _finish_processes(scenario)[0]
+    return Runs(facts, tmp / "run", launches, tmp / "processes")
 
 
-def _start_processes(command: list[str], count: int, logs: Path) -> list[tuple[subprocess.Popen, Path]]:
-    """Start ``command + [process id]`` ``count`` times at once (one CPU device each), each writing its
-    output to files under ``logs`` (pipes read one process at a time could fill up and stall the others)."""
+def _launch_processes(config: str, tmp: Path, name: str, actions: tuple[str, str]) -> list:
+    """Start both processes of one launch of the two-process run, process i with ``actions[i]``."""
+    base = [sys.executable, str(SCENARIOS), "process", config, str(tmp / "processes"), str(_free_port())]
+    return _start([base + [action, str(i)] for i, action in enumerate(actions)], tmp / name, devices=None)
+
+
+def _start(
+    commands: list[list[str]], logs: Path, devices: int | None = FAKE_DEVICES
+) -> list[tuple[subprocess.Popen, Path]]:
+    """Start each command at once, the i-th writing its output to ``logs/process_i.{out,err}`` (pipes read
+    one process at a time could fill up and stall the others); ``devices`` fake CPU devices each."""
+    logs.mkdir(exist_ok=True)
     started = []
-    for i in range(count):
+    for i, command in enumerate(commands):
         out = logs / f"process_{i}"
         with open(f"{out}.out", "w") as stdout, open(f"{out}.err", "w") as stderr:
-            proc = subprocess.Popen(
-                command + [str(i)], cwd=ROOT, env=_subprocess_env(None), stdout=stdout, stderr=stderr, text=True
-            )
-        started.append((proc, out))
+            env = _subprocess_env(devices)
+            started.append((subprocess.Popen(command, cwd=ROOT, env=env, stdout=stdout, stderr=stderr, text=True), out))
     return started
 
 
-def _finish_processes(started: list[tuple[subprocess.Popen, Path]]) -> list[dict]:
-    """The facts of processes started by ``_start_processes`` (every failed one's output on failure)."""
+def _wait(started: list[tuple[subprocess.Popen, Path]], timeout: float) -> float:
+    """Seconds until every process has exited (each one still running past ``timeout`` killed)."""
+    start = time.perf_counter()
     try:
         for proc, _ in started:
-            proc.wait(timeout=SUBPROCESS_TIMEOUT_S)
+            proc.wait(timeout=max(1.0, timeout - (time.perf_counter() - start)))
+    except subprocess.TimeoutExpired:
+        pass
     finally:
         for proc, _ in started:
             if proc.poll() is None:
                 proc.kill()
+    return time.perf_counter() - start
+
+
+def _finish_processes(started: list[tuple[subprocess.Popen, Path]]) -> list[dict]:
+    """The facts of processes started by ``_start`` (every failed one's output on failure)."""
+    _wait(started, SUBPROCESS_TIMEOUT_S)
     outs = [(Path(f"{out}.out").read_text(), Path(f"{out}.err").read_text()) for _, out in started]
     failed = [
         f"process {i}: exit {proc.returncode}\n{out[0][-3000:]}\n{out[1][-3000:]}"
@@ -481,6 +167,11 @@ def _finish_processes(started: list[tuple[subprocess.Popen, Path]]) -> list[dict
     ]
     assert not failed, "\n\n".join(failed)  # every failed process's output: the first to fail may be another
     return [_facts(out[0]) for out in outs]
+
+
+def _steps(run_dir: Path) -> list[int]:
+    """The steps of the run's metrics records, in file order."""
+    return [r["step"] for r in _records(run_dir)]
 
 
 def _records(run_dir: Path) -> list[dict]:
@@ -602,6 +293,7 @@ def test_thread_per_device_trains_on_the_warp_backend(two_devices):
     run_dir = two_devices.run_dir.parent / "run_warp"
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["physics_backend"] == "warp" and summary["env_steps"] == 80
+    assert (summary["collection"], summary["devices"], summary["processes"]) == ("thread_per_device", 2, 1)
     last = read_jsonl(run_dir / "metrics.jsonl")[-1]
     assert last["episodes"] == 8 and last["curriculum/episode_count"] == 8  # both devices' envs, as on JAX
     assert last["terrain/levels"] == 3 and last["nonfinite/states"] == 0
@@ -620,13 +312,17 @@ def test_bad_device_split_refused_before_compile(two_devices):
 
 
 def test_two_processes_train_like_two_devices(two_devices):
-    from train import checkpoint
-
-    facts, run_dir = two_devices.process_facts, two_devices.process_run_dir
+    """Process 1 comes 40 s late to the loop and is stopped (SIGTERM) at its second epoch: both processes
+    stop there, process 0 alone writes, and the log is what one process with two devices logged."""
+    facts, run_dir = two_devices.launches["term"], two_devices.process_run_dir
     assert [f["rc"] for f in facts] == [0, 0]
     assert facts[0]["saved"] == [80, 160] and facts[1]["saved"] == []  # process 0 alone writes
-    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == ["step_000000000080", "step_000000000160"]
-    records = _records(run_dir)
+    summary = facts[0]["summary"]
+    assert summary["interrupted"] is True and summary["env_steps"] == 160
+    assert (summary["collection"], summary["devices"], summary["processes"]) == ("pmap", 2, 2)  # auto resolved
+    launch = run_dir.parent / "term"
+    assert "signal 15: finishing this epoch" in (launch / "process_1.out").read_text()
+    records = [r for r in _records(run_dir) if r["step"] <= 160]
     assert [r["step"] for r in records] == [80, 160]
     # The same global env and epoch keys, the same reductions: what one process with two devices logged.
     for mine, theirs in zip(records, _records(two_devices.run_dir)):
@@ -634,6 +330,31 @@ def test_two_processes_train_like_two_devices(two_devices):
         for key in (k for k in COMPARED_METRICS if k in theirs):
             assert mine[key] == pytest.approx(theirs[key], rel=1e-4, abs=1e-6), (mine["step"], key)
     assert "episode/return" in records[-1]  # compared, not skipped
+
+
+def test_a_killed_process_takes_the_other_down_and_leaves_its_checkpoints(two_devices):
+    """Resumed from 160, process 0 is killed (SIGKILL) at its second epoch: process 1 stops at once with
+    an error, and the run dir holds the epochs up to the last checkpoint (240)."""
+    kill = two_devices.launches["kill"]
+    assert kill["returncodes"][0] == -signal.SIGKILL
+    assert kill["returncodes"][1] != 0 and kill["survivor_s"] < SURVIVOR_S
+    assert kill["steps"] == [80, 160, 240]
+
+
+def test_every_process_resumes_after_a_kill_and_the_log_holds_each_epoch_once(two_devices):
+    from train import checkpoint
+
+    run_dir = two_devices.process_run_dir
+    assert [f["rc"] for f in two_devices.launches["resume"]] == [0, 0]
+    steps = [s for s in (160, 240, 320)]  # the newest three (run.keep_checkpoints)
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == [f"step_{s:012d}" for s in steps]
+    assert not [p for p in checkpoint.checkpoint_dir(run_dir).iterdir() if p.name.startswith(".tmp")]
+    lines = (run_dir / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(line)["step"] for line in lines] == [80, 160, 240, 320]  # each line whole, none twice
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is False and summary["env_steps"] == 320
+    for i in (0, 1):  # the resumed launch's error streams hold no traceback
+        assert "Traceback" not in (run_dir.parent / "resume" / f"process_{i}.err").read_text()
 
 
 def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
@@ -682,10 +403,3 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     # evaluated on tiles the run's pool was not drawn from, both seeds recorded
     assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table
     assert table["tiles_per_cell"] == 2
-
-
-if __name__ == "__main__":
-    faulthandler.enable(all_threads=True)  # a process aborted by JAX's coordinator shows where it was
-    sys.path.insert(0, str(ROOT))  # benchmarks/ (not an installed package) for the scaling rows
-    result = SCENARIOS[sys.argv[1]](*sys.argv[2:])
-    print(FACTS + json.dumps(result), flush=True)

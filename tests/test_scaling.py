@@ -84,6 +84,11 @@ def test_same_run_names_the_metric_that_differs_and_ignores_the_clock(tmp_path):
     row = same_run.compare([runs["a"], runs["c"]])[0]
     assert row["largest_gap_metric"] == "loss/v_loss" and row["equal"] == row["compared"] - 1
     assert same_run.main([str(tmp_path / "a"), str(tmp_path / "c"), "--tolerance", "0.2"]) == 0
+    # --append keeps the earlier comparison and adds this one after it, in both files
+    assert same_run.main([str(tmp_path / "a"), str(tmp_path / "c"), "--out", str(tmp_path / "ab"), "--append"]) == 1
+    both = json.loads((tmp_path / "ab.json").read_text())["results"]
+    assert [r["same"] for r in both] == [True, False] and both[0] == written
+    assert (tmp_path / "ab.md").read_text().count("# Same run?") == 2
     with pytest.raises(FileNotFoundError, match="no metrics log"):
         same_run.read_records(tmp_path / "missing")
 
@@ -107,3 +112,27 @@ def test_network_cost_counts_each_collective_as_often_as_it_runs_and_projects_th
     assert counted["all-gather"] == {"calls": 1.0, "rounds": 1.0, "bytes": 16.0}
     seconds = network_cost.project(counted, gpus=4, gbps=8e-9, latency_s=1.0)  # 1 byte/s, 1 s a hop
     assert seconds == pytest.approx(2 * 3 / 4 * 96 + 2 * 3 * 3 + 3 * 16 + 3 * 1)
+
+
+def test_allreduce_times_the_iterations_rounds_and_appends_results(tmp_path):
+    """On one CPU device (no process flags): the iteration's rounds as network_cost counts them, each timed."""
+    from benchmarks import allreduce, network_cost
+    from train import config as train_config
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(TINY_RUN))
+    out = tmp_path / "allreduce"
+    for note in ("first", "second"):
+        assert (
+            allreduce.main(["--config", str(config), "--repeats", "1", "--out", str(out), "--append", "--note", note])
+            == 0
+        )
+    first, second = json.loads(out.with_suffix(".json").read_text())["results"]
+    counted = network_cost.per_iteration(train_config.load(str(config), ["run.collection=pmap"]))["all-reduce"]
+    assert first["iteration"]["rounds"] == round(counted["rounds"]) > 1 and first["one_round"]["bytes"] > 0
+    assert first["iteration"]["seconds"] > 0 and first["latency_s_per_round"] > 0
+    assert (first["note"], second["note"], first["devices"], first["processes"]) == ("first", "second", 1, 1)
+    with pytest.raises(ValueError, match="--repeats must be >= 1"):
+        allreduce.main(["--config", str(config), "--repeats", "0"])
+    with pytest.raises(FileNotFoundError, match="no config"):
+        allreduce.main(["--config", str(tmp_path / "missing.yaml")])

@@ -110,7 +110,13 @@ def train(
     if distributed.is_main() and not quiet:
         print(_announce(config, run_dir, devices), flush=True)
     strategy = strategies.build(config, devices)
-    run = Run(config, run_dir, strategy, quiet, {"physics_backend": strategy.learner.env.physics_backend})
+    extra = {
+        "physics_backend": strategy.learner.env.physics_backend,
+        "collection": strategy.name,  # run.collection with auto resolved
+        "devices": len(devices) * jax.process_count(),
+        "processes": jax.process_count(),
+    }
+    run = Run(config, run_dir, strategy, quiet, extra)
     ts, goal, key, step, levels = _start(run, meta, init)
     key, k_env = jax.random.split(key)
     state = strategy.reset(distributed.env_keys(k_env, config.run.num_envs, devices), goal, levels)
