@@ -96,6 +96,16 @@ class RewardConfig:
     # Not in the original (0 keeps its reward): potential-style shaping that pays turning the robot's
     # axis towards the goal, w * (|cos| after - |cos| before) of the axis-to-goal angle per step.
     heading_alignment: float = 0.0
+    # Caps (largest cost per step) and clips (largest value a term reads) of the cost terms: the
+    # original's constants. Like the weights, traced per env.
+    velocity_clip: float = 5.0  # m/s, each component of the robot velocity forward and lateral_cost read
+    ctrl_cost_cap: float = 20.0
+    contact_cost_cap: float = 30.0
+    constraint_cost_cap: float = 50.0
+    acceleration_clip: float = 50.0  # rad/s^2, each hinge
+    acceleration_cost_cap: float = 20.0
+    joint_velocity_clip: float = 50.0  # rad/s, each hinge
+    joint_velocity_cost_cap: float = 50.0
     # How the distance and forward terms (and the logged distance_to_goal) measure the way to the goal:
     # euclidean (the original: the straight line) or geodesic (along the ground the robot can cross, from
     # the distance fields of the terrain's goal sites: terrain.reachability; hsa_mjx.terrain.geodesic).

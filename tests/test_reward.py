@@ -55,6 +55,19 @@ def test_ctrl_cost_and_cap():
     assert float(hsa_mjx.task.reward.ctrl_cost(x, W.with_weights(ctrl_cost=jnp.float32(10.0)))) == -20.0
 
 
+def test_caps_and_clips_are_weights_of_the_table():
+    """Each cost's cap and each clip is a RewardConfig field, read per env like a weight."""
+    big = inputs(action=jnp.ones(8), prev_action=-jnp.ones(8), velocity=jnp.array([9.0, -9.0]))
+    heavy = W.with_weights(ctrl_cost=jnp.float32(10.0), ctrl_cost_cap=jnp.float32(3.0), lateral_cost=jnp.float32(1.0))
+    assert float(hsa_mjx.task.reward.ctrl_cost(big, heavy)) == -3.0
+    assert float(hsa_mjx.task.reward.forward(big, W)) == pytest.approx(6.0 * 5.0)  # clipped at 5 m/s
+    assert float(hsa_mjx.task.reward.lateral_cost(big, heavy.with_weights(velocity_clip=2.0))) == pytest.approx(-2.0)
+    fast = inputs(joint_vel=jnp.full(8, 100.0))
+    assert float(
+        hsa_mjx.task.reward.joint_velocity_cost(fast, W.with_weights(joint_velocity_clip=1.0))
+    ) == pytest.approx(-5e-4 * 8)
+
+
 def test_contact_cost_uses_force_above_threshold():
     x = inputs(foot_force=jnp.array([14.7, 49.0, 60.0, 0.0]))
     assert float(hsa_mjx.task.reward.contact_cost(x, W)) == pytest.approx(-0.0005 * 100.0)

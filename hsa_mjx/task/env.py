@@ -314,7 +314,7 @@ class HSAEnv(BraxEnv):
         cfg, idx = self.config, self.index
         task, data = state.pipeline_state.task, state.pipeline_state.physics
         after = observation.robot_xy(new_data, idx)
-        velocity = jnp.clip((after - before[0]) / cfg.dt, -reward.VELOCITY_CLIP, reward.VELOCITY_CLIP)
+        velocity = (after - before[0]) / cfg.dt
         task, collected, completed = self.progress.advance_checkpoint(task, after)
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = self.progress.measure(task, after)

@@ -2,7 +2,8 @@
 
 Every term takes the :class:`RewardInputs` of one step and the traced :class:`RewardWeights`, and
 returns the amount added to the step reward (costs are negative). ``compute_rewards`` returns a
-dict of named components; the reward is their sum. Caps and clips are the original's constants.
+dict of named components; the reward is their sum. The caps and clips of the cost terms are
+weights too (``ctrl_cost_cap``, ``acceleration_clip``, ...; the original's constants by default).
 Quirks of the original that are fixed here are listed in ``docs/environment.md``.
 """
 
@@ -16,12 +17,6 @@ from flax import struct
 
 from hsa_mjx.config import RewardConfig
 
-VELOCITY_CLIP = 5.0  # m/s, per component
-CTRL_CAP = 20.0
-CONTACT_CAP = 30.0
-CONSTRAINT_CAP = 50.0
-ACC_CLIP, ACC_CAP = 50.0, 20.0
-JOINT_VEL_CLIP, JOINT_VEL_CAP = 50.0, 50.0
 CONSTRAINT_LIMIT = jnp.pi  # |qA - qC| must stay below pi (minus the margin)
 
 
@@ -59,7 +54,7 @@ class RewardWeights:
 class RewardInputs:
     """Everything the reward terms read for one env step."""
 
-    velocity: jax.Array  # (2,) robot xy velocity over the step, clipped to +-5 m/s
+    velocity: jax.Array  # (2,) robot xy velocity over the step (the terms clip it to +-velocity_clip)
     goal_direction: jax.Array  # (2,) unit vector from the robot to the current goal
     action: jax.Array  # (8,) normalised action of this step
     prev_action: jax.Array  # (8,)
@@ -83,9 +78,14 @@ class RewardInputs:
     constraint_pairs: tuple = struct.field(pytree_node=False, default=((0, 4), (1, 5), (2, 6), (3, 7)))
 
 
+def _velocity(x: RewardInputs, w: RewardWeights) -> jax.Array:
+    """The robot's xy velocity, each component clipped to +-``velocity_clip``."""
+    return jnp.clip(x.velocity, -w.velocity_clip, w.velocity_clip)
+
+
 def forward(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Velocity towards the goal (signed; the original rectified it with max(0, .))."""
-    speed = jnp.dot(x.velocity, x.goal_direction)
+    speed = jnp.dot(_velocity(x, w), x.goal_direction)
     if x.rectified_forward:
         speed = jnp.maximum(speed, 0.0)
     return w.forward * speed
@@ -93,18 +93,18 @@ def forward(x: RewardInputs, w: RewardWeights) -> jax.Array:
 
 def lateral_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """World-Y speed as a cost (the original added it as a reward)."""
-    return -w.lateral_cost * jnp.abs(x.velocity[1])
+    return -w.lateral_cost * jnp.abs(_velocity(x, w)[1])
 
 
 def ctrl_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Action smoothness: squared change of the normalised action, capped."""
-    return -jnp.minimum(CTRL_CAP, w.ctrl_cost * jnp.sum(jnp.square(x.action - x.prev_action)))
+    return -jnp.minimum(w.ctrl_cost_cap, w.ctrl_cost * jnp.sum(jnp.square(x.action - x.prev_action)))
 
 
 def contact_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Foot contact force above the threshold, squared and capped (the original read torques)."""
     excess = jnp.maximum(0.0, x.foot_force - w.contact_force_threshold)
-    return -jnp.minimum(CONTACT_CAP, w.contact_cost * jnp.sum(jnp.square(excess)))
+    return -jnp.minimum(w.contact_cost_cap, w.contact_cost * jnp.sum(jnp.square(excess)))
 
 
 def _pair_differences(x: RewardInputs) -> jax.Array:
@@ -116,7 +116,7 @@ def constraint_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Paired hinges (kA, kC) whose angle difference reaches pi - margin: quadratic ramp to 1 each."""
     threshold = CONSTRAINT_LIMIT - w.constraint_margin
     over = jnp.clip((_pair_differences(x) - threshold) / w.constraint_margin, 0.0, 1.0)
-    return -jnp.minimum(CONSTRAINT_CAP, w.constraint_cost * jnp.sum(jnp.square(over)))
+    return -jnp.minimum(w.constraint_cost_cap, w.constraint_cost * jnp.sum(jnp.square(over)))
 
 
 def constraint_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
@@ -127,14 +127,14 @@ def constraint_bonus(x: RewardInputs, w: RewardWeights) -> jax.Array:
 
 def acceleration_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Hinge accelerations over the env step, clipped to +-50 each, squared, capped."""
-    acc = jnp.clip((x.joint_vel - x.prev_joint_vel) / x.dt, -ACC_CLIP, ACC_CLIP)
-    return -jnp.minimum(ACC_CAP, w.acceleration_cost * jnp.sum(jnp.square(acc)))
+    acc = jnp.clip((x.joint_vel - x.prev_joint_vel) / x.dt, -w.acceleration_clip, w.acceleration_clip)
+    return -jnp.minimum(w.acceleration_cost_cap, w.acceleration_cost * jnp.sum(jnp.square(acc)))
 
 
 def joint_velocity_cost(x: RewardInputs, w: RewardWeights) -> jax.Array:
     """Hinge velocities clipped to +-50 each, squared, capped."""
-    vel = jnp.clip(x.joint_vel, -JOINT_VEL_CLIP, JOINT_VEL_CLIP)
-    return -jnp.minimum(JOINT_VEL_CAP, w.joint_velocity_cost * jnp.sum(jnp.square(vel)))
+    vel = jnp.clip(x.joint_vel, -w.joint_velocity_clip, w.joint_velocity_clip)
+    return -jnp.minimum(w.joint_velocity_cost_cap, w.joint_velocity_cost * jnp.sum(jnp.square(vel)))
 
 
 def distance(x: RewardInputs, w: RewardWeights) -> jax.Array:
