@@ -25,6 +25,7 @@ from hsa_mjx.task import (
     control,
     goals,
     observation,
+    outcome,
     privileged,
     progress,
     randomization,
@@ -314,50 +315,18 @@ class HSAEnv(BraxEnv):
         cfg, idx = self.config, self.index
         task, data = state.pipeline_state.task, state.pipeline_state.physics
         after = observation.robot_xy(new_data, idx)
-        velocity = (after - before[0]) / cfg.dt
         task, collected, completed = self.progress.advance_checkpoint(task, after)
         new_data = self._with_goal_marker(new_data, task.goal_xy, task.tile)
         distance, direction = self.progress.measure(task, after)
         steps = task.step_count + 1
         obs, critic, task = self.observer.after_step(new_data, task, direction, steps * cfg.dt, state.obs, action)
-        ground = self.world.ground(task.tile, new_data.xpos[idx.block_body, :2])
-        reasons = termination.failure_reasons(new_data, stats, jnp.all(jnp.isfinite(obs)), ground, cfg.termination, idx)
-        reasons["out_of_bounds"] = self.world.out_of_bounds(after)
-        failed = termination.any_reason(reasons)
-        success = (
-            completed
-            if cfg.goal.mode == "spiral"
-            else observation.goal_vector(after, task.goal_xy)[0] < cfg.goal.success_radius
-        )
-        reasons["goal_reached"] = success = success & jnp.logical_not(failed)
-        terminated = failed | success
+        ending = outcome.judge(cfg, idx, self.world, new_data, stats, obs, after, task, completed)
         task, moved, full = progress.record_position(task, after)
-        inputs = reward.RewardInputs(
-            velocity=velocity,
-            goal_direction=direction,
-            action=action,
-            prev_action=task.prev_action,
-            joint_pos=observation.joint_positions(new_data, idx),
-            joint_vel=observation.joint_velocities(new_data, idx),
-            prev_joint_vel=task.prev_joint_vel,
-            foot_force=physics.foot_forces(new_data, idx.foot_sensors),
-            distance=distance,
-            prev_distance=task.prev_distance,
-            stagnation_progress=moved,
-            history_full=full,
-            checkpoint_collected=collected,
-            spiral_complete=completed & success,
-            goal_reached=success & (cfg.goal.mode != "spiral"),
-            failed=failed,
-            terminated=terminated,
-            heading_before=before[1],
-            heading_after=observation.heading(new_data, idx),
-            dt=cfg.dt,
-            rectified_forward=cfg.reward.forward_rectified,
-            constraint_pairs=tuple(map(tuple, idx.constraint_pairs.tolist())),
-        )
+        moves = outcome.Progress((after - before[0]) / cfg.dt, direction, distance, moved, full, collected, completed)
+        inputs = outcome.reward_inputs(cfg, idx, new_data, task, action, before[1], moves, ending)
         components = reward.compute_rewards(inputs, self.weights)
         total = reward.total_reward(components)
+        reasons, terminated = ending.reasons, ending.terminated
         truncated = (steps >= cfg.termination.max_episode_steps) & jnp.logical_not(terminated)
         task = task.replace(
             prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance, step_count=steps
