@@ -1,10 +1,10 @@
-"""Compatibility with current JAX for Brax 0.14.2.
+"""``device_put_replicated`` for current JAX: copies of a pytree stacked one per device.
 
-Brax 0.14.2's trainers (``ppo``, ``sac``, ``apg``, ``training/pmap.py``) call
-``jax.device_put_replicated``, which JAX 0.10 removed: they fail with ``AttributeError`` right
-after the first reset. hsa_mjx's own trainer (``train.learner``) does not need it; ``install()``
-restores the function, so Brax's trainers also run on our env. It is a no-op where JAX still has
-the function. Remove this module once a Brax release with the upstream fix is required.
+JAX 0.10 removed ``jax.device_put_replicated``. The trainer's own replication
+(``train.replicas.replicate``) uses :func:`device_put_replicated` here. Brax 0.14.2's trainers
+(``ppo``, ``sac``, ``apg``, ``training/pmap.py``) still call the JAX function and fail with
+``AttributeError`` right after the first reset; :func:`install` defines it for them (a no-op
+where JAX still has it), so Brax's own trainers also run on our env (``tests/test_train_pieces.py``).
 """
 
 from __future__ import annotations
