@@ -52,10 +52,13 @@ ONE_DEVICE_RESUME = [
         ("run.collection", "thread_per_device"),
     )
 ]
-# The two processes' run: to 320 steps through three launches (SIGTERM on process 1 at its second
-# epoch: both stop at 160; resumed, SIGKILL on process 0 at its second epoch: the checkpoint at 240
-# stays; resumed to the end). Steps 80 and 160 are the two-device run's.
-PROCESS_STEPS = 320
+# The preempted run of two processes: the flat tiny config (its programs compile in a fraction of the
+# terrain run's time), 8 envs, one 80-step epoch a checkpoint, to 160 steps over two launches.
+PREEMPTED_CONFIG = {
+    **TINY,
+    "ppo": {**TINY["ppo"], "batch_size": 8},
+    "run": {**TINY["run"], "num_envs": 8, "num_timesteps": 160, "checkpoint_every": 80},
+}
 
 
 def _compile_counter() -> list:
@@ -292,8 +295,8 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     return {**facts, "phase_s": phases}
 
 
-def scenario_process(config_path: str, run_dir: str, port: str, action: str, process_id: str) -> dict:
-    """One of two processes (one CPU device each) training through the CLI to ``PROCESS_STEPS`` steps
+def scenario_process(config_path: str, run_dir: str, port: str, steps: str, action: str, process_id: str) -> dict:
+    """One of two processes (one CPU device each) training through the CLI to ``steps`` env steps
     (``--resume`` once the run dir has a checkpoint). ``action``: a comma list of ``late`` (process 1
     reaches the training loop ``PROCESS_1_LATE_S`` late) and ``term@K`` / ``kill@K`` (this process gets
     SIGTERM / SIGKILL as it reaches its K-th logged epoch, before that epoch is logged or checkpointed),
@@ -320,8 +323,8 @@ def scenario_process(config_path: str, run_dir: str, port: str, action: str, pro
     trainer._record = record_after_signal
     resume = ["--resume"] if (Path(run_dir) / "checkpoints").is_dir() else []
     cluster = ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--process-id", process_id]
-    steps = f"--set=run.num_timesteps={PROCESS_STEPS}"
-    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", steps, *resume, *cluster])
+    total = f"--set=run.num_timesteps={steps}"
+    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", total, *resume, *cluster])
     return {"rc": rc, "saved": saved}
 
 

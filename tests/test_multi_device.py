@@ -9,7 +9,6 @@ set before JAX starts), each printing one JSON line of facts; the tests assert o
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import os
 import signal
@@ -22,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from multi_device_scenarios import FACTS, ROOT, TWO_DEVICE_CONFIG
+from multi_device_scenarios import FACTS, PREEMPTED_CONFIG, ROOT, TWO_DEVICE_CONFIG
 
 SCENARIOS = Path(__file__).with_name("multi_device_scenarios.py")
 FAKE_DEVICES = 2
@@ -99,31 +98,33 @@ class Runs:
 
 @pytest.fixture(scope="module")
 def two_devices(tmp_path_factory):
-    """The two-device scenario in one subprocess and, beside it, a training run of two processes of one
-    device each through three launches (``PROCESS_STEPS`` in tests/multi_device_scenarios.py). The
-    processes start first: process 1's deliberate wait overlaps the scenario's compiles."""
+    """The two-device scenario in one subprocess and, beside it, launches of two processes of one device
+    each: the same training run (process 1 late to the loop, then stopped with SIGTERM), and a
+    preempted run (SIGKILL on process 0, then resumed). The processes start first: process 1's
+    deliberate wait overlaps the scenario's compiles."""
     tmp = tmp_path_factory.mktemp("two_devices")
     config = write_config(tmp / "tiny.yaml", TWO_DEVICE_CONFIG)
-    launch = functools.partial(_launch_processes, config, tmp)
-    first = launch("term", ("none", "late,term@2"))
+    preempted = write_config(tmp / "preempted.yaml", PREEMPTED_CONFIG)
+    first = _launch_processes(config, tmp / "processes", "240", ("none", "late,term@2"), tmp / "term")
     scenario = _start([[sys.executable, str(SCENARIOS), "two_devices", config, str(tmp / "run")]], tmp / "scenario")
     try:
         launches = {"term": _finish_processes(first)}
         launches["term"][0]["summary"] = json.loads((tmp / "processes" / "summary.json").read_text())
-        killed = launch("kill", ("kill@2", "none"))
+        killed = _launch_processes(preempted, tmp / "preempted", "160", ("kill@2", "none"), tmp / "kill")
         _wait(killed[:1], SUBPROCESS_TIMEOUT_S)  # process 0 dies at its second epoch...
         launches["kill"] = {"survivor_s": _wait(killed[1:], SURVIVOR_S)}  # ...process 1 must follow, not hang
-        launches["kill"].update(returncodes=[p.returncode for p, _ in killed], steps=_steps(tmp / "processes"))
-        launches["resume"] = _finish_processes(launch("resume", ("none", "none")))
+        launches["kill"].update(returncodes=[p.returncode for p, _ in killed], steps=_steps(tmp / "preempted"))
+        resumed = _launch_processes(preempted, tmp / "preempted", "160", ("none", "none"), tmp / "resume")
+        launches["resume"] = _finish_processes(resumed)
     finally:
         facts = _finish_processes(scenario)[0]
     return Runs(facts, tmp / "run", launches, tmp / "processes")
 
 
-def _launch_processes(config: str, tmp: Path, name: str, actions: tuple[str, str]) -> list:
-    """Start both processes of one launch of the two-process run, process i with ``actions[i]``."""
-    base = [sys.executable, str(SCENARIOS), "process", config, str(tmp / "processes"), str(_free_port())]
-    return _start([base + [action, str(i)] for i, action in enumerate(actions)], tmp / name, devices=None)
+def _launch_processes(config: str, run_dir: Path, steps: str, actions: tuple[str, str], logs: Path) -> list:
+    """Start both processes of one launch of a two-process run, process i with ``actions[i]``."""
+    base = [sys.executable, str(SCENARIOS), "process", config, str(run_dir), str(_free_port()), steps]
+    return _start([base + [action, str(i)] for i, action in enumerate(actions)], logs, devices=None)
 
 
 def _start(
@@ -320,8 +321,7 @@ def test_two_processes_train_like_two_devices(two_devices):
     summary = facts[0]["summary"]
     assert summary["interrupted"] is True and summary["env_steps"] == 160
     assert (summary["collection"], summary["devices"], summary["processes"]) == ("pmap", 2, 2)  # auto resolved
-    launch = run_dir.parent / "term"
-    assert "signal 15: finishing this epoch" in (launch / "process_1.out").read_text()
+    assert "signal 15: finishing this epoch" in (run_dir.parent / "term" / "process_1.out").read_text()
     records = [r for r in _records(run_dir) if r["step"] <= 160]
     assert [r["step"] for r in records] == [80, 160]
     # The same global env and epoch keys, the same reductions: what one process with two devices logged.
@@ -332,27 +332,27 @@ def test_two_processes_train_like_two_devices(two_devices):
     assert "episode/return" in records[-1]  # compared, not skipped
 
 
-def test_a_killed_process_takes_the_other_down_and_leaves_its_checkpoints(two_devices):
-    """Resumed from 160, process 0 is killed (SIGKILL) at its second epoch: process 1 stops at once with
-    an error, and the run dir holds the epochs up to the last checkpoint (240)."""
+def test_a_killed_process_takes_the_other_down_and_leaves_its_checkpoint(two_devices):
+    """Process 0 of a run is killed (SIGKILL) at its second epoch: process 1 stops at once with an error,
+    and the run dir holds the first epoch, logged and checkpointed."""
     kill = two_devices.launches["kill"]
     assert kill["returncodes"][0] == -signal.SIGKILL
     assert kill["returncodes"][1] != 0 and kill["survivor_s"] < SURVIVOR_S
-    assert kill["steps"] == [80, 160, 240]
+    assert kill["steps"] == [80]
 
 
 def test_every_process_resumes_after_a_kill_and_the_log_holds_each_epoch_once(two_devices):
     from train import checkpoint
 
-    run_dir = two_devices.process_run_dir
+    run_dir = two_devices.process_run_dir.parent / "preempted"
     assert [f["rc"] for f in two_devices.launches["resume"]] == [0, 0]
-    steps = [s for s in (160, 240, 320)]  # the newest three (run.keep_checkpoints)
-    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == [f"step_{s:012d}" for s in steps]
+    assert [p.name for p in checkpoint.list_checkpoints(run_dir)] == [f"step_{s:012d}" for s in (80, 160)]
     assert not [p for p in checkpoint.checkpoint_dir(run_dir).iterdir() if p.name.startswith(".tmp")]
     lines = (run_dir / "metrics.jsonl").read_text().splitlines()
-    assert [json.loads(line)["step"] for line in lines] == [80, 160, 240, 320]  # each line whole, none twice
+    assert [json.loads(line)["step"] for line in lines] == [80, 160]  # each line whole, none twice
     summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["interrupted"] is False and summary["env_steps"] == 320
+    assert summary["interrupted"] is False and summary["env_steps"] == 160
+    assert "resumed from" in (run_dir.parent / "resume" / "process_0.out").read_text()
     for i in (0, 1):  # the resumed launch's error streams hold no traceback
         assert "Traceback" not in (run_dir.parent / "resume" / f"process_{i}.err").read_text()
 
