@@ -68,3 +68,21 @@ def test_the_citation_rule_can_fail():
     assert not _cited(RESULTS / "throughput" / "speed_x.png", text, unique)
     assert _cited(RESULTS / "capability" / "capability.md", text, unique)
     assert not _cited(RESULTS / "capability" / "other.json", text, unique)
+
+
+# A folder of some machine's file system: a result (or a shipped policy's metadata) records paths
+# within the repository, and a command as one would type it in a checkout.
+MACHINE_PATH = re.compile(r"(?<![\w.~-])/(root|tmp|home|work|Users|mnt|scratch)/")
+
+
+def test_results_and_policies_name_no_machine_paths():
+    files = [*_result_files(), *(p for p in (ROOT / "policies").rglob("*") if p.suffix in (".json", ".md", ".yaml"))]
+    found = [
+        f"{p.relative_to(ROOT)}: {m.group(0)}"
+        for p in files
+        if p.suffix in (".json", ".jsonl", ".md", ".yaml")
+        for m in [MACHINE_PATH.search(p.read_text())]
+        if m
+    ]
+    assert found == []
+    assert MACHINE_PATH.search('"--out-dir /root/out"') and not MACHINE_PATH.search("benchmarks/results/tmp/x")
