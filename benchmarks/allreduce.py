@@ -31,14 +31,14 @@ from benchmarks import network_cost
 from benchmarks.run_info import report, run_info
 from train import config as train_config
 from train import distributed
+from train.learner import AXIS
 from train.replicas import replicate
 
-AXIS = "i"
 NCCL_VARS = ("NCCL_P2P_DISABLE", "NCCL_SHM_DISABLE", "NCCL_IB_DISABLE", "NCCL_NET", "NCCL_SOCKET_IFNAME")
 
 
-def rounds_program(rounds: int, floats: int):
-    """A ``pmap``-ed scan of ``rounds`` all-reduces of ``floats`` float32 values, each fed by the last."""
+def rounds_program(rounds: int):
+    """A ``pmap``-ed scan of ``rounds`` all-reduces of its input, each fed by the last."""
 
     def body(x, _):
         return jax.lax.psum(x, AXIS) * (1.0 / jax.device_count()), None
@@ -46,13 +46,13 @@ def rounds_program(rounds: int, floats: int):
     def run(x):
         return jax.lax.scan(body, x, None, length=rounds)[0]
 
-    return jax.pmap(run, axis_name=AXIS), floats
+    return jax.pmap(run, axis_name=AXIS)
 
 
 def time_rounds(rounds: int, floats: int, repeats: int) -> float:
     """Median seconds of ``rounds`` all-reduces of ``floats`` float32 values over every device."""
-    program, size = rounds_program(rounds, max(1, floats))
-    x = replicate(jnp.ones((size,), jnp.float32), jax.local_devices())
+    program = rounds_program(rounds)
+    x = replicate(jnp.ones((max(1, floats),), jnp.float32), jax.local_devices())
     program(x).block_until_ready()  # compile and warm up NCCL's communicators
     times = []
     for _ in range(repeats):
