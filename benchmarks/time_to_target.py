@@ -1,6 +1,7 @@
 """Time to a training target, read from the logs of finished runs.
 
-    python -m benchmarks.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9] [--out-dir DIR --tag NAME]
+    python -m benchmarks.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9 | --at-env-steps N]
+        [--out-dir DIR --tag NAME]
 
 For each run (a folder ``python -m train`` wrote, or a copy under ``benchmarks/results/training/``)
 it reads ``config.yaml`` and ``metrics.jsonl`` and reports the first log at which the goal
@@ -11,7 +12,11 @@ a resumed run's calls are added up), the time from the process's launch to it (`
 the loop's clock and the start-up before it, imports and the env's build; runs logged before that key
 show ``-``), the env steps and the PPO iterations to it. Beside it, what the
 run had at its last log: wall-clock, env steps, iterations, success, goal range and, on terrain, the
-mean terrain level. A target never met is reported as ``null`` with the last log's figures. The
+mean terrain level. A target never met is reported as ``null`` with the last log's figures.
+``--at-env-steps N`` takes as the target the first log at N env steps or more instead: the step
+count at which an evaluation found the target met (a sweep's, ``benchmarks.sweep``), so that the run's
+clock to it is read without the logged success rate, which counts the episodes that end (successes
+end sooner, and the goal curriculum's range lags the skill). The
 first log's wall-clock (the compile and the first epoch) is given too: it depends on the caches
 (XLA's and Warp's kernel cache), so runs compare best on the time after it.
 
@@ -94,16 +99,27 @@ def _snapshot(row: dict[str, Any], wall: float, launch: float | None, per_iterat
     }
 
 
-def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: float) -> dict[str, Any]:
-    """The run's figures at the first log meeting the target (``None`` when none does) and at its last log."""
+def time_to_target(
+    config: dict[str, Any], rows: list[dict[str, Any]], success: float, at_env_steps: int | None = None
+) -> dict[str, Any]:
+    """The run's figures at the first log meeting the target (``None`` when none does) and at its last
+    log. The target: the goal curriculum's full range (where it is on) with a logged success rate of
+    ``success``, or, given ``at_env_steps``, the first log at that many env steps."""
     walls, launches = cumulative_walltime(rows), cumulative_walltime(rows, LAUNCH)
     per_iteration = iteration_steps(config)
     curriculum = hsa_mjx.migrations.training_keys(config).get("goal_curriculum", {})  # older runs: "curriculum"
     goal_max = float(curriculum["target_range"][1]) if curriculum.get("enabled") else None
+    target = {"goal_max_m": goal_max, "success_rate": success}
+    if at_env_steps is not None:
+        target = {"env_steps": at_env_steps}
     hit = None
     for row, wall, launch in zip(rows, walls, launches):
-        at_range = goal_max is None or (row.get(GOAL) or 0.0) >= goal_max - 1e-3
-        if at_range and (row.get(SUCCESS) or 0.0) >= success:
+        if at_env_steps is not None:
+            met = int(row["step"]) >= at_env_steps
+        else:
+            at_range = goal_max is None or (row.get(GOAL) or 0.0) >= goal_max - 1e-3
+            met = at_range and (row.get(SUCCESS) or 0.0) >= success
+        if met:
             hit = _snapshot(row, wall, launch, per_iteration)
             break
     run = config["run"]
@@ -112,7 +128,7 @@ def time_to_target(config: dict[str, Any], rows: list[dict[str, Any]], success: 
         "num_devices": run.get("num_devices"),
         "physics_backend": config["env"]["physics"].get("backend"),
         "iteration_env_steps": per_iteration,
-        "target": {"goal_max_m": goal_max, "success_rate": success},
+        "target": target,
         "first_log_s": round(walls[0], 1),
         "reached": hit,
         "last": _snapshot(rows[-1], walls[-1], launches[-1], per_iteration),
@@ -162,13 +178,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("run_dirs", nargs="+", help="run folders (config.yaml and metrics.jsonl)")
     parser.add_argument("--success", type=float, default=0.9, help="logged success rate to reach (default 0.9)")
+    parser.add_argument(
+        "--at-env-steps", type=int, default=None, help="the target is the first log at this many env steps instead"
+    )
     parser.add_argument("--out-dir", default=None, help="write time_to_target_<tag>.{json,md} here")
     parser.add_argument("--tag", default="runs")
     args = parser.parse_args(argv)
     if not 0.0 < args.success <= 1.0:
         parser.error(f"--success must be in (0, 1], got {args.success}")
+    if args.at_env_steps is not None and args.at_env_steps < 1:
+        parser.error(f"--at-env-steps must be a positive number of env steps, got {args.at_env_steps}")
     try:
-        results = {Path(d).name: time_to_target(*read_run(Path(d)), args.success) for d in args.run_dirs}
+        results = {
+            Path(d).name: time_to_target(*read_run(Path(d)), args.success, args.at_env_steps) for d in args.run_dirs
+        }
     except (FileNotFoundError, ValueError, KeyError) as err:
         print(f"error: {err}")
         return 2

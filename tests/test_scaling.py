@@ -50,7 +50,7 @@ def test_scaling_device_counts_and_config():
     from train import config as train_config
 
     assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
-    flat = train_config.load("configs/train_flat.yaml")  # 8,192 envs, minibatch 512 x 32, unroll 20
+    flat = train_config.load("configs/train_flat.yaml")  # 4,096 envs, minibatch 256 x 32, unroll 20
     four = scaled_config(flat, 8192, 4, iterations=1)
     assert (four.run.num_envs, four.run.num_devices, four.ppo.batch_size) == (32768, 4, 2048)
     assert four.run.steps_per_epoch == 2048 * 32 * 20 and four.ppo.num_minibatches == 32

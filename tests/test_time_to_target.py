@@ -69,6 +69,18 @@ def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
     assert result["reached"]["env_steps"] == 640
 
 
+def test_a_step_count_target_reads_the_first_log_at_it_whatever_the_logged_success(tmp_path):
+    rows = [_row(640, 10.0, 1.8, 0.0, launch=14.0), _row(1280, 20.0, 2.1, 0.2, launch=24.0), _row(1920, 30.0, 2.4, 0.3)]
+    result = benchmarks.time_to_target.time_to_target(
+        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9, at_env_steps=1000
+    )
+    assert result["target"] == {"env_steps": 1000}
+    assert result["reached"]["env_steps"] == 1280 and result["reached"]["since_launch_s"] == 24.0
+    assert benchmarks.time_to_target.main([str(tmp_path), "--at-env-steps", "5000"]) == 0  # never reached: reported
+    with pytest.raises(SystemExit):
+        benchmarks.time_to_target.main([str(tmp_path), "--at-env-steps", "0"])
+
+
 def test_bad_folders_are_refused(tmp_path, capsys):
     with pytest.raises(FileNotFoundError, match="metrics.jsonl"):
         benchmarks.time_to_target.read_run(tmp_path)
