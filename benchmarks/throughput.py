@@ -63,6 +63,7 @@ from benchmarks.throughput_loops import (
     tree_bytes,
 )
 from hsa_mjx.resources import config_path, read_yaml
+from hsa_mjx.sim import servo
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -197,7 +198,7 @@ def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str
             start + ctl.max_increment * rng.uniform(-1, 1, len(servos)), -ctl.servo_target_limit, ctl.servo_target_limit
         )
         for target in start + ramp * (end - start):
-            data.ctrl[servos] = target
+            servo.write_controls(data, env.index, env.motors, target)  # the env's servo model
             mujoco.mj_step(model, data)
         steps += 1
     rate = steps / (time.perf_counter() - tic)

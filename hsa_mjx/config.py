@@ -16,9 +16,11 @@ from typing import Any
 
 from hsa_mjx import migrations
 from hsa_mjx.config_schema import build_section, non_finite, plain
-from hsa_mjx.randomization_config import ObservationNoiseConfig, RandomizationConfig
+from hsa_mjx.randomization_config import NOMINAL, ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.randomization_config import validate as validate_randomization
 from hsa_mjx.resources import data_dir, merge, read_yaml
+from hsa_mjx.servo_config import ServoConfig, resolve_servo
+from hsa_mjx.servo_config import validate as validate_servo
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES as GENERATOR_TYPES
@@ -194,6 +196,7 @@ class EnvConfig:
     terrain: TerrainConfig = TerrainConfig()
     observation: ObservationConfig = ObservationConfig()
     randomization: RandomizationConfig = RandomizationConfig()
+    servo: ServoConfig = ServoConfig()  # the servo model (hsa_mjx.sim.servo): the asset's springs by default
 
     def __post_init__(self) -> None:
         validate(self)  # every config is valid from the moment it is built: no later check repeats it
@@ -275,9 +278,21 @@ def validate(config: EnvConfig) -> EnvConfig:
         )
     validate_height_scan(config.observation.height_scan)
     validate_randomization(config.randomization, config.observation.noise)
+    _validate_servo(config)
     _validate_track_starts(config.goal)
     _validate_terrain(config)
     return config
+
+
+def _validate_servo(config: EnvConfig) -> None:
+    """The servo section; the randomised servo gain and torque limit act on the asset's springs only."""
+    validate_servo(config.servo)
+    rand = config.randomization
+    if resolve_servo(config.servo) is not None and (rand.limits_force or rand.servo_gain != NOMINAL):
+        raise ValueError(
+            "config keys 'randomization.servo_gain' and 'randomization.servo_force_limit' act on the asset's "
+            "spring servos: leave them at their defaults with servo.model position or continuous"
+        )
 
 
 def _validate_track_starts(goal: GoalConfig) -> None:

@@ -18,6 +18,7 @@ LAYERS = (
         "hsa_mjx.config_schema",
         "hsa_mjx.migrations",
         "hsa_mjx.randomization_config",
+        "hsa_mjx.servo_config",
         "hsa_mjx.pose",
         "hsa_mjx.terrain",
     ),

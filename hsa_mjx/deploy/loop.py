@@ -28,6 +28,8 @@ import numpy as np
 
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.deploy.perturbation import ModelPerturbation, perturbed_model
+from hsa_mjx.servo_config import resolve_servo
+from hsa_mjx.sim import servo
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.task import history
 from hsa_mjx.task.control import next_targets, substep_targets
@@ -76,6 +78,7 @@ class SimulatedRobot:
         if perturbation is not None and not perturbation.nominal:
             mj_model = perturbed_model(mj_model, index, perturbation)
         self.model, self.index, self.config, self.realtime = mj_model, index, config, realtime
+        self.motors = resolve_servo(config.servo)  # DC-motor servos' figures; None: the asset's springs
         self.data = mujoco.MjData(mj_model)
         self.data.qpos[index.block_z] = config.spawn_height
         mujoco.mj_forward(mj_model, self.data)
@@ -94,7 +97,7 @@ class SimulatedRobot:
         control = self.config.control
         targets = np.asarray(targets, np.float64)
         for target in substep_targets(self._targets, targets, control.frame_skip, control.smooth_positions, xp=np):
-            self.data.ctrl[self.index.servo_ids] = target
+            servo.write_controls(self.data, self.index, self.motors, target)
             mujoco.mj_step(self.model, self.data)
         self._targets = targets
 

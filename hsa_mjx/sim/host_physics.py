@@ -23,12 +23,26 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from hsa_mjx.servo_config import ServoParams
+from hsa_mjx.sim import servo
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.sim.physics import SubstepStats
 
 STATE_IN = ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat", "qacc_warmstart", "time")
-STATE_OUT = ("qpos", "qvel", "act", "ctrl", "qacc", "qacc_warmstart", "time", "xpos", "xquat", "sensordata")
+STATE_OUT = (
+    "qpos",
+    "qvel",
+    "act",
+    "ctrl",
+    "qacc",
+    "qacc_warmstart",
+    "time",
+    "xpos",
+    "xquat",
+    "sensordata",
+    "actuator_force",
+)
 _BAD = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
 
 
@@ -38,11 +52,13 @@ class HostPhysics:
     Args:
         mj_model: the env's compiled C model (``env.robot.mj_model``: same asset, physics and terrain).
         index: the env's name index (servo ids).
+        motors: the DC-motor servos' figures (None: the asset's springs): each substep's drive is
+            computed here as ``hsa_mjx.sim.physics.simulate`` does on the device.
     """
 
-    def __init__(self, mj_model: mujoco.MjModel, index: RobotIndex):
+    def __init__(self, mj_model: mujoco.MjModel, index: RobotIndex, motors: ServoParams | None = None):
         # its own copy: per-env model fields are written into it before each env's substeps
-        self.model, self.servos = copy.copy(mj_model), np.asarray(index.servo_ids)
+        self.model, self.index, self.motors = copy.copy(mj_model), index, motors
         self.data = mujoco.MjData(self.model)
 
     def __call__(
@@ -81,7 +97,7 @@ class HostPhysics:
         counts = [d.warning[w].number for w in _BAD]
         qvel, qacc = np.empty(len(targets)), np.empty(len(targets))
         for i, target in enumerate(np.asarray(targets, np.float64)):
-            d.ctrl[self.servos] = target
+            servo.write_controls(d, self.index, self.motors, target)
             mujoco.mj_step(self.model, d)
             qvel[i], qacc[i] = np.abs(d.qvel).max(), np.abs(d.qacc).max()  # a NaN stays a NaN
         reset = any(d.warning[w].number > c for w, c in zip(_BAD, counts))  # C MuJoCo reset a bad state

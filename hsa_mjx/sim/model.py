@@ -17,7 +17,8 @@ import numpy as np
 
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.resources import scene_path
-from hsa_mjx.sim import backend
+from hsa_mjx.servo_config import resolve_servo
+from hsa_mjx.sim import backend, servo
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.cpu_linalg import use_xla_linalg_on_cpu
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
@@ -75,6 +76,7 @@ class RobotIndex:
     joint_qpos: np.ndarray  # (8,) qpos address of each actuated hinge, action-slot order
     joint_qvel: np.ndarray  # (8,) dof address of each actuated hinge
     servo_ids: np.ndarray  # (8,) actuator id of each servo, action-slot order
+    drive_ids: np.ndarray  # (8,) actuator id of each servo's motor drive (hsa_mjx.sim.servo); (0,) for springs
     block_body: np.ndarray  # (2,) body ids of block_a, block_b
     block_qpos: np.ndarray  # (2,) qpos address of each block's free joint
     block_z: np.ndarray  # (2,) qpos address of each block's height (its free joint's z)
@@ -92,6 +94,9 @@ def load_scene(config: EnvConfig, asset_dir: Path | None = None) -> tuple[mujoco
     terrain tiles (drawn from ``terrain.seed``), written into the model's ``hfield_data``.
     """
     spec = mujoco.MjSpec.from_file(str(scene_path(config.scene, asset_dir)))
+    params = resolve_servo(config.servo)
+    if params is not None:  # DC-motor servos: a drive actuator beside each (inert) position actuator
+        servo.add_drives(spec, params, SERVOS, ACTUATED_JOINTS)
     pool = None
     if config.scene == "terrain":
         field = spec.hfield(HFIELD_NAME)
@@ -124,11 +129,11 @@ def _apply_physics(model: mujoco.MjModel, config: EnvConfig) -> None:
     model.opt.ls_iterations = phys.ls_iterations
     model.opt.tolerance = phys.tolerance
     model.opt.cone = _CONES[phys.cone]
-    limit = config.control.servo_target_limit
-    model.actuator_ctrlrange[:] = np.array([-limit, limit])
+    limit, servos = config.control.servo_target_limit, _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, SERVOS)
+    model.actuator_ctrlrange[servos] = np.array([-limit, limit])
     if config.randomization.limits_force:  # each env's own limit goes into actuator_forcerange per step
-        model.actuator_forcelimited[:] = 1
-        model.actuator_forcerange[:] = np.array([-1.0, 1.0]) * config.randomization.servo_force_limit[1]
+        model.actuator_forcelimited[servos] = 1
+        model.actuator_forcerange[servos] = np.array([-1.0, 1.0]) * config.randomization.servo_force_limit[1]
 
 
 def _ids(model: mujoco.MjModel, kind: mujoco.mjtObj, names: tuple[str, ...]) -> np.ndarray:
@@ -157,6 +162,14 @@ def _terrain_mocap(model: mujoco.MjModel) -> int:
     return -1 if body < 0 else int(model.body_mocapid[body])
 
 
+def _drive_ids(model: mujoco.MjModel) -> np.ndarray:
+    """Actuator ids of the servos' motor drives in action-slot order, none when the servos are springs."""
+    names = tuple(joint + servo.DRIVE_SUFFIX for joint in ACTUATED_JOINTS)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, names[0]) < 0:
+        return np.zeros((0,), np.int32)
+    return _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, names)
+
+
 def build_index(model: mujoco.MjModel) -> RobotIndex:
     """Resolve every name the env uses into static ids."""
     joints = _ids(model, mujoco.mjtObj.mjOBJ_JOINT, ACTUATED_JOINTS)
@@ -171,6 +184,7 @@ def build_index(model: mujoco.MjModel) -> RobotIndex:
         joint_qpos=model.jnt_qposadr[joints].astype(np.int32),
         joint_qvel=model.jnt_dofadr[joints].astype(np.int32),
         servo_ids=servos,
+        drive_ids=_drive_ids(model),
         block_body=_ids(model, mujoco.mjtObj.mjOBJ_BODY, BLOCKS),
         block_qpos=model.jnt_qposadr[block_joints].astype(np.int32),
         block_z=(model.jnt_qposadr[block_joints] + FREE_JOINT_Z).astype(np.int32),

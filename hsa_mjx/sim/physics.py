@@ -1,4 +1,5 @@
-"""Physics stepping: the substep loop over interpolated servo targets, and foot contact forces."""
+"""Physics stepping: the substep loop over interpolated servo targets (with each substep's motor drive
+where the servos are DC motors, ``hsa_mjx.sim.servo``), and foot contact forces."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from hsa_mjx.servo_config import ServoParams
+from hsa_mjx.sim import servo
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 
@@ -43,15 +46,21 @@ def merge_stats(a: SubstepStats, b: SubstepStats) -> SubstepStats:
     )
 
 
-def simulate(model: mjx.Model, data: mjx.Data, targets: jax.Array, index: RobotIndex) -> tuple[mjx.Data, SubstepStats]:
-    """Run one physics step per row of ``targets`` (frame_skip, 8) with ``lax.scan``.
+def simulate(
+    model: mjx.Model, data: mjx.Data, targets: jax.Array, index: RobotIndex, motors: ServoParams | None = None
+) -> tuple[mjx.Data, SubstepStats]:
+    """Run one physics step per row of ``targets`` (frame_skip, 8) with ``lax.scan``; ``motors``: the
+    DC-motor servos' figures (None: the asset's springs).
 
     Returns the final data and the worst velocity/acceleration/finiteness seen on the way.
     """
 
     def substep(carry, servo_target):
         data, stats = carry
-        data = mjx.step(model, data.replace(ctrl=data.ctrl.at[index.servo_ids].set(servo_target)))
+        ctrl = data.ctrl.at[index.servo_ids].set(servo_target)
+        if motors is not None:
+            ctrl = ctrl.at[index.drive_ids].set(servo.drive(motors, servo_target, data.qpos[index.joint_qpos]))
+        data = mjx.step(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 
     start = SubstepStats(jnp.zeros(()), jnp.zeros(()), jnp.zeros((), bool), jnp.zeros(()))

@@ -17,6 +17,7 @@ from brax.envs.base import Env as BraxEnv
 
 from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
+from hsa_mjx.servo_config import resolve_servo
 from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
@@ -87,8 +88,9 @@ class HSAEnv(BraxEnv):
         self.progress = progress.GoalProgress(config, self.world)
         self.observer = Observer(config, self.robot, self.progress, self.privileged)
         self.weights = reward.RewardWeights.from_config(config.reward)
+        self.motors = resolve_servo(config.servo)  # DC-motor servos' figures; None: the asset's springs
         # physics.backend c: the substeps in C MuJoCo on the host (one env after another under vmap)
-        self._host = HostPhysics(self.robot.mj_model, self.index) if self.robot.backend == "c" else None
+        self._host = HostPhysics(self.robot.mj_model, self.index, self.motors) if self.robot.backend == "c" else None
         self._init_static_arrays()
 
     def _init_static_arrays(self) -> None:
@@ -284,7 +286,7 @@ class HSAEnv(BraxEnv):
         this episode's randomised model fields."""
         if self._host is not None:
             return self._host(data, targets, fields)
-        return physics.simulate(self.robot.mjx_model.replace(**fields), data, targets, self.index)
+        return physics.simulate(self.robot.mjx_model.replace(**fields), data, targets, self.index, self.motors)
 
     def _randomize_before_physics(self, state: EnvState, action: jax.Array) -> tuple[EnvState, mjx.Data, jax.Array]:
         """The delayed action the servos see and a push when one is due (state with the queue and key)."""
