@@ -41,13 +41,15 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     from hsa_mjx.task.randomization import noise_scales
 
     policy, config, labels, (mj_model, index) = _loaded(directory)
-    noise = None
+    noise, tracked = None, config.observation.velocity == "differenced"
     if cell["noise"]:  # on this tick's readings; a history repeats what the policy saw
         sensed = tuple(label for label in labels if not is_history(label))
-        scales, rng = noise_scales(sensed, ObservationNoiseConfig(**grids.NOISE)), np.random.default_rng(seed)
+        scales = noise_scales(sensed, ObservationNoiseConfig(**grids.NOISE), tracked=tracked)
+        rng = np.random.default_rng(seed)
         noise = lambda obs: obs + scales * rng.uniform(-1.0, 1.0, obs.shape).astype(np.float32)  # noqa: E731
     latency = loop.latency_steps(cell["latency_ms"], config.dt)
-    controller = loop.Controller(policy, labels, config, policy.action_size, latency, noise)
+    jitter = grids.NOISE["position"] if cell["noise"] and tracked else 0.0  # the tracker's, as the env's
+    controller = loop.Controller(policy, labels, config, policy.action_size, latency, noise, jitter, seed)
     robot = loop.SimulatedRobot(mj_model, index, config, perturbation=perturbation_of(cell))
     steps = max_steps or config.termination.max_episode_steps
     return bool(loop.run(controller, robot, np.asarray(goal), steps, config.goal.success_radius)["reached"])

@@ -33,6 +33,7 @@ SOLVERS = ("newton", "cg")
 CONES = ("pyramidal", "elliptic")
 GOAL_MODES = ("fixed", "random", "radial", "spiral")
 HINGE_ANGLE_MODES = ("raw", "wrapped", "sincos")  # observation.hinge_angles
+VELOCITY_MODES = ("simulated", "differenced")  # observation.velocity
 PROGRESS_MODES = ("euclidean", "geodesic")  # reward.progress
 MAX_HISTORY = 16  # observation.history_steps: a short history, not a sequence model
 MIXED = migrations.MIXED  # terrain_type of a batch drawing from several types (terrain.types)
@@ -176,6 +177,10 @@ class ObservationConfig:
     height_scan: HeightScanConfig = HeightScanConfig()
     # uniform noise per observation group on the policy's copy (hsa_mjx.randomization_config)
     noise: ObservationNoiseConfig = ObservationNoiseConfig()
+    # The robot's velocity entries: "simulated" (the blocks' mean velocity, exact, plus the velocity
+    # noise) or "differenced" (as a robot measures it: a position tracker, noise.position of jitter on
+    # each reading, differenced over one control step; the position entries are the tracker's too)
+    velocity: str = "simulated"
     # > 0 appends the last history_steps observations (without scan) and actions, newest first
     # (hsa_mjx.task.history): what the policy needs to identify a model it cannot see. 0 = off.
     history_steps: int = 0
@@ -221,6 +226,7 @@ _CHOICES = {
     ("physics", "backend"): BACKENDS,
     ("goal", "mode"): GOAL_MODES,
     ("observation", "hinge_angles"): HINGE_ANGLE_MODES,
+    ("observation", "velocity"): VELOCITY_MODES,
     ("reward", "progress"): PROGRESS_MODES,
 }
 _POSITIVE = {

@@ -90,6 +90,7 @@ def test_observation_section_is_opt_in_and_checked():
         "path_direction": False,
         "hinge_angles": "raw",
         "history_steps": 0,
+        "velocity": "simulated",
         "height_scan": section["height_scan"],
         "noise": section["noise"],
     }

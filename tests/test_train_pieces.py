@@ -45,6 +45,7 @@ def test_default_and_shipped_configs_validate():
         "path_direction": False,
         "hinge_angles": "raw",
         "history_steps": 0,
+        "velocity": "simulated",
     }
     assert corridor["env"]["control"]["servo_target_limit"] == 6.28  # the original's corridor (Loose) range
     # the corridor with perception continues the rough policy: its inputs and servo range, radial goals

@@ -121,9 +121,16 @@ def _hinge_entries(angles: np.ndarray, mode: str) -> dict[str, float]:
 
 
 def observation_entries(
-    readings: Readings, velocity: np.ndarray, goal_xy: np.ndarray, targets: np.ndarray, time_s: float, config: EnvConfig
+    readings: Readings,
+    velocity: np.ndarray,
+    goal_xy: np.ndarray,
+    targets: np.ndarray,
+    time_s: float,
+    config: EnvConfig,
+    tracked_xy: np.ndarray | None = None,
 ) -> dict[str, float]:
-    """Every observation slot the env can have, by label, from the sensors and the controller's state."""
+    """Every observation slot the env can have, by label, from the sensors and the controller's state
+    (``tracked_xy``: the tracker's reading for the position entries; the goal entries use the blocks')."""
     obs_cfg = config.observation
     blocks = readings.block_positions
     position = blocks[:, :2].mean(axis=0)
@@ -135,8 +142,8 @@ def observation_entries(
     entries = {
         **_hinge_entries(readings.hinge_angles, obs_cfg.hinge_angles),
         **{f"hinge_velocity_{i}": v for i, v in enumerate(readings.hinge_velocities)},
-        "robot_x": position[0],
-        "robot_y": position[1],
+        "robot_x": position[0] if tracked_xy is None else tracked_xy[0],
+        "robot_y": position[1] if tracked_xy is None else tracked_xy[1],
         "block_vx": velocity[0],
         "block_vy": velocity[1],
         "block_vz": velocity[2],
@@ -195,6 +202,10 @@ class Controller:
     latency: int = 0
     # applied to this tick's observation, without the history (e.g. a sim-to-real test)
     noise: Callable[[np.ndarray], np.ndarray] | None = None
+    # m of uniform jitter per axis on each tracker reading of the robot (its position and differenced
+    # velocity entries); None: the policy's own (observation.noise.position with velocity 'differenced')
+    tracker_noise: float | None = None
+    seed: int = 0
 
     def __post_init__(self):
         if self.latency < 0:
@@ -207,14 +218,21 @@ class Controller:
         self.core_size = len(core_labels(self.config.observation))
         self.history = np.zeros(history.size(self.core_size, self.history_steps, self.action_size), np.float32)
         self.last_obs = np.zeros(0, np.float32)
+        if self.tracker_noise is None:
+            obs_cfg = self.config.observation
+            self.tracker_noise = obs_cfg.noise.position if obs_cfg.velocity == "differenced" else 0.0
+        self.rng = np.random.default_rng(self.seed)
 
     def observe(self, readings: Readings, goal_xy: np.ndarray) -> np.ndarray:
-        """The policy's observation from this tick's readings (velocity by finite difference)."""
+        """The policy's observation from this tick's readings (velocity by finite difference of the
+        tracker's readings, each with ``tracker_noise`` of jitter)."""
         now = readings.block_positions.mean(axis=0)
+        if self.tracker_noise:
+            now = now + self.rng.uniform(-self.tracker_noise, self.tracker_noise, 3)
         velocity = np.zeros(3) if self.previous is None else (now - self.previous) / self.config.dt
         self.previous = now
         entries = observation_entries(
-            readings, velocity, goal_xy, self.targets, self.steps * self.config.dt, self.config
+            readings, velocity, goal_xy, self.targets, self.steps * self.config.dt, self.config, now[:2]
         )
         now_labels = self.labels[: len(self.labels) - self.history.shape[0]]
         obs = np.asarray([entries[label] for label in now_labels], np.float32)

@@ -227,6 +227,7 @@ class HSAEnv(BraxEnv):
             terrain_id=terrain_id,
             site=site,
             randomization=drawn,
+            tracker=jnp.zeros((2, 3)),
         )
         distance, direction = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)

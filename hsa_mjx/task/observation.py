@@ -139,20 +139,23 @@ def observe(
     time_s: jax.Array | float = 0.0,
     height_scan: jax.Array | None = None,
     path_direction: jax.Array | None = None,
+    tracked: tuple[jax.Array, jax.Array] | None = None,
 ) -> jax.Array:
     """Build the observation (float32): the original's 24 values, then the enabled optional entries.
 
     ``time_s`` is the episode time (env steps x dt), read only by the gait clock; ``height_scan`` the
     scan values (required when ``config.height_scan`` is on); ``path_direction`` the world-frame unit
-    vector along the path to the goal (required when ``config.path_direction`` is on).
+    vector along the path to the goal (required when ``config.path_direction`` is on); ``tracked`` the
+    position tracker's (xy, velocity) for the position and velocity entries (``velocity: differenced``;
+    the goal entries stay the robot's own).
     """
     position = robot_xy(data, index)
     distance, direction = goal_vector(position, goal_xy)
     parts = [
         observed_hinge_angles(joint_positions(data, index), config.hinge_angles),
         joint_velocities(data, index),
-        position,
-        base_velocity(data, index),
+        position if tracked is None else tracked[0],
+        base_velocity(data, index) if tracked is None else tracked[1],
         distance[None],
         direction,
     ]

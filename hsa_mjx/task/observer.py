@@ -38,7 +38,9 @@ class Observer:
         self.core_size = len(observation.core_labels(cfg))  # a history row's observation part
         self.history_start = self.size - history.size(self.core_size, cfg.history_steps, len(robot.index.servo_ids))
         self._scan_points = jnp.asarray(height_scan.local_points(cfg.height_scan))
-        self._noise = randomization.noise_scales(observation.observation_labels(cfg)[: self.history_start], cfg.noise)
+        self._tracked = cfg.velocity == "differenced"  # the tracker's readings carry the position noise
+        labels = observation.observation_labels(cfg)[: self.history_start]
+        self._noise = randomization.noise_scales(labels, cfg.noise, tracked=self._tracked)
         # block-origin height above level ground with the robot resting on it: the scan's zero
         self._rest_height = float(np.max(Footprint.from_model(robot.mj_model, robot.index.block_body).drop))
 
@@ -51,14 +53,15 @@ class Observer:
     def at_reset(self, data: mjx.Data, task: TaskState, path: jax.Array) -> Seen:
         """A new episode's observation: its history rows are zeros. ``path`` is the goal progress's measured
         direction at the robot (``GoalProgress.measure``), read only by ``observation.path_direction``."""
-        obs, critic, task = self._current(data, task, path, 0.0)
+        obs, critic, task = self._current(data, task, path, 0.0, "reset")
         return self._with_rows(obs, jnp.zeros((self.size - self.history_start,), jnp.float32)), critic, task
 
     def after_goal_change(
         self, data: mjx.Data, task: TaskState, path: jax.Array, time_s: jax.Array, previous: jax.Array
     ) -> Seen:
-        """The observation with a new goal, mid-step: the history rows of ``previous`` stay."""
-        obs, critic, task = self._current(data, task, path, time_s)
+        """The observation with a new goal, mid-step: the history rows of ``previous`` stay (and the
+        tracker's readings: no new one)."""
+        obs, critic, task = self._current(data, task, path, time_s, "keep")
         return self._with_rows(obs, previous[self.history_start :]), critic, task
 
     def after_step(
@@ -84,15 +87,20 @@ class Observer:
             return obs
         return jnp.concatenate([obs, rows])
 
-    def _current(self, data: mjx.Data, task: TaskState, path: jax.Array, time_s: jax.Array | float) -> Seen:
+    def _current(
+        self, data: mjx.Data, task: TaskState, path: jax.Array, time_s: jax.Array | float, reading: str = "read"
+    ) -> Seen:
         """The observation without history rows, the critic's inputs and the task state (its key advanced
-        when the scan or the observation draws noise)."""
+        when the scan, the tracker or the observation draws noise). ``reading``: the tracker reads anew
+        (``read``), starts an episode (``reset``: no velocity yet) or keeps its readings (``keep``)."""
         cfg = self.config.observation
-        clean = scan = None
+        clean = scan = tracked = None
         if cfg.height_scan.enabled:
             clean, scan, task = self._height_scan(data, task)
+        if self._tracked:  # static: without the tracker the key stream stays as it was
+            tracked, task = self._track(data, task, reading)
         obs = observation.observe(
-            data, task.goal_xy, self.index, cfg, time_s, scan, path if cfg.path_direction else None
+            data, task.goal_xy, self.index, cfg, time_s, scan, path if cfg.path_direction else None, tracked
         )
         if cfg.noise.enabled:  # static: without noise the key stream stays as it was
             rng, key = jax.random.split(task.rng)
@@ -108,6 +116,19 @@ class Observer:
         level = self.progress.world.level_fraction(task.tile)
         critic = privileged.inputs(data, self.index, clean, task.terrain_id, level, true_model)
         return obs, critic, task
+
+    def _track(self, data: mjx.Data, task: TaskState, reading: str) -> tuple[tuple[jax.Array, jax.Array], TaskState]:
+        """The position tracker: ((xy, velocity) of its newest readings, task state). A reading is the
+        blocks' midpoint with uniform jitter of +-``noise.position`` per axis; the velocity is the last
+        two readings' difference over one control step, zero at reset (as ``hsa_mjx.deploy.loop``)."""
+        readings = task.tracker
+        if reading != "keep":
+            rng, key = jax.random.split(task.rng)
+            jitter = self.config.observation.noise.position * jax.random.uniform(key, (3,), jnp.float32, -1.0, 1.0)
+            now = jnp.mean(data.xpos[self.index.block_body], axis=0) + jitter
+            readings = jnp.stack([now, now]) if reading == "reset" else jnp.stack([readings[1], now])
+            task = task.replace(rng=rng, tracker=readings)
+        return (readings[1, :2], (readings[1] - readings[0]) / self.config.dt), task
 
     def _height_scan(self, data: mjx.Data, task: TaskState) -> tuple[jax.Array, jax.Array, TaskState]:
         """(noise-free scan, the policy's noisy copy, task state) as the observation holds them."""

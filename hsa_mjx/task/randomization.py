@@ -276,10 +276,14 @@ def pushed(qvel: jax.Array, velocity: jax.Array, block_qvel: np.ndarray) -> jax.
 
 
 # ----- observation noise ------------------------------------------------------------------------
-def noise_scales(labels: tuple[str, ...], config: ObservationNoiseConfig) -> np.ndarray:
-    """Each observation slot's noise amplitude (0 for slots outside every group, e.g. servo targets)."""
+def noise_scales(labels: tuple[str, ...], config: ObservationNoiseConfig, tracked: bool = False) -> np.ndarray:
+    """Each observation slot's noise amplitude (0 for slots outside every group, e.g. servo targets).
+    ``tracked``: the position entries come from a tracker whose readings carry the position noise
+    (``observation.velocity: differenced``), so that group adds none here."""
     scales = np.zeros(len(labels), np.float32)
     for group in NOISE_GROUPS:
+        if tracked and group == "position":
+            continue
         hit = [i for i, label in enumerate(labels) if label.startswith(NOISE_LABELS[group])]
         scales[hit] = getattr(config, group)
     return scales

@@ -30,6 +30,7 @@ class TaskState:
     terrain_id: jax.Array  # () int32, this env's terrain type (index into hsa_mjx.terrain.TERRAIN_TYPES)
     site: jax.Array  # () int32, the goal's site on the tile (its distance field; -1: none, straight line)
     randomization: RandomizationState  # this episode's physical scales, latency and next push
+    tracker: jax.Array  # (2, 3) the position tracker's last two readings of the robot (observation.velocity)
 
 
 @struct.dataclass
