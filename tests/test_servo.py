@@ -14,6 +14,8 @@ from test_backend import QPOS_TOL as WARP_QPOS_TOL
 from test_host_physics import QPOS_TOL as HOST_QPOS_TOL
 
 import hsa_mjx
+import hsa_mjx.sim.model
+from hsa_mjx.deploy.perturbation import ModelPerturbation, perturbed_model
 from hsa_mjx.servo_config import PRESETS, ServoConfig, resolve_servo
 from hsa_mjx.sim import servo
 from hsa_mjx.sim.host_physics import HostPhysics
@@ -101,6 +103,11 @@ def test_presets_resolve_and_bad_servo_configs_are_refused():
     for message, overrides in bad.items():
         with pytest.raises(ValueError, match=message):
             hsa_mjx.make_env("flat", **overrides)
+    robot = hsa_mjx.sim.model.load_robot(
+        hsa_mjx.config.with_overrides(hsa_mjx.get_preset("flat"), servo__preset="mx28")
+    )
+    with pytest.raises(ValueError, match="DC motors"):  # the deployment loop's perturbed robot: the same rule
+        perturbed_model(robot.mj_model, robot.index, ModelPerturbation(servo_torque_limit=0.5))
 
 
 @pytest.mark.parametrize("backend", ["jax", "c", "warp"])

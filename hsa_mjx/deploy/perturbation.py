@@ -77,7 +77,13 @@ class ModelPerturbation:
 
 
 def perturbed_fields(mj_model: mujoco.MjModel, index: RobotIndex, perturbation: ModelPerturbation) -> dict:
-    """The model fields ``perturbation`` changes, as numpy arrays (the env's ``model_fields``)."""
+    """The model fields ``perturbation`` changes, as numpy arrays (the env's ``model_fields``). A servo
+    gain or torque limit on DC-motor servos (``env.servo``) is a ValueError: both act on the springs."""
+    if len(index.drive_ids) and (perturbation.servo_gain != 1.0 or perturbation.servo_torque_limit is not None):
+        raise ValueError(
+            "servo_gain and servo_torque_limit act on the asset's spring servos; this model's servos are DC "
+            "motors (env.servo): change their stall torque in the policy's env.servo instead"
+        )
     fields = model_fields(NominalModel.from_model(mj_model, index), perturbation.scales(), perturbation.randomization())
     return {name: np.asarray(jax.device_get(value), np.float64) for name, value in fields.items()}
 
