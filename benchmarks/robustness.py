@@ -84,6 +84,8 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         hsa_damping=per_episode("hsa_damping"),
         servo_gain=per_episode("servo_gain"),
         servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
+        foot_friction=jnp.ones((len(group) * episodes, 4), jnp.float32),  # the grid's cells scale every contact
+        foot_anisotropy=jnp.ones((len(group) * episodes, 4), jnp.float32),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}

@@ -12,6 +12,7 @@ import dataclasses
 
 # Scale ranges (min, max) of nominal model values; [1, 1] leaves a field as the asset has it.
 SCALE_KEYS = ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")
+FOOT_KEYS = ("foot_friction", "foot_anisotropy")  # scale ranges drawn per foot
 NOMINAL = (1.0, 1.0)
 NO_LIMIT = (0.0, 0.0)
 NOISE_GROUPS = ("hinge_angles", "hinge_velocities", "position", "velocity", "goal", "heading")
@@ -27,6 +28,10 @@ class RandomizationConfig:
     hsa_damping: tuple[float, float] = NOMINAL  # the tendon springs' damping
     servo_gain: tuple[float, float] = NOMINAL  # the position servos' kp (their damping kv stays)
     servo_force_limit: tuple[float, float] = NO_LIMIT  # N m, |servo torque| limit; [0, 0]: none (the asset's)
+    # each foot's own draw (four per env): both sliding coefficients of its floor contact, and its
+    # lower one alone (across the robot on a plane: the anisotropy the crawl relies on)
+    foot_friction: tuple[float, float] = NOMINAL
+    foot_anisotropy: tuple[float, float] = NOMINAL
     latency_steps: tuple[int, int] = (0, 0)  # control steps before an action reaches the servos
     push_interval_s: tuple[float, float] = (0.0, 0.0)  # s between pushes; [0, 0]: no pushes
     push_speed: float = 0.0  # m/s, the largest horizontal speed one push adds to both blocks
@@ -34,7 +39,12 @@ class RandomizationConfig:
     @property
     def physical(self) -> bool:
         """Whether any model field is randomised (scales off [1, 1] or a torque limit)."""
-        return any(getattr(self, name) != NOMINAL for name in SCALE_KEYS) or self.limits_force
+        return any(getattr(self, name) != NOMINAL for name in SCALE_KEYS + FOOT_KEYS) or self.limits_force
+
+    @property
+    def per_foot(self) -> bool:
+        """Whether each foot draws its own friction or anisotropy."""
+        return any(getattr(self, name) != NOMINAL for name in FOOT_KEYS)
 
     @property
     def limits_force(self) -> bool:
@@ -84,7 +94,7 @@ def _check_range(key: str, lo: float, hi: float, low_bound: float, strictly: boo
 
 def validate(config: RandomizationConfig, noise: ObservationNoiseConfig) -> None:
     """Raise ValueError naming the key and its valid range."""
-    for name in SCALE_KEYS:
+    for name in SCALE_KEYS + FOOT_KEYS:
         _check_range(f"randomization.{name}", *getattr(config, name), 0.0, strictly=True)
     lo, hi = config.servo_force_limit
     if config.limits_force:

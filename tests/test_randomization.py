@@ -92,6 +92,35 @@ def test_model_fields_scale_the_assets_values_and_leave_the_rest():
     assert set(only) == {"tendon_damping"}  # the unrandomised fields stay the model's own
 
 
+@pytest.mark.parametrize("scene", ["flat", "mixed"])
+def test_each_foot_draws_its_own_friction_and_anisotropy(scene):
+    feet = {"foot_friction": (0.5, 1.5), "foot_anisotropy": (0.3, 3.0)}
+    config = RandomizationConfig(**feet)
+    draws = jax.vmap(lambda k: randomization.draw(k, config))(jax.random.split(jax.random.PRNGKey(5), 64))
+    for name, (lo, hi) in feet.items():
+        values = np.asarray(getattr(draws, name))
+        assert values.shape == (64, 4) and values.min() >= lo and values.max() <= hi
+        assert len(np.unique(values)) == values.size  # every foot of every env its own draw
+    before = randomization.draw(jax.random.PRNGKey(5), RandomizationConfig(friction=(0.5, 1.5)))
+    after = randomization.draw(jax.random.PRNGKey(5), RandomizationConfig(friction=(0.5, 1.5), **feet))
+    assert before.friction == after.friction  # the feet's draws leave the other draws as they were
+    env = hsa_mjx.make_env(scene, physics__backend="c", **{f"randomization__{k}": list(v) for k, v in feet.items()})
+    mj, pairs = env.robot.mj_model, env.index.foot_pairs
+    scales = randomization.PhysicsScales.nominal().replace(
+        foot_friction=jnp.asarray([0.5, 1.0, 1.0, 2.0], jnp.float32),
+        foot_anisotropy=jnp.asarray([1.0, 3.0, 1.0, 1.0], jnp.float32),
+    )
+    fields = randomization.model_fields(env._nominal, scales, env.config.randomization)
+    assert set(fields) == {"pair_friction"}
+    lower = np.argmin(mj.pair_friction[pairs, :2], axis=1)  # across the robot on a plane, world Y on terrain
+    expected = mj.pair_friction[pairs, :2] * np.asarray([0.5, 1.0, 1.0, 2.0])[:, None]
+    expected[1, lower[1]] *= 3.0
+    np.testing.assert_allclose(fields["pair_friction"][pairs, :2], expected, rtol=1e-6)
+    np.testing.assert_allclose(fields["pair_friction"][pairs, 2:], mj.pair_friction[pairs, 2:], rtol=1e-6)
+    with pytest.raises(ValueError, match="randomization.foot_anisotropy"):
+        hsa_mjx.make_env("flat", randomization__foot_anisotropy=[0.0, 2.0])
+
+
 @pytest.fixture(scope="module")
 def physics_env():
     """Two envs on MJX's JAX implementation, jitted batch reset and step."""
@@ -289,6 +318,12 @@ def test_the_privileged_critic_sees_the_episodes_true_model():
     assert seen["true_inverse_torque_limit"] == pytest.approx(1 / float(drawn.physics.servo_force_limit))
     assert seen["true_latency_steps"] == int(drawn.latency)
     assert privileged.size(config.observation) == len(names) - 8  # nothing drawn: no model values
+    feet = hsa_mjx.build_config("flat", physics__backend="c", randomization__foot_friction=[0.5, 1.5])
+    env = HSAEnv(feet, privileged=True)
+    names = privileged.labels(feet.observation, feet.randomization)
+    seen = dict(zip(names, np.asarray(env.reset(jax.random.PRNGKey(6)).info["privileged_obs"])))
+    assert env.privileged_size == len(names) and names[-8:] == randomization.FOOT_MODEL_LABELS
+    assert 0.5 <= seen["true_foot_friction_3"] <= 1.5 and seen["true_foot_anisotropy_0"] == 1.0
 
 
 def test_randomization_levels_round_trip_through_a_checkpoint(tmp_path):

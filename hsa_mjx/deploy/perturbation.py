@@ -73,6 +73,8 @@ class ModelPerturbation:
             hsa_damping=np.float32(self.hsa_damping),
             servo_gain=np.float32(self.servo_gain),
             servo_force_limit=np.float32(limit),
+            foot_friction=np.ones(4, np.float32),
+            foot_anisotropy=np.ones(4, np.float32),
         )
 
 

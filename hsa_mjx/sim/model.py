@@ -49,6 +49,7 @@ DISC_JOINTS = ("disc1b_hinge", "disc2b_hinge", "disc3b_hinge", "disc4b_hinge")
 FREE_JOINT_Z = 2  # a free joint's qpos: x, y, z, then the orientation quaternion
 FOOT_GEOMS = ("cylinder3a_con", "cylinder3c_con", "cylinder4a_con", "cylinder4c_con")
 FOOT_SENSORS = ("foot_3a_force", "foot_3c_force", "foot_4a_force", "foot_4c_force")
+FOOT_PAIRS = ("cylinder3a_ground", "cylinder3c_ground", "cylinder4a_ground", "cylinder4c_ground")  # each scene's
 BLOCKS = ("block_a", "block_b")
 TERRAIN_BODY = "terrain_frame"  # mocap body carrying the heightfield (terrain scene only)
 BLOCK_JOINTS = ("block_a_root", "block_b_root")
@@ -83,6 +84,7 @@ class RobotIndex:
     block_qvel: np.ndarray  # (2,) dof address of each block's free joint
     constraint_pairs: np.ndarray  # (4, 2) action slots of (kA, kC) for units 1..4
     foot_sensors: np.ndarray  # (4, contacts, 3) sensordata addresses of each foot's contact forces
+    foot_pairs: np.ndarray  # (4,) contact pair id of each foot with the floor (its anisotropic friction)
     goal_mocap: int  # mocap index of the goal marker
     terrain_mocap: int  # mocap index of the heightfield's body; -1 on the plane scene
 
@@ -191,6 +193,7 @@ def build_index(model: mujoco.MjModel) -> RobotIndex:
         block_qvel=model.jnt_dofadr[block_joints].astype(np.int32),
         constraint_pairs=np.asarray(pairs, dtype=np.int32),
         foot_sensors=_foot_sensor_addresses(model),
+        foot_pairs=_ids(model, mujoco.mjtObj.mjOBJ_PAIR, FOOT_PAIRS),
         goal_mocap=int(model.body_mocapid[goal_body]),
         terrain_mocap=_terrain_mocap(model),
     )

@@ -11,6 +11,9 @@ scale              model fields
 =================  =========================================================================
 friction           ``geom_friction[:, 0]`` of every geom and ``pair_friction[:, :2]`` of the
                    foot-floor pairs (the sliding coefficients: every contact's friction scales)
+foot_friction      ``pair_friction[:, :2]`` of each foot-floor pair by its own draw (four per env)
+foot_anisotropy    each foot-floor pair's lower sliding coefficient alone (across the robot on a
+                   plane; world Y on a heightfield, whose contact frames are world-fixed)
 block_mass         ``body_mass`` and ``body_inertia`` of each block (one draw per block)
 hsa_stiffness      ``tendon_stiffness`` of every HSA tendon spring
 hsa_damping        ``tendon_damping`` of every HSA tendon spring
@@ -29,7 +32,12 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from hsa_mjx.randomization_config import NOISE_GROUPS, NOMINAL, ObservationNoiseConfig, RandomizationConfig
+from hsa_mjx.randomization_config import (
+    NOISE_GROUPS,
+    NOMINAL,
+    ObservationNoiseConfig,
+    RandomizationConfig,
+)
 from hsa_mjx.sim.model import RobotIndex
 
 FIELDS = (
@@ -64,6 +72,8 @@ class PhysicsScales:
     hsa_damping: jax.Array  # ()
     servo_gain: jax.Array  # ()
     servo_force_limit: jax.Array  # () N m (inf: no limit)
+    foot_friction: jax.Array  # (4,) each foot's floor contact, both sliding coefficients
+    foot_anisotropy: jax.Array  # (4,) each foot's lower sliding coefficient alone
 
     @staticmethod
     def nominal() -> PhysicsScales:
@@ -76,6 +86,8 @@ class PhysicsScales:
             hsa_damping=one,
             servo_gain=one,
             servo_force_limit=jnp.full((), jnp.inf, jnp.float32),
+            foot_friction=jnp.ones((4,), jnp.float32),
+            foot_anisotropy=jnp.ones((4,), jnp.float32),
         )
 
 
@@ -88,6 +100,7 @@ def _uniform(key: jax.Array, bounds: tuple[float, float], shape: tuple = ()) -> 
 def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
     """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
     keys = jax.random.split(key, 6)
+    feet = jax.random.split(jax.random.fold_in(key, 6), 2)  # the other draws stay what they were before the feet's
     limit = _uniform(keys[5], config.servo_force_limit) if config.limits_force else jnp.full((), jnp.inf)
     return PhysicsScales(
         friction=_uniform(keys[0], config.friction),
@@ -96,6 +109,8 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
         hsa_damping=_uniform(keys[3], config.hsa_damping),
         servo_gain=_uniform(keys[4], config.servo_gain),
         servo_force_limit=limit.astype(jnp.float32),
+        foot_friction=_uniform(feet[0], config.foot_friction, (4,)),
+        foot_anisotropy=_uniform(feet[1], config.foot_anisotropy, (4,)),
     )
 
 
@@ -107,13 +122,17 @@ class NominalModel:
     blocks: np.ndarray
     servos: np.ndarray
     tendons: np.ndarray
+    feet: np.ndarray  # (4,) each foot's floor contact pair
+    lower: np.ndarray  # (4,) the column (0, 1) of each foot pair's lower sliding coefficient
 
     @staticmethod
     def from_model(mj_model: mujoco.MjModel, index: RobotIndex) -> NominalModel:
         """Read the fields once from the compiled C model."""
         values = {name: np.array(getattr(mj_model, name), np.float32) for name in FIELDS}
+        feet = np.asarray(index.foot_pairs)
+        lower = np.argmin(values["pair_friction"][feet, :2], axis=1)
         return NominalModel(
-            values, np.asarray(index.block_body), np.asarray(index.servo_ids), np.arange(mj_model.ntendon)
+            values, np.asarray(index.block_body), np.asarray(index.servo_ids), np.arange(mj_model.ntendon), feet, lower
         )
 
 
@@ -125,6 +144,10 @@ def model_fields(nominal: NominalModel, scales: PhysicsScales, config: Randomiza
     if config.friction != NOMINAL:
         fields["geom_friction"] = jnp.asarray(v["geom_friction"]).at[:, 0].multiply(scales.friction)
         fields["pair_friction"] = jnp.asarray(v["pair_friction"]).at[:, :2].multiply(scales.friction)
+    if config.per_foot:
+        pair, feet = fields.get("pair_friction", jnp.asarray(v["pair_friction"])), nominal.feet
+        pair = pair.at[feet, :2].multiply(scales.foot_friction[:, None])
+        fields["pair_friction"] = pair.at[feet, nominal.lower].multiply(scales.foot_anisotropy)
     if config.block_mass != NOMINAL:
         fields["body_mass"] = jnp.asarray(v["body_mass"]).at[blocks].multiply(scales.block_mass)
         fields["body_inertia"] = jnp.asarray(v["body_inertia"]).at[blocks].multiply(scales.block_mass[:, None])
@@ -167,17 +190,21 @@ TRUE_MODEL_LABELS = (
 )
 
 
-def true_model(state: RandomizationState) -> jax.Array:
-    """The episode's model as the privileged critic sees it, (8,) float32 in ``TRUE_MODEL_LABELS``' order."""
+# appended where each foot draws its own friction (``RandomizationConfig.per_foot``)
+FOOT_MODEL_LABELS = tuple(f"true_foot_{kind}_{i}" for kind in ("friction", "anisotropy") for i in range(4))
+
+
+def true_model(state: RandomizationState, per_foot: bool = False) -> jax.Array:
+    """The episode's model as the privileged critic sees it, float32 in ``TRUE_MODEL_LABELS``' order (8
+    values), then with ``per_foot`` the feet's draws in ``FOOT_MODEL_LABELS``' order (8 more)."""
     p = state.physics
-    return jnp.concatenate(
-        [
-            jnp.stack([p.friction]),
-            p.block_mass,
-            jnp.stack([p.hsa_stiffness, p.hsa_damping, p.servo_gain, 1.0 / p.servo_force_limit]),
-            jnp.stack([state.latency.astype(jnp.float32)]),
-        ]
-    ).astype(jnp.float32)
+    parts = [
+        jnp.stack([p.friction]),
+        p.block_mass,
+        jnp.stack([p.hsa_stiffness, p.hsa_damping, p.servo_gain, 1.0 / p.servo_force_limit]),
+        jnp.stack([state.latency.astype(jnp.float32)]),
+    ]
+    return jnp.concatenate(parts + ([p.foot_friction, p.foot_anisotropy] if per_foot else [])).astype(jnp.float32)
 
 
 def nominal_state(config: RandomizationConfig, action_size: int) -> RandomizationState:
@@ -229,6 +256,8 @@ def toward_nominal(physics: PhysicsScales, scale: jax.Array) -> PhysicsScales:
         hsa_damping=toward_one(physics.hsa_damping),
         servo_gain=toward_one(physics.servo_gain),
         servo_force_limit=physics.servo_force_limit / scale,  # inf at scale 0: no limit
+        foot_friction=toward_one(physics.foot_friction),
+        foot_anisotropy=toward_one(physics.foot_anisotropy),
     )
 
 
