@@ -39,12 +39,12 @@ from benchmarks.stats import wilson_interval
 from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.deploy.loop import latency_steps
-from hsa_mjx.randomization_config import RandomizationConfig
+from hsa_mjx.randomization_config import FOOT_KEYS, RandomizationConfig
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.randomization import PhysicsScales
 from train.config import from_dict
 from train.policy_sources import default_goal_range, load_shipped_policy
-from train.rollout import rollout, summarize
+from train.rollout import episode_success, rollout, summarize
 
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
 RESOLVING_EPISODES = 32  # a cell of 32 successes has its lower bound at 89 %: fewer cannot show 90 %
@@ -61,6 +61,10 @@ def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, .
     limits = [c["servo_torque_limit"] for c in group if c["servo_torque_limit"] is not None]
     if limits:
         ranges["servo_force_limit"] = [min(limits), max(limits)]
+    for name in FOOT_KEYS:  # the feet's fields compiled per env where a cell scales a foot
+        values = [v for c in group for v in c[name]]
+        if any(v != 1.0 for v in values):
+            ranges[name] = [min(values), max(values)]
     ranges["latency_steps"] = [0, max(latency_steps(c["latency_ms"], dt) for c in group)]
     if any(c["pushes"] for c in group):
         ranges["push_interval_s"], ranges["push_speed"] = list(grids.PUSH_INTERVAL_S), grids.PUSH_SPEED
@@ -84,8 +88,8 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         hsa_damping=per_episode("hsa_damping"),
         servo_gain=per_episode("servo_gain"),
         servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
-        foot_friction=jnp.ones((len(group) * episodes, 4), jnp.float32),  # the grid's cells scale every contact
-        foot_anisotropy=jnp.ones((len(group) * episodes, 4), jnp.float32),
+        foot_friction=jnp.repeat(jnp.asarray([c["foot_friction"] for c in group], jnp.float32), episodes, axis=0),
+        foot_anisotropy=jnp.repeat(jnp.asarray([c["foot_anisotropy"] for c in group], jnp.float32), episodes, axis=0),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}
@@ -122,6 +126,7 @@ def run_group(directory: Path, group: list[dict], args: argparse.Namespace, back
                 "mean_final_distance": summary["mean_final_distance"],
                 "failures": failures(summary),
                 "goals": part["goal"][:, 0].tolist(),
+                "reached": episode_success(part).tolist(),  # each episode's outcome, for the paired sim-to-sim gap
             }
         )
     return rows

@@ -8,8 +8,9 @@ alone), so both grids run through one code path:
   that ``configs/train_flat_dr.yaml`` trains on;
 - ``stress``: the training model, each factor alone at both ends of its stress range (friction x0.3
   and x2, masses x0.6 and x1.4, HSA stiffness and damping x0.5 and x1.5, servo gain x0.6 and x1.2,
-  a servo torque limit, 60 ms latency, pushes, observation noise), and four corners where they
-  combine: 19 cells. ``docs/robustness.md`` justifies each range from what varies on a real robot.
+  a servo torque limit, 60 ms latency, pushes, observation noise, one slick foot, feet without
+  their anisotropy), and four corners where they combine: 21 cells. ``docs/robustness.md``
+  justifies each range from what varies on a real robot.
 """
 
 from __future__ import annotations
@@ -17,12 +18,20 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
-from hsa_mjx.deploy.perturbation import ModelPerturbation
-from hsa_mjx.randomization_config import SCALE_KEYS
+from hsa_mjx.deploy.perturbation import ONES, ModelPerturbation
+from hsa_mjx.randomization_config import FOOT_KEYS, SCALE_KEYS
 
 SCALES = SCALE_KEYS  # the physical scales, as the env's randomisation names them
-FACTORS = (*SCALES, "servo_torque_limit", "latency_ms", "pushes", "noise")
-TRAINING = {**dict.fromkeys(SCALES, 1.0), "servo_torque_limit": None, "latency_ms": 0, "pushes": False, "noise": False}
+MODEL = (*SCALES, "servo_torque_limit", *FOOT_KEYS)  # the factors a ModelPerturbation carries
+FACTORS = (*SCALES, "servo_torque_limit", *FOOT_KEYS, "latency_ms", "pushes", "noise")
+TRAINING = {
+    **dict.fromkeys(SCALES, 1.0),
+    "servo_torque_limit": None,
+    **dict.fromkeys(FOOT_KEYS, ONES),  # four scales each, one per foot (hsa_mjx.sim.model.FOOT_PAIRS' order)
+    "latency_ms": 0,
+    "pushes": False,
+    "noise": False,
+}
 MAX_LATENCY_MS = 200
 # observation noise of a cell with noise on: uniform +-value (about 1 degree on the hinge encoders,
 # 1 cm on the position tracker; configs/train_flat_dr.yaml trains with the same)
@@ -41,6 +50,11 @@ PUSH_SPEED = 0.3
 # the stress grid's servo torque limit (N m): a small smart servo's stall torque, below the median
 # torque the flat policy's gait asks for (docs/robustness.md)
 STRESS_TORQUE_LIMIT = 0.5
+# one foot (cylinder 3a's) on a slick patch, the others as trained
+SLICK_FOOT = (0.3, 1.0, 1.0, 1.0)
+# every foot's lower sliding coefficient raised to its higher one (0.1 -> 0.21): feet that grip the same
+# along and across the robot (worn or other pads), the anisotropy the crawl relies on gone
+ISOTROPIC_FEET = (2.1,) * 4
 
 
 def cell(**changes: Any) -> dict[str, Any]:
@@ -49,13 +63,15 @@ def cell(**changes: Any) -> dict[str, Any]:
     if unknown:
         raise ValueError(f"unknown factors {sorted(unknown)}; factors: {', '.join(FACTORS)}")
     out = {**TRAINING, **changes}
+    for name in FOOT_KEYS:
+        out[name] = tuple(out[name]) if isinstance(out[name], list | tuple) else out[name]
     check(out)
     return out
 
 
 def check(c: dict[str, Any]) -> None:
     """ValueError unless every factor of cell ``c`` is in its valid range."""
-    ModelPerturbation(**{name: c[name] for name in (*SCALES, "servo_torque_limit")})  # the scales and the limit
+    ModelPerturbation(**{name: c[name] for name in MODEL})  # the scales, the limit and the feet
     if not (isinstance(c["latency_ms"], int | float) and 0 <= c["latency_ms"] <= MAX_LATENCY_MS):
         raise ValueError(f"latency_ms must be in [0, {MAX_LATENCY_MS}], got {c['latency_ms']!r}")
     for name in ("pushes", "noise"):
@@ -92,6 +108,8 @@ def stress_grid() -> list[dict[str, Any]]:
         cell(latency_ms=60),
         cell(pushes=True),
         cell(noise=True),
+        cell(foot_friction=SLICK_FOOT),
+        cell(foot_anisotropy=ISOTROPIC_FEET),
     ]
     corners = [
         # a slick floor under a stiff, heavy robot with weak, late servos
@@ -131,6 +149,7 @@ def label(c: dict[str, Any]) -> str:
     parts = [f"{name} x{c[name]:g}" for name in SCALES if c[name] != 1.0]
     if c["servo_torque_limit"] is not None:
         parts.append(f"torque <= {c['servo_torque_limit']:g} N m")
+    parts += [f"{name} x{'/'.join(f'{v:g}' for v in c[name])}" for name in FOOT_KEYS if c[name] != ONES]
     if c["latency_ms"]:
         parts.append(f"{c['latency_ms']:g} ms")
     parts += [name for name in ("pushes", "noise") if c[name]]
@@ -148,9 +167,12 @@ def _parse(name: str, text: str) -> Any:
     if name == "servo_torque_limit" and text in ("none", "off"):
         return None
     try:
+        if name in FOOT_KEYS:  # four values, e.g. 0.3/1/1/1
+            return tuple(float(v) for v in text.split("/"))
         return float(text)
     except ValueError as err:
-        raise ValueError(f"{name} takes a number, got {text!r}") from err
+        what = "four numbers a/b/c/d (one per foot)" if name in FOOT_KEYS else "a number"
+        raise ValueError(f"{name} takes {what}, got {text!r}") from err
 
 
 def select(cells: list[dict[str, Any]], where: list[str]) -> list[dict[str, Any]]:

@@ -34,11 +34,21 @@ def summary(rows: list[dict], resolving_episodes: int) -> dict[str, Any]:
     return out
 
 
+def _feet(r: dict) -> str:
+    """The feet's factors off 1 ("-" when none), each as its four values."""
+    parts = [
+        f"{name} x{'/'.join(f'{v:g}' for v in r[key])}"
+        for key, name in (("foot_friction", "friction"), ("foot_anisotropy", "anisotropy"))
+        if any(v != 1.0 for v in r.get(key, (1.0,)))
+    ]
+    return ", ".join(parts) or "-"
+
+
 def _factors(r: dict) -> str:
     limit = "-" if r["servo_torque_limit"] is None else f"{r['servo_torque_limit']:g}"
     scales = " | ".join(f"x{r[k]:g}" for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain"))
     flags = " | ".join("on" if r[k] else "off" for k in ("pushes", "noise"))
-    return f"{scales} | {limit} | {r['latency_ms']:g} | {flags}"
+    return f"{scales} | {limit} | {_feet(r)} | {r['latency_ms']:g} | {flags}"
 
 
 def _rate(r: dict) -> str:
@@ -49,10 +59,10 @@ def _rate(r: dict) -> str:
 def table(rows: list[dict]) -> str:
     """A markdown table: one row per cell, its success with the 95 % interval."""
     head = (
-        "| friction | block mass | HSA stiffness | HSA damping | servo gain | torque limit (N m) | latency (ms) "
-        "| pushes | noise | success (95 % CI) | progress (m) | failures ended by |"
+        "| friction | block mass | HSA stiffness | HSA damping | servo gain | torque limit (N m) | feet "
+        "| latency (ms) | pushes | noise | success (95 % CI) | progress (m) | failures ended by |"
     )
-    lines = [head, "|" + "---|" * 12]
+    lines = [head, "|" + "---|" * 13]
     for r in rows:
         ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
         lines.append(f"| {_factors(r)} | {_rate(r)} | {r['mean_progress_m']:.2f} | {ended} |")
@@ -60,11 +70,16 @@ def table(rows: list[dict]) -> str:
 
 
 def sim_table(rows: list[dict]) -> str:
-    """Sim-to-sim: each cell's MJX and C MuJoCo success and the gap."""
-    lines = ["| cell | MJX (95 % CI) | C MuJoCo, deployment loop (95 % CI) | gap (points) |", "|---|---|---|---|"]
+    """Sim-to-sim: each cell's MJX and C MuJoCo success and the gap (C minus MJX) with its paired interval."""
+    lines = [
+        "| cell | MJX (95 % CI) | C MuJoCo, deployment loop (95 % CI) | gap, points (95 % CI, paired) |",
+        "|---|---|---|---|",
+    ]
     for r in rows:
         mjx = {"success_rate": r["mjx_success_rate"], "ci95": r["mjx_ci95"]}
-        lines.append(f"| {r['label']} | {_rate(mjx)} | {_rate(r)} | {100 * r['gap']:+.0f} |")
+        low, high = r.get("gap_ci95", (r["gap"], r["gap"]))
+        gap = f"{100 * r['gap']:+.0f} ({100 * low:+.0f} to {100 * high:+.0f})"
+        lines.append(f"| {r['label']} | {_rate(mjx)} | {_rate(r)} | {gap} |")
     return "\n".join(lines)
 
 
@@ -73,9 +88,8 @@ def heat_map(rows: list[dict], path: Path, title: str) -> None:
     from matplotlib.figure import Figure
 
     def model(r):
-        return tuple(r[k] for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")) + (
-            r["servo_torque_limit"],
-        )
+        scales = tuple(r[k] for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain"))
+        return (*scales, r["servo_torque_limit"], _feet(r))
 
     def sensing(r):
         return r["latency_ms"], r["pushes"], r["noise"]
@@ -108,6 +122,7 @@ def _model_label(model: tuple) -> str:
     names = ("friction", "mass", "stiffness", "damping", "gain")
     parts = [f"{n} x{v:g}" for n, v in zip(names, model[:5]) if v != 1.0]
     parts += [f"torque <= {model[5]:g} N m"] if model[5] is not None else []
+    parts += [f"feet: {model[6]}"] if model[6] != "-" else []
     return ", ".join(parts) or "training model"
 
 
@@ -117,6 +132,7 @@ def write(result: dict, out: Path, tag: str) -> list[str]:
     rows = result["cells"]
     for r in rows:
         r.pop("goals", None)
+        r.pop("reached", None)
     (out / f"robustness_{tag}.json").write_text(json.dumps(result, indent=1))
     text = f"# {tag}: success per cell ({result['physics_backend']} physics)\n\n{table(rows)}\n"
     if result["sim_to_sim"]:

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import robustness_grids as grids
-from benchmarks.stats import wilson_interval
+from benchmarks.stats import paired_difference_interval, wilson_interval
 
 PHYSICS = "c_mujoco"
 
@@ -30,7 +30,7 @@ def perturbation_of(cell: dict[str, Any]):
     """The cell's model as a ``ModelPerturbation``."""
     from hsa_mjx.deploy.perturbation import ModelPerturbation
 
-    return ModelPerturbation(**{name: cell[name] for name in (*grids.SCALES, "servo_torque_limit")})
+    return ModelPerturbation(**{name: cell[name] for name in grids.MODEL})
 
 
 def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_steps: int | None, seed: int) -> bool:
@@ -80,9 +80,12 @@ def play_cells(
     out, start = [], 0
     for r in chosen:
         n = len(r["goals"])
-        successes = int(sum(reached[start : start + n]))
+        played = np.asarray(reached[start : start + n], bool)
+        successes = int(played.sum())
         start += n
         low, high = wilson_interval(successes, n)
+        pairs = paired_counts(played, np.asarray(r["reached"], bool))
+        _, gap_low, gap_high = paired_difference_interval(*pairs)
         out.append(
             {
                 **_cell(r),
@@ -96,9 +99,21 @@ def play_cells(
                 "mjx_success_rate": r["success_rate"],
                 "mjx_ci95": r["ci95"],
                 "gap": successes / n - r["success_rate"],
+                "gap_ci95": [gap_low, gap_high],  # paired: the same goals and starts on both
+                "pairs": dict(zip(("both", "c_only", "mjx_only", "neither"), pairs)),
             }
         )
     return out
+
+
+def paired_counts(c_mujoco: np.ndarray, mjx: np.ndarray) -> tuple[int, int, int, int]:
+    """The episodes' 2 x 2 table of outcomes on the two physics: (both reached, C only, MJX only, neither)."""
+    return (
+        int(np.sum(c_mujoco & mjx)),
+        int(np.sum(c_mujoco & ~mjx)),
+        int(np.sum(~c_mujoco & mjx)),
+        int(np.sum(~c_mujoco & ~mjx)),
+    )
 
 
 def _on_the_cpu() -> None:

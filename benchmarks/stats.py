@@ -32,3 +32,24 @@ def difference_interval(
     (l1, u1), (l2, u2) = wilson_interval(s1, n1, z), wilson_interval(s2, n2, z)
     d = p1 - p2
     return d, d - math.sqrt((p1 - l1) ** 2 + (u2 - p2) ** 2), d + math.sqrt((u1 - p1) ** 2 + (p2 - l2) ** 2)
+
+
+def paired_difference_interval(both: int, first_only: int, second_only: int, neither: int, z: float = Z_95):
+    """(difference, low, high) of two proportions measured on the same episodes, the first minus the
+    second, from the episodes' 2 x 2 table: Newcombe's interval for paired data (method 10 of Newcombe
+    1998, "Improved confidence intervals for the difference between binomial proportions based on
+    paired data"): the two Wilson intervals, combined with the correlation of the pairs, so that
+    episodes both count alike narrow the interval (ValueError on bad counts)."""
+    counts = (both, first_only, second_only, neither)
+    if min(counts) < 0 or sum(counts) < 1:
+        raise ValueError(f"need counts >= 0 and at least one pair, got {counts}")
+    n = sum(counts)
+    s1, s2 = both + first_only, both + second_only
+    p1, p2 = s1 / n, s2 / n
+    (l1, u1), (l2, u2) = wilson_interval(s1, n, z), wilson_interval(s2, n, z)
+    margins = (both + first_only) * (second_only + neither) * (both + second_only) * (first_only + neither)
+    phi = (both * neither - first_only * second_only) / math.sqrt(margins) if margins else 0.0
+    d = p1 - p2
+    below = (p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2
+    above = (u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2
+    return d, max(-1.0, d - math.sqrt(max(below, 0.0))), min(1.0, d + math.sqrt(max(above, 0.0)))

@@ -142,15 +142,43 @@ def test_simulated_robot_perturbation_writes_the_fields_the_env_randomises():
     assert loop.SimulatedRobot(mj_model, index, config, perturbation=ModelPerturbation()).model is mj_model
 
 
+def test_simulated_robot_scales_each_foots_friction_and_anisotropy_as_the_env_does():
+    from hsa_mjx.deploy.perturbation import ModelPerturbation
+
+    config = loop.policy_env(policy_file.read_meta(policy_file.locate("flat")))[0]
+    mj_model, index = loop.load_model(config)
+    feet, nominal = index.foot_pairs, mj_model.pair_friction[index.foot_pairs, :2]
+    lower = np.argmin(nominal, axis=1)
+    # the same value on every foot: the env drawing exactly it writes the same pair frictions
+    same = ModelPerturbation(foot_friction=(0.5,) * 4, foot_anisotropy=(2.0,) * 4)
+    env = hsa_mjx.make_env(config, physics__backend="c", randomization=dataclasses.asdict(same.randomization()))
+    expected = _captured_fields(env, env.reset(jax.random.PRNGKey(0)))
+    assert set(expected) == {"pair_friction"}
+    robot = loop.SimulatedRobot(mj_model, index, config, perturbation=same)
+    np.testing.assert_allclose(robot.model.pair_friction, expected["pair_friction"], rtol=1e-6)
+    # one foot alone: its two sliding coefficients scaled, the other feet as trained
+    slick = loop.SimulatedRobot(mj_model, index, config, perturbation=ModelPerturbation(foot_friction=(0.3, 1, 1, 1)))
+    np.testing.assert_allclose(slick.model.pair_friction[feet[0], :2], 0.3 * nominal[0], rtol=1e-6)
+    np.testing.assert_allclose(slick.model.pair_friction[feet[1:], :2], nominal[1:], rtol=1e-6)
+    # the anisotropy raises the lower coefficient alone: x2.1 makes every foot grip the same both ways
+    even = ModelPerturbation(foot_anisotropy=(2.1,) * 4)
+    pairs = loop.SimulatedRobot(mj_model, index, config, perturbation=even).model.pair_friction[feet, :2]
+    np.testing.assert_allclose(pairs[np.arange(4), lower], 2.1 * nominal[np.arange(4), lower], rtol=1e-6)
+    np.testing.assert_allclose(pairs[np.arange(4), 1 - lower], nominal[np.arange(4), 1 - lower], rtol=1e-6)
+
+
 def test_deploy_runs_a_perturbed_robot_and_refuses_values_outside_the_ranges(capsys):
     args = ["--policy", "flat_dr", "--goal", "1.5", "0.5", "--max-steps", "40"]
     assert main([*args, "--friction", "0.3", "--servo-gain", "0.6", "--servo-torque-limit", "0.5"]) == 0
     out = capsys.readouterr().out
     assert "a robot with friction x0.3, servo_gain x0.6, servo_torque_limit 0.5 N m" in out
+    assert main([*args, "--foot-friction", "0.3", "1", "1", "1"]) == 0
+    assert "a robot with foot_friction x0.3/1/1/1" in capsys.readouterr().out
     for flag, value, message in (
         ("--friction", "5", "friction must be in [0.1, 3], got 5.0"),
         ("--block-mass", "0.1", "block_mass must be in [0.5, 2], got 0.1"),
         ("--servo-torque-limit", "0", "servo_torque_limit must be in [0.05, 5], got 0.0"),
+        ("--foot-anisotropy", "1 1 1 4", "foot_anisotropy must be in [0.1, 3], got (1.0, 1.0, 1.0, 4.0)"),
     ):
-        assert main([*args, flag, value]) == 2
+        assert main([*args, flag, *value.split()]) == 2
         assert message in capsys.readouterr().err

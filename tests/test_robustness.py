@@ -25,11 +25,28 @@ def test_wilson_interval_matches_known_values_and_stays_in_range():
             stats.wilson_interval(*bad)
 
 
+def test_paired_interval_narrows_where_the_pairs_agree_and_is_newcombes_where_they_are_independent():
+    # independent pairs (both * neither == first_only * second_only): the unpaired interval of the margins
+    d, low, high = stats.paired_difference_interval(12, 18, 8, 12)
+    assert (d, low, high) == pytest.approx(stats.difference_interval((30, 20), (50, 50)))
+    # the same margins (30 and 20 of 50) from pairs that mostly agree: the same difference, a narrower interval
+    paired = stats.paired_difference_interval(20, 10, 0, 20)
+    assert paired[0] == pytest.approx(d) and low < paired[1] < d < paired[2] < high
+    # no discordant pair: a gap of zero, within 1.5 points (unpaired: -19 to +19 points)
+    assert stats.paired_difference_interval(30, 0, 0, 20) == pytest.approx((0.0, -0.0143, 0.0143), abs=1e-4)
+    # the ends stay inside [-1, 1]; bad counts are refused
+    assert stats.paired_difference_interval(0, 40, 0, 0)[1:] == pytest.approx((0.8761, 1.0), abs=1e-4)
+    with pytest.raises(ValueError, match="at least one pair"):
+        stats.paired_difference_interval(0, 0, 0, 0)
+
+
 def test_the_grids_cells():
     nominal, stress = robustness_grids.grid("nominal"), robustness_grids.grid("stress")
     assert len(nominal) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in nominal})
     assert {c["latency_ms"] for c in nominal} == {0, 20, 40} and not any(c["pushes"] for c in nominal)
-    assert len(stress) == 19 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    assert len(stress) == 21 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    feet = [c for c in stress if c["foot_friction"] != (1,) * 4 or c["foot_anisotropy"] != (1,) * 4]
+    assert [robustness_grids.label(c) for c in feet] == ["foot_friction x0.3/1/1/1", "foot_anisotropy x2.1/2.1/2.1/2.1"]
     for name, ends in robustness_grids.STRESS_ENDS.items():  # each end alone, every other factor as trained
         for value in ends:
             assert robustness_grids.cell(**{name: value}) in stress
@@ -49,6 +66,8 @@ def test_the_grids_cells():
         ({"servo_torque_limit": 0.0}, r"servo_torque_limit must be in \[0.05, 5\]"),
         ({"latency_ms": 500}, r"latency_ms must be in \[0, 200\]"),
         ({"pushes": "yes"}, "pushes must be true or false"),
+        ({"foot_friction": (0.3, 1.0)}, "foot_friction takes 4 values"),
+        ({"foot_anisotropy": (1.0, 1.0, 1.0, 5.0)}, r"foot_anisotropy must be in \[0.1, 3\]"),
         ({"gravity": 2.0}, "unknown factors"),
     ],
 )
@@ -64,7 +83,11 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
     assert all((c["hsa_stiffness"], c["block_mass"], c["noise"]) == (1.3, 0.8, False) for c in chosen)
     assert robustness_grids.select(nominal, ["latency_ms=20.0"]) == [c for c in nominal if c["latency_ms"] == 20]
     stress = robustness_grids.grid("stress")
-    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 14
+    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 16
+    slick = robustness_grids.cell(foot_friction=(0.3, 1, 1, 1))
+    assert robustness_grids.select(stress, ["foot_friction=0.3/1/1/1"]) == [slick]
+    with pytest.raises(ValueError, match="four numbers"):
+        robustness_grids.select(stress, ["foot_friction=slick"])
     with pytest.raises(ValueError, match="factors: friction"):
         robustness_grids.select(nominal, ["mass=0.8"])
     with pytest.raises(ValueError, match="values here: 0.5, 1.0, 1.5"):
@@ -79,11 +102,11 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     result = json.loads((tmp_path / "robustness_smoke.json").read_text())
     rows = result["cells"]
     assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
-    assert len(rows) == 19 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert len(rows) == 21 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
     assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
     # the same episode (start, goal, policy) on every model: each factor alone moves the robot elsewhere
     trained = rows[0]["mean_final_distance"]
-    alone = [r for r in rows[1:11]]  # the five scales at both ends
+    alone = [*rows[1:11], *rows[15:17]]  # the five scales at both ends, the slick foot, the isotropic feet
     assert all(round(r["mean_final_distance"], 6) != round(trained, 6) for r in alone), [r["label"] for r in alone]
     # every episode reached its goal or ended one way: the failure shares and the success rate add up to 1
     assert all(abs(r["success_rate"] + sum(r["failures"].values()) - 1) < 1e-6 for r in rows)
@@ -91,6 +114,9 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     sim = result["sim_to_sim"]
     assert len(sim) == sum(not r["pushes"] for r in rows) and all(r["physics"] == "c_mujoco" for r in sim)
     assert all(r["gap"] == r["success_rate"] - r["mjx_success_rate"] for r in sim)
+    for r in sim:  # the paired table of the cell's episode and the gap's interval around the gap
+        assert sum(r["pairs"].values()) == 1 and r["gap_ci95"][0] <= r["gap"] <= r["gap_ci95"][1]
+        assert r["gap"] == (r["pairs"]["c_only"] - r["pairs"]["mjx_only"])
     assert "## Sim-to-sim" in (tmp_path / "robustness_smoke.md").read_text()
 
 

@@ -95,6 +95,12 @@ def with_randomization(state: Any, physics: Any, latency: jax.Array, pushes: jax
     return state.replace(pipeline_state=sim.replace(task=sim.task.replace(randomization=randomization)))
 
 
+def episode_success(traces: dict[str, np.ndarray]) -> np.ndarray:
+    """Whether each evaluated episode reached its goal (its success flag at its last live step), (episodes,)."""
+    last = np.maximum(traces["alive"].astype(bool).sum(axis=1) - 1, 0)
+    return traces["success"][np.arange(last.shape[0]), last] > 0.5
+
+
 def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
     """Success rate, mean final distance and mean speed of the evaluated episodes (spiral: checkpoints each)."""
     alive = traces["alive"].astype(bool)
@@ -102,7 +108,7 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
     last = np.maximum(length - 1, 0)
     rows = np.arange(alive.shape[0])
     final_xy, final_distance = traces["xy"][rows, last], traces["distance"][rows, last]
-    success = traces["success"][rows, last] > 0.5
+    success = episode_success(traces)
     displacement = np.linalg.norm(final_xy - traces["start_xy"], axis=-1)
     speed = displacement / np.maximum(length * dt, dt)
     ended = traces["done"][rows, last] > 0.5

@@ -4,9 +4,9 @@ The policy (numpy ``policy.npz``, or ``--onnx`` for the folder's ``policy.onnx``
 drives the C MuJoCo model of its env at the control rate, seeing only what the robot's sensors give
 (``hsa_mjx.deploy.loop``), with ``--latency-ms`` of action delay, on the training model or on a robot
 unlike it (``--friction``, ``--block-mass``, ``--hsa-stiffness``, ``--hsa-damping``, ``--servo-gain``:
-scales of the model's values; ``--servo-torque-limit`` in N m; values outside the valid ranges are
-refused). Goals: ``--goal X Y``, or ``--episodes`` goals drawn from the policy's training goal range.
-Prints each episode and a summary.
+scales of the model's values; ``--foot-friction``, ``--foot-anisotropy``: four scales, one per foot;
+``--servo-torque-limit`` in N m; values outside the valid ranges are refused). Goals: ``--goal X Y``,
+or ``--episodes`` goals drawn from the policy's training goal range. Prints each episode and a summary.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from hsa_mjx.deploy import loop, policy_file
-from hsa_mjx.deploy.perturbation import LIMITS, ModelPerturbation
+from hsa_mjx.deploy.perturbation import FEET, LIMITS, ModelPerturbation
+from hsa_mjx.randomization_config import FOOT_KEYS
 
 ONNX_FILE = "policy.onnx"
 
@@ -37,8 +38,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--realtime", action="store_true", help="tick at the control rate in wall time")
     for name, (lo, hi) in LIMITS.items():
         what = "N m, the servos' torque limit" if name == "servo_torque_limit" else "scale of the model's value"
+        feet = {"nargs": FEET, "metavar": "S"} if name in FOOT_KEYS else {}
+        what = f"{FEET} scales, one per foot" if feet else what
         parser.add_argument(
-            f"--{name.replace('_', '-')}", type=float, default=None, help=f"{what}, in [{lo:g}, {hi:g}]"
+            f"--{name.replace('_', '-')}", type=float, default=None, help=f"{what}, in [{lo:g}, {hi:g}]", **feet
         )
     parser.add_argument("--seed", type=int, default=0)
     return parser.parse_args(argv)
@@ -75,7 +78,13 @@ def _changes(perturbation: ModelPerturbation) -> str:
     """What a perturbation changes, in words."""
     default = ModelPerturbation()
     changed = {k: getattr(perturbation, k) for k in LIMITS if getattr(perturbation, k) != getattr(default, k)}
-    return ", ".join(f"{k} {v:g} N m" if k == "servo_torque_limit" else f"{k} x{v:g}" for k, v in changed.items())
+
+    def words(name: str, value) -> str:
+        if name == "servo_torque_limit":
+            return f"{name} {value:g} N m"
+        return f"{name} x{'/'.join(f'{v:g}' for v in value)}" if name in FOOT_KEYS else f"{name} x{value:g}"
+
+    return ", ".join(words(k, v) for k, v in changed.items())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,5 @@
-"""A simulated robot unlike the training model: scaled friction, masses, springs and servos, a torque limit.
+"""A simulated robot unlike the training model: scaled friction (of every contact, or of each foot and its
+anisotropy), masses, springs and servos, a torque limit.
 
 :class:`ModelPerturbation` names one such robot; :func:`perturbed_model` writes it into a copy of the
 C MuJoCo model through the env's own randomisation (``hsa_mjx.task.randomization.model_fields``), so
@@ -17,7 +18,7 @@ import jax
 import mujoco
 import numpy as np
 
-from hsa_mjx.randomization_config import NO_LIMIT, SCALE_KEYS, RandomizationConfig
+from hsa_mjx.randomization_config import FOOT_KEYS, NO_LIMIT, NOMINAL, SCALE_KEYS, RandomizationConfig
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.task.randomization import NominalModel, PhysicsScales, model_fields
 
@@ -29,13 +30,18 @@ LIMITS = {
     "hsa_damping": (0.25, 2.0),
     "servo_gain": (0.25, 2.0),
     "servo_torque_limit": (0.05, 5.0),
+    "foot_friction": (0.1, 3.0),  # each foot's, as four values
+    "foot_anisotropy": (0.1, 3.0),  # x2.1 makes a foot's floor contact isotropic (0.1 -> 0.21)
 }
+FEET = 4
+ONES = (1.0,) * FEET
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelPerturbation:
     """Scales of the asset's values (1: as trained) and an optional servo torque limit (N m; None: the
-    asset's, unlimited). ValueError when a value is outside ``LIMITS``."""
+    asset's, unlimited); each foot's friction and anisotropy as four values, in the order of
+    ``hsa_mjx.sim.model.FOOT_PAIRS``. ValueError when a value is outside ``LIMITS``."""
 
     friction: float = 1.0  # every contact's sliding friction
     block_mass: float = 1.0  # both blocks' masses and inertias
@@ -43,14 +49,22 @@ class ModelPerturbation:
     hsa_damping: float = 1.0  # their damping
     servo_gain: float = 1.0  # the position servos' kp
     servo_torque_limit: float | None = None
+    foot_friction: tuple[float, ...] = ONES  # both sliding coefficients of each foot's floor contact
+    foot_anisotropy: tuple[float, ...] = ONES  # each foot's lower sliding coefficient alone
 
     def __post_init__(self):
+        for name in FOOT_KEYS:
+            value = getattr(self, name)
+            if not isinstance(value, list | tuple) or len(value) != FEET:
+                raise ValueError(f"{name} takes {FEET} values (one per foot), got {value!r}")
+            object.__setattr__(self, name, tuple(value))
         for name, (lo, hi) in LIMITS.items():
             value = getattr(self, name)
             if value is None and name == "servo_torque_limit":
                 continue
-            if not isinstance(value, int | float) or not lo <= value <= hi:
-                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
+            for v in value if name in FOOT_KEYS else (value,):
+                if not isinstance(v, int | float) or not lo <= v <= hi:
+                    raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value!r}")
 
     @property
     def nominal(self) -> bool:
@@ -58,10 +72,12 @@ class ModelPerturbation:
         return self == ModelPerturbation()
 
     def randomization(self) -> RandomizationConfig:
-        """The randomisation config that draws exactly these values (each range [v, v])."""
+        """The randomisation config of these values: each range [v, v]; a foot factor's range spans its four
+        values (exactly them where the feet agree), so that the env writes the fields they change."""
         limit = NO_LIMIT if self.servo_torque_limit is None else (self.servo_torque_limit,) * 2
         scales = {name: (float(getattr(self, name)),) * 2 for name in SCALE_KEYS}
-        return RandomizationConfig(**scales, servo_force_limit=limit)
+        feet = {name: NOMINAL if getattr(self, name) == ONES else _span(getattr(self, name)) for name in FOOT_KEYS}
+        return RandomizationConfig(**scales, **feet, servo_force_limit=limit)
 
     def scales(self) -> PhysicsScales:
         """These values as one env's physical scales."""
@@ -73,9 +89,14 @@ class ModelPerturbation:
             hsa_damping=np.float32(self.hsa_damping),
             servo_gain=np.float32(self.servo_gain),
             servo_force_limit=np.float32(limit),
-            foot_friction=np.ones(4, np.float32),
-            foot_anisotropy=np.ones(4, np.float32),
+            foot_friction=np.asarray(self.foot_friction, np.float32),
+            foot_anisotropy=np.asarray(self.foot_anisotropy, np.float32),
         )
+
+
+def _span(values: tuple[float, ...]) -> tuple[float, float]:
+    """(min, max) of a foot factor's four values."""
+    return float(min(values)), float(max(values))
 
 
 def perturbed_fields(mj_model: mujoco.MjModel, index: RobotIndex, perturbation: ModelPerturbation) -> dict:
