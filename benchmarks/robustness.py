@@ -90,6 +90,7 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
         foot_friction=jnp.repeat(jnp.asarray([c["foot_friction"] for c in group], jnp.float32), episodes, axis=0),
         foot_anisotropy=jnp.repeat(jnp.asarray([c["foot_anisotropy"] for c in group], jnp.float32), episodes, axis=0),
+        servo_preset=jnp.zeros((len(group) * episodes,), jnp.int32),  # the policy's own servos
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}

@@ -198,7 +198,7 @@ def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str
             start + ctl.max_increment * rng.uniform(-1, 1, len(servos)), -ctl.servo_target_limit, ctl.servo_target_limit
         )
         for target in start + ramp * (end - start):
-            servo.write_controls(data, env.index, env.motors, target)  # the env's servo model
+            servo.write_controls(model, data, env.index, env.motors, target)  # the env's servo model
             mujoco.mj_step(model, data)
         steps += 1
     rate = steps / (time.perf_counter() - tic)

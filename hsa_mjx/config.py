@@ -19,7 +19,7 @@ from hsa_mjx.config_schema import build_section, non_finite, plain
 from hsa_mjx.randomization_config import NOMINAL, ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.randomization_config import validate as validate_randomization
 from hsa_mjx.resources import data_dir, merge, read_yaml
-from hsa_mjx.servo_config import ServoConfig, resolve_servo
+from hsa_mjx.servo_config import ServoConfig, check_presets, resolve_servo
 from hsa_mjx.servo_config import validate as validate_servo
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
@@ -291,9 +291,11 @@ def validate(config: EnvConfig) -> EnvConfig:
 
 
 def _validate_servo(config: EnvConfig) -> None:
-    """The servo section; the randomised servo gain and torque limit act on the asset's springs only."""
+    """The servo section; the randomised servo gain and torque limit act on the asset's springs only,
+    the drawn servo classes on DC-motor servos only."""
     validate_servo(config.servo)
     rand = config.randomization
+    check_presets(config.servo, rand.servo_presets)
     if resolve_servo(config.servo) is not None and (rand.limits_force or rand.servo_gain != NOMINAL):
         raise ValueError(
             "config keys 'randomization.servo_gain' and 'randomization.servo_force_limit' act on the asset's "

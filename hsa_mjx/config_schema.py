@@ -62,6 +62,8 @@ def build_section(cls: type, data: Mapping[str, Any], prefix: str = "") -> Any:
         hint = hints[name]
         if dataclasses.is_dataclass(hint):
             kwargs[name] = build_section(hint, value, key)
+        elif fields[name].default == () and isinstance(value, (list, tuple)) and not value:
+            kwargs[name] = ()  # a list whose default is empty may be empty
         else:
             kwargs[name] = coerce(value, hint, key)
     return cls(**kwargs)

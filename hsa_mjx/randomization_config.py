@@ -32,14 +32,18 @@ class RandomizationConfig:
     # lower one alone (across the robot on a plane: the anisotropy the crawl relies on)
     foot_friction: tuple[float, float] = NOMINAL
     foot_anisotropy: tuple[float, float] = NOMINAL
+    # servo classes (hsa_mjx.servo_config.PRESETS names): each env drives its servos as one of them,
+    # drawn per episode (DC-motor servos only: env.servo.preset names the nominal class)
+    servo_presets: tuple[str, ...] = ()
     latency_steps: tuple[int, int] = (0, 0)  # control steps before an action reaches the servos
     push_interval_s: tuple[float, float] = (0.0, 0.0)  # s between pushes; [0, 0]: no pushes
     push_speed: float = 0.0  # m/s, the largest horizontal speed one push adds to both blocks
 
     @property
     def physical(self) -> bool:
-        """Whether any model field is randomised (scales off [1, 1] or a torque limit)."""
-        return any(getattr(self, name) != NOMINAL for name in SCALE_KEYS + FOOT_KEYS) or self.limits_force
+        """Whether any model field is randomised (scales off [1, 1], a torque limit or a servo class)."""
+        scaled = any(getattr(self, name) != NOMINAL for name in SCALE_KEYS + FOOT_KEYS)
+        return scaled or self.limits_force or bool(self.servo_presets)
 
     @property
     def per_foot(self) -> bool:

@@ -115,6 +115,39 @@ def validate(config: ServoConfig) -> ServoConfig:
     return config
 
 
+def check_presets(config: ServoConfig, names: tuple[str, ...]) -> None:
+    """ValueError unless ``config`` names its nominal class (``servo.preset``), every name is a preset of
+    that DC-motor servo model and the config leaves the figures the presets give (stall torque,
+    no-load speed, deadband) at 0 (``randomization.servo_presets``)."""
+    if not names:
+        return
+    params = resolve_servo(config)
+    if params is None or not config.preset:
+        raise ValueError(
+            "config key 'randomization.servo_presets' draws DC-motor servos: set servo.preset, the nominal "
+            "class the model is built with (a preset of the same model as the drawn ones)"
+        )
+    for name in names:
+        if name not in PRESETS:
+            raise ValueError(
+                f"config key 'randomization.servo_presets' has {name!r}, not a preset; choose from {sorted(PRESETS)}"
+            )
+        if PRESETS[name].model != params.model:
+            same = sorted(n for n, p in PRESETS.items() if p.model == params.model)
+            raise ValueError(
+                f"config key 'randomization.servo_presets': {name!r} is a {PRESETS[name].model} servo and "
+                f"servo.model is {params.model}; presets of that model: {same}"
+            )
+    given = [f"servo.{key}" for key in ("stall_torque", "no_load_speed", "deadband") if getattr(config, key)]
+    if given:
+        raise ValueError(f"config keys {given} are set by each drawn preset: leave them at 0 with servo_presets")
+
+
+def preset_servos(config: ServoConfig, names: tuple[str, ...]) -> list[ServoParams]:
+    """Each named preset resolved as ``config``'s servo (its model; its ``kp`` and ``speed_gain`` where given)."""
+    return [resolve_servo(dataclasses.replace(config, preset=name)) for name in names]
+
+
 def resolve_servo(config: ServoConfig) -> ServoParams | None:
     """The servo's figures (a preset's where the config leaves them at 0), or None for the spring."""
     preset = PRESETS.get(config.preset)

@@ -19,6 +19,7 @@ from hsa_mjx.deploy.perturbation import ModelPerturbation, perturbed_model
 from hsa_mjx.servo_config import PRESETS, ServoConfig, resolve_servo
 from hsa_mjx.sim import servo
 from hsa_mjx.sim.host_physics import HostPhysics
+from hsa_mjx.task import randomization
 
 ENVS = 2
 # the settings of tests/test_backend.py's Warp rollouts (their kernels compiled once for the suite)
@@ -131,3 +132,85 @@ def test_the_same_servos_give_the_same_trajectories_on_every_backend(rollouts):
     warp_gap = np.abs(rollouts["warp"]["qpos"] - jax_run["qpos"])
     assert warp_gap[..., idx.joint_qpos].max() <= WARP_QPOS_TOL
     assert warp_gap[..., idx.block_qpos[:, None] + np.arange(3)].max() <= WARP_BLOCK_TOL
+
+
+DRAWN = ["mg90s", "xl330_m288", "mx28"]  # position servos of 0.18, 0.52 and 2.5 N m
+
+
+def _drawn_rollout(backend: str) -> dict:
+    """Envs that each draw their servo class: the drawn class, the drive fields, per-step torques, qpos."""
+    overrides = {
+        **PHYSICS,
+        "physics.backend": backend,
+        "servo.preset": "xl330_m288",
+        "randomization.servo_presets": DRAWN,
+    }
+    env = hsa_mjx.make_env("flat", num_envs=8, **overrides)
+    step = jax.vmap(env.step)
+    if backend == "c":
+        step = jax.vmap(functools.partial(env.step_with, HostPhysics(env.robot.mj_model, env.index, env.motors)))
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(3), 8))
+    scales = state.pipeline_state.task.randomization.physics
+    fields = jax.vmap(lambda s: randomization.model_fields(env._nominal, s, env.config.randomization))(scales)
+    step, forces, qpos = jax.jit(step), [], []
+    for action in _actions()[:, :1].repeat(8, axis=1):
+        state = step(state, action)
+        forces.append(np.asarray(state.pipeline_state.physics.actuator_force[:, env.index.drive_ids]))
+        qpos.append(np.asarray(state.pipeline_state.physics.qpos))
+    drawn = np.asarray(scales.servo_preset)
+    return {
+        "env": env,
+        "drawn": drawn,
+        "fields": jax.device_get(fields),
+        "force": np.stack(forces),
+        "qpos": np.stack(qpos),
+    }
+
+
+@pytest.fixture(scope="module")
+def drawn_rollouts():
+    return {name: _drawn_rollout(name) for name in ("jax", "c")}
+
+
+def test_each_env_drives_its_drawn_servo_class_as_that_preset_configured(drawn_rollouts):
+    run = drawn_rollouts["jax"]
+    env, drawn, ids = run["env"], run["drawn"], run["env"].index.drive_ids
+    assert set(drawn.tolist()) == {0, 1, 2}  # 8 envs over the three classes
+    for name in ("actuator_gainprm", "actuator_biasprm", "actuator_forcerange"):
+        for k, preset in enumerate(drawn):  # the fields of the env that has this preset as its servo
+            configured = hsa_mjx.sim.model.load_robot(
+                hsa_mjx.config.with_overrides(env.config, servo__preset=DRAWN[preset], randomization__servo_presets=[])
+            ).mj_model
+            np.testing.assert_allclose(run["fields"][name][k][ids], getattr(configured, name)[ids], rtol=1e-6)
+    stall = np.asarray([PRESETS[DRAWN[p]].stall_torque for p in drawn])
+    for backend, rollout in drawn_rollouts.items():  # each env's torque within its own class's stall torque
+        peak = np.abs(rollout["force"]).max(axis=(0, 2))
+        assert np.all(peak <= stall * (1 + 1e-5)), (backend, peak, stall)
+        weakest = drawn == 0  # mg90s: saturated at its own stall torque, which the stronger classes pass
+        assert np.all(peak[weakest] >= 0.95 * stall[weakest]) and np.all(peak[~weakest] > 2 * stall[weakest][0])
+    # C got each env's fields: the classes without a dead band within the host physics' bound (the MG90S's
+    # dead band, a threshold on the error, parts float32 and float64 by up to 5 mm in 20 steps, drawn
+    # or configured alike)
+    smooth = np.asarray([PRESETS[DRAWN[p]].deadband == 0.0 for p in drawn])
+    assert np.abs(drawn_rollouts["c"]["qpos"] - run["qpos"])[:, smooth].max() <= HOST_QPOS_TOL["flat"]
+    # the privileged critic sees the class: one slot per preset, the drawn one set
+    drawn_state = env.reset(jax.random.PRNGKey(3)).pipeline_state.task.randomization
+    true = randomization.true_model(drawn_state, env.config.randomization)
+    assert true.shape == (8 + len(DRAWN),) and float(true[8 + int(drawn_state.physics.servo_preset)]) == 1.0
+    assert float(true[8:].sum()) == 1.0
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({}, "draws DC-motor servos"),
+        ({"servo.model": "position", "servo.stall_torque": 1.0, "servo.no_load_speed": 5.0}, "set servo.preset"),
+        ({"servo.preset": "mx28", "randomization.servo_presets": ["sg90000"]}, "not a preset"),
+        ({"servo.preset": "mx28", "randomization.servo_presets": ["dfr05sr"]}, "is a continuous servo"),
+        ({"servo.preset": "mx28", "servo.stall_torque": 1.0}, "set by each drawn preset"),
+    ],
+)
+def test_drawn_servo_classes_need_dc_servos_of_their_model(overrides, message):
+    overrides = {"randomization.servo_presets": ["mg90s"], **overrides}
+    with pytest.raises(ValueError, match=message):
+        hsa_mjx.make_env("flat", **overrides)

@@ -97,7 +97,7 @@ class SimulatedRobot:
         control = self.config.control
         targets = np.asarray(targets, np.float64)
         for target in substep_targets(self._targets, targets, control.frame_skip, control.smooth_positions, xp=np):
-            servo.write_controls(self.data, self.index, self.motors, target)
+            servo.write_controls(self.model, self.data, self.index, self.motors, target)
             mujoco.mj_step(self.model, self.data)
         self._targets = targets
 

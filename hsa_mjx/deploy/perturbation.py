@@ -91,6 +91,7 @@ class ModelPerturbation:
             servo_force_limit=np.float32(limit),
             foot_friction=np.asarray(self.foot_friction, np.float32),
             foot_anisotropy=np.asarray(self.foot_anisotropy, np.float32),
+            servo_preset=np.zeros((), np.int32),
         )
 
 

@@ -97,7 +97,7 @@ class HostPhysics:
         counts = [d.warning[w].number for w in _BAD]
         qvel, qacc = np.empty(len(targets)), np.empty(len(targets))
         for i, target in enumerate(np.asarray(targets, np.float64)):
-            servo.write_controls(d, self.index, self.motors, target)
+            servo.write_controls(self.model, d, self.index, self.motors, target)
             mujoco.mj_step(self.model, d)
             qvel[i], qacc[i] = np.abs(d.qvel).max(), np.abs(d.qacc).max()  # a NaN stays a NaN
         reset = any(d.warning[w].number > c for w, c in zip(_BAD, counts))  # C MuJoCo reset a bad state

@@ -50,16 +50,20 @@ def simulate(
     model: mjx.Model, data: mjx.Data, targets: jax.Array, index: RobotIndex, motors: ServoParams | None = None
 ) -> tuple[mjx.Data, SubstepStats]:
     """Run one physics step per row of ``targets`` (frame_skip, 8) with ``lax.scan``; ``motors``: the
-    DC-motor servos' figures (None: the asset's springs).
+    DC-motor servos' model (None: the asset's springs), their figures read from ``model``.
 
     Returns the final data and the worst velocity/acceleration/finiteness seen on the way.
     """
+
+    drives = index.drive_ids
+    if motors is not None:  # this env's figures, as its model holds them (drawn per episode or not)
+        motors = servo.figures(model.actuator_gainprm[drives], model.actuator_biasprm[drives], motors.model)
 
     def substep(carry, servo_target):
         data, stats = carry
         ctrl = data.ctrl.at[index.servo_ids].set(servo_target)
         if motors is not None:
-            ctrl = ctrl.at[index.drive_ids].set(servo.drive(motors, servo_target, data.qpos[index.joint_qpos]))
+            ctrl = ctrl.at[drives].set(servo.drive(motors, servo_target, data.qpos[index.joint_qpos]))
         data = mjx.step(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 

@@ -16,7 +16,11 @@ made inert, whose ``ctrl`` holds the targets as before; beside each, a ``general
 (``<joint>_drive``) takes the drive as its ``ctrl``, with the stall torque as gain, the back-EMF as a
 velocity bias and the stall torque as force range. MuJoCo computes the torque on every backend, the
 velocity term implicitly under ``implicitfast``; only the drive, a function of the target and the
-joint angle, is computed at each substep, by :func:`drive` (JAX for MJX, numpy for C MuJoCo).
+joint angle, is computed at each substep, by :func:`drive` (JAX for MJX, numpy for C MuJoCo). The
+drive's own figures (``kp``, ``speed_gain``, ``deadband``) ride in the drive actuators' unused gain
+slots, so that every figure of a servo is a model field (:func:`figures` reads them back): an env
+that draws its servo class per episode (``randomization.servo_presets``) writes them like any other
+randomised field, on every backend.
 
 The config, its presets (data-sheet figures of common servo classes) and their resolution:
 ``hsa_mjx.servo_config``.
@@ -31,6 +35,10 @@ import numpy as np
 from hsa_mjx.servo_config import ServoParams
 
 DRIVE_SUFFIX = "_drive"
+# the drive actuators' gainprm slots: the stall torque is the (fixed) gain; MuJoCo reads no other slot
+# of a fixed gain, so the drive's figures are kept in the next three
+STALL, KP, SPEED_GAIN, DEADBAND = range(4)
+FIGURE_SLOTS = 4
 
 
 def drive(params: ServoParams, target, angle, xp=jnp):
@@ -42,6 +50,25 @@ def drive(params: ServoParams, target, angle, xp=jnp):
         return xp.clip(params.kp * error / params.stall_torque, -1.0, 1.0)
     command = xp.clip(params.speed_gain * error / params.no_load_speed, -1.0, 1.0)
     return xp.where(xp.abs(command) < params.deadband, 0.0, command)
+
+
+def figures(gainprm, biasprm, model: str) -> ServoParams:
+    """The DC-motor servos' figures as the model holds them (``gainprm`` and ``biasprm`` of the drive
+    actuators, MJX or C MuJoCo arrays): one value per servo, for :func:`drive`."""
+    stall = gainprm[..., STALL]
+    return ServoParams(
+        model=model,
+        stall_torque=stall,
+        no_load_speed=stall / -biasprm[..., 2],
+        kp=gainprm[..., KP],
+        speed_gain=gainprm[..., SPEED_GAIN],
+        deadband=gainprm[..., DEADBAND],
+    )
+
+
+def gain_slots(params: ServoParams) -> list[float]:
+    """The first ``FIGURE_SLOTS`` gainprm values of a drive actuator of these figures."""
+    return [params.stall_torque, params.kp, params.speed_gain, params.deadband]
 
 
 def torque(params: ServoParams, drive_value, speed, xp=jnp):
@@ -62,16 +89,21 @@ def add_drives(spec: mujoco.MjSpec, params: ServoParams, servos: tuple[str, ...]
         actuator.name, actuator.target = joint + DRIVE_SUFFIX, joint
         actuator.trntype = mujoco.mjtTrn.mjTRN_JOINT
         actuator.gaintype, actuator.biastype = mujoco.mjtGain.mjGAIN_FIXED, mujoco.mjtBias.mjBIAS_AFFINE
-        actuator.gainprm[0] = params.stall_torque
+        actuator.gainprm[:FIGURE_SLOTS] = gain_slots(params)
         actuator.biasprm[2] = -params.back_emf
         actuator.ctrllimited, actuator.ctrlrange = mujoco.mjtLimited.mjLIMITED_TRUE, [-1.0, 1.0]
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         actuator.forcerange = [-params.stall_torque, params.stall_torque]
 
 
-def write_controls(data: mujoco.MjData, index, motors: ServoParams | None, target: np.ndarray) -> None:
+def write_controls(
+    model: mujoco.MjModel, data: mujoco.MjData, index, motors: ServoParams | None, target: np.ndarray
+) -> None:
     """C MuJoCo, before a substep: the targets into the servos' ``ctrl`` and, for DC-motor servos, the
-    drives from the targets and joint angles (``index``: the env's ``RobotIndex``)."""
+    drives from the targets and joint angles, with the figures ``model`` holds (``index``: the env's
+    ``RobotIndex``; ``motors``: the servo model, None for the asset's springs)."""
     data.ctrl[index.servo_ids] = target
     if motors is not None:
-        data.ctrl[index.drive_ids] = drive(motors, target, data.qpos[index.joint_qpos], xp=np)
+        ids = index.drive_ids
+        params = figures(model.actuator_gainprm[ids], model.actuator_biasprm[ids], motors.model)
+        data.ctrl[ids] = drive(params, target, data.qpos[index.joint_qpos], xp=np)

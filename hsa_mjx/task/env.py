@@ -17,7 +17,7 @@ from brax.envs.base import Env as BraxEnv
 
 from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.servo_config import resolve_servo
+from hsa_mjx.servo_config import preset_servos, resolve_servo
 from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
@@ -113,7 +113,8 @@ class HSAEnv(BraxEnv):
         )
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
-        self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index)
+        presets = preset_servos(cfg.servo, cfg.randomization.servo_presets)
+        self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index, presets)
 
     def with_terrain(self, tiles) -> HSAEnv:
         """This env on the terrain ``tiles`` (``hsa_mjx.terrain.regeneration.TerrainTiles``, traced): the

@@ -109,7 +109,7 @@ class Observer:
             return obs, None, task
         clean = jnp.zeros((0,), jnp.float32) if clean is None else clean
         true_model = (
-            randomization.true_model(task.randomization, self.config.randomization.per_foot)
+            randomization.true_model(task.randomization, self.config.randomization)
             if self.config.randomization.draws
             else jnp.zeros((0,), jnp.float32)
         )

@@ -20,7 +20,7 @@ from hsa_mjx.randomization_config import RandomizationConfig
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.sim.physics import foot_forces
-from hsa_mjx.task.randomization import FOOT_MODEL_LABELS, TRUE_MODEL_LABELS
+from hsa_mjx.task.randomization import FOOT_MODEL_LABELS, TRUE_MODEL_LABELS, servo_model_labels
 from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
@@ -44,6 +44,7 @@ def labels(config: ObservationConfig, randomization: RandomizationConfig = NOTHI
         + ("terrain_level",)
         + (TRUE_MODEL_LABELS if randomization.draws else ())
         + (FOOT_MODEL_LABELS if randomization.per_foot else ())
+        + servo_model_labels(randomization)
     )
 
 

@@ -19,6 +19,9 @@ hsa_stiffness      ``tendon_stiffness`` of every HSA tendon spring
 hsa_damping        ``tendon_damping`` of every HSA tendon spring
 servo_gain         the servos' ``actuator_gainprm[:, 0]`` and ``actuator_biasprm[:, 1]`` (kp)
 servo_force_limit  the servos' ``actuator_forcerange`` (the model is compiled force-limited)
+servo_presets      one drawn servo class: the drive actuators' ``actuator_gainprm[:, :4]`` (stall
+                   torque and the drive's figures), ``actuator_biasprm[:, 2]`` (back-EMF) and
+                   ``actuator_forcerange`` (the stall torque), as ``env.servo`` set to that preset
 =================  =========================================================================
 """
 
@@ -38,6 +41,7 @@ from hsa_mjx.randomization_config import (
     ObservationNoiseConfig,
     RandomizationConfig,
 )
+from hsa_mjx.sim import servo
 from hsa_mjx.sim.model import RobotIndex
 
 FIELDS = (
@@ -74,6 +78,7 @@ class PhysicsScales:
     servo_force_limit: jax.Array  # () N m (inf: no limit)
     foot_friction: jax.Array  # (4,) each foot's floor contact, both sliding coefficients
     foot_anisotropy: jax.Array  # (4,) each foot's lower sliding coefficient alone
+    servo_preset: jax.Array  # () int32, the drawn servo class's place in ``servo_presets`` (0: none drawn)
 
     @staticmethod
     def nominal() -> PhysicsScales:
@@ -88,6 +93,7 @@ class PhysicsScales:
             servo_force_limit=jnp.full((), jnp.inf, jnp.float32),
             foot_friction=jnp.ones((4,), jnp.float32),
             foot_anisotropy=jnp.ones((4,), jnp.float32),
+            servo_preset=jnp.zeros((), jnp.int32),
         )
 
 
@@ -101,6 +107,7 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
     """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
     keys = jax.random.split(key, 6)
     feet = jax.random.split(jax.random.fold_in(key, 6), 2)  # the other draws stay what they were before the feet's
+    presets = max(len(config.servo_presets), 1)
     limit = _uniform(keys[5], config.servo_force_limit) if config.limits_force else jnp.full((), jnp.inf)
     return PhysicsScales(
         friction=_uniform(keys[0], config.friction),
@@ -111,6 +118,7 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
         servo_force_limit=limit.astype(jnp.float32),
         foot_friction=_uniform(feet[0], config.foot_friction, (4,)),
         foot_anisotropy=_uniform(feet[1], config.foot_anisotropy, (4,)),
+        servo_preset=jax.random.randint(jax.random.fold_in(key, 7), (), 0, presets, jnp.int32),
     )
 
 
@@ -124,16 +132,19 @@ class NominalModel:
     tendons: np.ndarray
     feet: np.ndarray  # (4,) each foot's floor contact pair
     lower: np.ndarray  # (4,) the column (0, 1) of each foot pair's lower sliding coefficient
+    drives: np.ndarray  # the DC-motor servos' drive actuators (none for the asset's springs)
+    servos_drawn: np.ndarray  # (presets, 5) each drawable servo class: its 4 gain slots, its back-EMF
 
     @staticmethod
-    def from_model(mj_model: mujoco.MjModel, index: RobotIndex) -> NominalModel:
-        """Read the fields once from the compiled C model."""
+    def from_model(mj_model: mujoco.MjModel, index: RobotIndex, presets: tuple = ()) -> NominalModel:
+        """Read the fields once from the compiled C model; ``presets``: the drawable servo classes'
+        ``ServoParams`` (``hsa_mjx.servo_config.preset_servos``)."""
         values = {name: np.array(getattr(mj_model, name), np.float32) for name in FIELDS}
         feet = np.asarray(index.foot_pairs)
         lower = np.argmin(values["pair_friction"][feet, :2], axis=1)
-        return NominalModel(
-            values, np.asarray(index.block_body), np.asarray(index.servo_ids), np.arange(mj_model.ntendon), feet, lower
-        )
+        drawn = np.asarray([[*servo.gain_slots(p), p.back_emf] for p in presets], np.float32).reshape(-1, 5)
+        ids = np.asarray(index.servo_ids), np.arange(mj_model.ntendon)
+        return NominalModel(values, np.asarray(index.block_body), *ids, feet, lower, np.asarray(index.drive_ids), drawn)
 
 
 def model_fields(nominal: NominalModel, scales: PhysicsScales, config: RandomizationConfig) -> dict[str, jax.Array]:
@@ -161,7 +172,21 @@ def model_fields(nominal: NominalModel, scales: PhysicsScales, config: Randomiza
     if config.limits_force:
         limit = jnp.stack([-scales.servo_force_limit, scales.servo_force_limit])
         fields["actuator_forcerange"] = jnp.asarray(v["actuator_forcerange"]).at[servos].set(limit)
+    if config.servo_presets:
+        fields.update(_drawn_servo(nominal, scales.servo_preset))
     return fields
+
+
+def _drawn_servo(nominal: NominalModel, preset: jax.Array) -> dict[str, jax.Array]:
+    """The drive actuators' fields of the drawn servo class (``hsa_mjx.sim.servo``: where each figure sits)."""
+    v, drives = nominal.values, nominal.drives
+    row = jnp.asarray(nominal.servos_drawn)[preset]
+    stall, back_emf = row[servo.STALL], row[-1]
+    return {
+        "actuator_gainprm": jnp.asarray(v["actuator_gainprm"]).at[drives, : servo.FIGURE_SLOTS].set(row[:-1]),
+        "actuator_biasprm": jnp.asarray(v["actuator_biasprm"]).at[drives, 2].set(-back_emf),
+        "actuator_forcerange": jnp.asarray(v["actuator_forcerange"]).at[drives].set(jnp.stack([-stall, stall])),
+    }
 
 
 # ----- latency and pushes ---------------------------------------------------------------------
@@ -194,9 +219,15 @@ TRUE_MODEL_LABELS = (
 FOOT_MODEL_LABELS = tuple(f"true_foot_{kind}_{i}" for kind in ("friction", "anisotropy") for i in range(4))
 
 
-def true_model(state: RandomizationState, per_foot: bool = False) -> jax.Array:
+def servo_model_labels(config: RandomizationConfig) -> tuple[str, ...]:
+    """Appended where each env draws its servo class: one per class (the drawn one 1, the others 0)."""
+    return tuple(f"true_servo_{name}" for name in config.servo_presets)
+
+
+def true_model(state: RandomizationState, config: RandomizationConfig) -> jax.Array:
     """The episode's model as the privileged critic sees it, float32 in ``TRUE_MODEL_LABELS``' order (8
-    values), then with ``per_foot`` the feet's draws in ``FOOT_MODEL_LABELS``' order (8 more)."""
+    values), then where drawn the feet's in ``FOOT_MODEL_LABELS``' order and the servo class's
+    (``servo_model_labels``)."""
     p = state.physics
     parts = [
         jnp.stack([p.friction]),
@@ -204,7 +235,9 @@ def true_model(state: RandomizationState, per_foot: bool = False) -> jax.Array:
         jnp.stack([p.hsa_stiffness, p.hsa_damping, p.servo_gain, 1.0 / p.servo_force_limit]),
         jnp.stack([state.latency.astype(jnp.float32)]),
     ]
-    return jnp.concatenate(parts + ([p.foot_friction, p.foot_anisotropy] if per_foot else [])).astype(jnp.float32)
+    parts += [p.foot_friction, p.foot_anisotropy] if config.per_foot else []
+    parts += [jax.nn.one_hot(p.servo_preset, len(config.servo_presets))] if config.servo_presets else []
+    return jnp.concatenate(parts).astype(jnp.float32)
 
 
 def nominal_state(config: RandomizationConfig, action_size: int) -> RandomizationState:
@@ -258,6 +291,7 @@ def toward_nominal(physics: PhysicsScales, scale: jax.Array) -> PhysicsScales:
         servo_force_limit=physics.servo_force_limit / scale,  # inf at scale 0: no limit
         foot_friction=toward_one(physics.foot_friction),
         foot_anisotropy=toward_one(physics.foot_anisotropy),
+        servo_preset=physics.servo_preset,  # a class is drawn whole at every level
     )
 
 
