@@ -68,14 +68,26 @@ def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, .
     ranges["latency_steps"] = [0, max(latency_steps(c["latency_ms"], dt) for c in group)]
     if any(c["pushes"] for c in group):
         ranges["push_interval_s"], ranges["push_speed"] = list(grids.PUSH_INTERVAL_S), grids.PUSH_SPEED
+    classes = servo_classes(group)
+    if classes:  # the group's servo classes, drawn per cell (rollout_groups: all of one servo model)
+        ranges["servo_presets"] = list(classes)
     out = [f"env.randomization.{k}={json.dumps(list(v) if isinstance(v, tuple) else v)}" for k, v in ranges.items()]
+    out += [f"env.servo.preset={classes[0]}"] if classes else []
     out += [f"env.observation.noise.{k}={v if group[0]['noise'] else 0}" for k, v in grids.NOISE.items()]
     out.append(f"env.termination.qacc_termination={'true' if qacc_rule else 'false'}")  # whatever it trained with
     return tuple(out)
 
 
+def servo_classes(group: list[dict]) -> tuple[str, ...]:
+    """The servo classes of a group's cells, in order of first use (empty: the policy's own servos)."""
+    return tuple(dict.fromkeys(c["servo"] for c in group if c["servo"] is not None))
+
+
 def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str, Any]:
     """Each episode's physical scales, latency and pushes, (cells x episodes,) leading axis."""
+
+    classes = servo_classes(group)
+    group = [{**c, "servo_preset": classes.index(c["servo"]) if c["servo"] else 0} for c in group]
 
     def per_episode(name: str, dtype=jnp.float32) -> jnp.ndarray:
         return jnp.repeat(jnp.asarray([c[name] for c in group], dtype), episodes)
@@ -90,7 +102,7 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
         foot_friction=jnp.repeat(jnp.asarray([c["foot_friction"] for c in group], jnp.float32), episodes, axis=0),
         foot_anisotropy=jnp.repeat(jnp.asarray([c["foot_anisotropy"] for c in group], jnp.float32), episodes, axis=0),
-        servo_preset=jnp.zeros((len(group) * episodes,), jnp.int32),  # the policy's own servos
+        servo_preset=per_episode("servo_preset", jnp.int32),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}
@@ -103,7 +115,8 @@ def score(successes: int, episodes: int) -> dict[str, Any]:
 
 
 def run_group(directory: Path, group: list[dict], args: argparse.Namespace, backend: str) -> list[dict[str, Any]]:
-    """The cells of one noise setting in one rollout: a result row per cell (with its episodes' goals)."""
+    """The cells of one compiled env (one noise setting and servo model) in one rollout: a result row per
+    cell (with its episodes' goals and outcomes)."""
     dt = from_dict(policy_file.load_policy(directory).meta["config"]).env.dt
     overrides = env_overrides(group, dt, args.qacc_rule == "on")
     episodes = args.episodes
@@ -194,10 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         directory, backend, chosen = resolve(args)
-        rows = []
-        for noise in (False, True):
-            group = [c for c in chosen if c["noise"] == noise]
-            rows += run_group(directory, group, args, backend) if group else []
+        rows: list = [None] * len(chosen)  # in the grid's order, whichever rollout played them
+        for group in grids.rollout_groups(chosen):
+            for c, row in zip(group, run_group(directory, group, args, backend)):
+                rows[chosen.index(c)] = row
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -9,8 +9,9 @@ alone), so both grids run through one code path:
 - ``stress``: the training model, each factor alone at both ends of its stress range (friction x0.3
   and x2, masses x0.6 and x1.4, HSA stiffness and damping x0.5 and x1.5, servo gain x0.6 and x1.2,
   a servo torque limit, 60 ms latency, pushes, observation noise, one slick foot, feet without
-  their anisotropy), and four corners where they combine: 21 cells. ``docs/robustness.md``
-  justifies each range from what varies on a real robot.
+  their anisotropy, four servo classes of ``hsa_mjx.servo_config.PRESETS`` in place of the policy's
+  own servos), and four corners where they combine: 25 cells. ``docs/robustness.md`` justifies each
+  range from what varies on a real robot.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ from typing import Any
 
 from hsa_mjx.deploy.perturbation import ONES, ModelPerturbation
 from hsa_mjx.randomization_config import FOOT_KEYS, SCALE_KEYS
+from hsa_mjx.servo_config import PRESETS
 
 SCALES = SCALE_KEYS  # the physical scales, as the env's randomisation names them
 MODEL = (*SCALES, "servo_torque_limit", *FOOT_KEYS)  # the factors a ModelPerturbation carries
-FACTORS = (*SCALES, "servo_torque_limit", *FOOT_KEYS, "latency_ms", "pushes", "noise")
+FACTORS = (*SCALES, "servo_torque_limit", *FOOT_KEYS, "servo", "latency_ms", "pushes", "noise")
 TRAINING = {
     **dict.fromkeys(SCALES, 1.0),
     "servo_torque_limit": None,
     **dict.fromkeys(FOOT_KEYS, ONES),  # four scales each, one per foot (hsa_mjx.sim.model.FOOT_PAIRS' order)
+    "servo": None,  # a PRESETS name: the robot's servos are that class (None: the policy's own)
     "latency_ms": 0,
     "pushes": False,
     "noise": False,
@@ -55,6 +58,9 @@ SLICK_FOOT = (0.3, 1.0, 1.0, 1.0)
 # every foot's lower sliding coefficient raised to its higher one (0.1 -> 0.21): feet that grip the same
 # along and across the robot (worn or other pads), the anisotropy the crawl relies on gone
 ISOTROPIC_FEET = (2.1,) * 4
+# servo classes in place of the policy's servos: the weakest and a strong hobby servo, the smart servo
+# whose stall torque the torque cell stands for, and the continuous-rotation servo the robot uses
+STRESS_SERVOS = ("mg90s", "xl330_m288", "mx28", "dfr05sr")
 
 
 def cell(**changes: Any) -> dict[str, Any]:
@@ -72,6 +78,11 @@ def cell(**changes: Any) -> dict[str, Any]:
 def check(c: dict[str, Any]) -> None:
     """ValueError unless every factor of cell ``c`` is in its valid range."""
     ModelPerturbation(**{name: c[name] for name in MODEL})  # the scales, the limit and the feet
+    if c["servo"] is not None:
+        if c["servo"] not in PRESETS:
+            raise ValueError(f"servo must be None or a preset, got {c['servo']!r}; presets: {sorted(PRESETS)}")
+        if c["servo_gain"] != 1.0 or c["servo_torque_limit"] is not None:
+            raise ValueError("servo_gain and servo_torque_limit act on the asset's springs: not with a servo class")
     if not (isinstance(c["latency_ms"], int | float) and 0 <= c["latency_ms"] <= MAX_LATENCY_MS):
         raise ValueError(f"latency_ms must be in [0, {MAX_LATENCY_MS}], got {c['latency_ms']!r}")
     for name in ("pushes", "noise"):
@@ -110,6 +121,7 @@ def stress_grid() -> list[dict[str, Any]]:
         cell(noise=True),
         cell(foot_friction=SLICK_FOOT),
         cell(foot_anisotropy=ISOTROPIC_FEET),
+        *(cell(servo=name) for name in STRESS_SERVOS),
     ]
     corners = [
         # a slick floor under a stiff, heavy robot with weak, late servos
@@ -137,6 +149,17 @@ def stress_grid() -> list[dict[str, Any]]:
 GRIDS = {"nominal": nominal_grid, "stress": stress_grid}
 
 
+def servo_model(c: dict[str, Any]) -> str | None:
+    """The servo model a cell's class needs (None: the policy's own servos)."""
+    return None if c["servo"] is None else PRESETS[c["servo"]].model
+
+
+def rollout_groups(cells: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """The cells in groups that share one compiled env: the same noise setting and servo model."""
+    keys = list(dict.fromkeys((c["noise"], servo_model(c) or "") for c in cells))
+    return [[c for c in cells if (c["noise"], servo_model(c) or "") == key] for key in keys]
+
+
 def grid(name: str) -> list[dict[str, Any]]:
     """The cells of grid ``name`` (ValueError naming the grids)."""
     if name not in GRIDS:
@@ -150,6 +173,7 @@ def label(c: dict[str, Any]) -> str:
     if c["servo_torque_limit"] is not None:
         parts.append(f"torque <= {c['servo_torque_limit']:g} N m")
     parts += [f"{name} x{'/'.join(f'{v:g}' for v in c[name])}" for name in FOOT_KEYS if c[name] != ONES]
+    parts += [f"servo {c['servo']}"] if c["servo"] is not None else []
     if c["latency_ms"]:
         parts.append(f"{c['latency_ms']:g} ms")
     parts += [name for name in ("pushes", "noise") if c[name]]
@@ -164,8 +188,10 @@ def _parse(name: str, text: str) -> Any:
         if text not in flags:
             raise ValueError(f"{name} takes on or off, got {text!r}")
         return flags[text]
-    if name == "servo_torque_limit" and text in ("none", "off"):
+    if name in ("servo_torque_limit", "servo") and text in ("none", "off"):
         return None
+    if name == "servo":
+        return text
     try:
         if name in FOOT_KEYS:  # four values, e.g. 0.3/1/1/1
             return tuple(float(v) for v in text.split("/"))

@@ -48,7 +48,7 @@ def _factors(r: dict) -> str:
     limit = "-" if r["servo_torque_limit"] is None else f"{r['servo_torque_limit']:g}"
     scales = " | ".join(f"x{r[k]:g}" for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain"))
     flags = " | ".join("on" if r[k] else "off" for k in ("pushes", "noise"))
-    return f"{scales} | {limit} | {_feet(r)} | {r['latency_ms']:g} | {flags}"
+    return f"{scales} | {limit} | {_feet(r)} | {r.get('servo') or '-'} | {r['latency_ms']:g} | {flags}"
 
 
 def _rate(r: dict) -> str:
@@ -59,10 +59,10 @@ def _rate(r: dict) -> str:
 def table(rows: list[dict]) -> str:
     """A markdown table: one row per cell, its success with the 95 % interval."""
     head = (
-        "| friction | block mass | HSA stiffness | HSA damping | servo gain | torque limit (N m) | feet "
+        "| friction | block mass | HSA stiffness | HSA damping | servo gain | torque limit (N m) | feet | servos "
         "| latency (ms) | pushes | noise | success (95 % CI) | progress (m) | failures ended by |"
     )
-    lines = [head, "|" + "---|" * 13]
+    lines = [head, "|" + "---|" * 14]
     for r in rows:
         ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
         lines.append(f"| {_factors(r)} | {_rate(r)} | {r['mean_progress_m']:.2f} | {ended} |")
@@ -89,7 +89,7 @@ def heat_map(rows: list[dict], path: Path, title: str) -> None:
 
     def model(r):
         scales = tuple(r[k] for k in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain"))
-        return (*scales, r["servo_torque_limit"], _feet(r))
+        return (*scales, r["servo_torque_limit"], _feet(r), r.get("servo"))
 
     def sensing(r):
         return r["latency_ms"], r["pushes"], r["noise"]
@@ -123,6 +123,7 @@ def _model_label(model: tuple) -> str:
     parts = [f"{n} x{v:g}" for n, v in zip(names, model[:5]) if v != 1.0]
     parts += [f"torque <= {model[5]:g} N m"] if model[5] is not None else []
     parts += [f"feet: {model[6]}"] if model[6] != "-" else []
+    parts += [f"servos: {model[7]}"] if model[7] else []
     return ", ".join(parts) or "training model"
 
 

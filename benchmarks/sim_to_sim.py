@@ -11,6 +11,7 @@ MuJoCo model each; ``--workers 1``: in this process).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import multiprocessing
 import os
@@ -40,7 +41,7 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     from hsa_mjx.task.history import is_history
     from hsa_mjx.task.randomization import noise_scales
 
-    policy, config, labels, (mj_model, index) = _loaded(directory)
+    policy, config, labels, (mj_model, index) = _loaded(directory, cell["servo"])
     noise, tracked = None, config.observation.velocity == "differenced"
     if cell["noise"]:  # on this tick's readings; a history repeats what the policy saw
         sensed = tuple(label for label in labels if not is_history(label))
@@ -55,13 +56,17 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     return bool(loop.run(controller, robot, np.asarray(goal), steps, config.goal.success_radius)["reached"])
 
 
-@functools.lru_cache(maxsize=2)
-def _loaded(directory: str) -> tuple:
-    """(policy, env config, observation labels, (C model, index)) of a policy directory, once per worker."""
+@functools.lru_cache(maxsize=8)
+def _loaded(directory: str, servo_class: str | None = None) -> tuple:
+    """(policy, env config, observation labels, (C model, index)) of a policy directory, its servos
+    replaced by the class ``servo_class`` where given; once per worker."""
     from hsa_mjx.deploy import loop, policy_file
+    from hsa_mjx.servo_config import ServoConfig
 
     policy = policy_file.load_policy(Path(directory))
     config, labels, _ = loop.policy_env(policy.meta)
+    if servo_class is not None:
+        config = dataclasses.replace(config, servo=ServoConfig(preset=servo_class))
     return policy, config, labels, loop.load_model(config)
 
 

@@ -44,9 +44,18 @@ def test_the_grids_cells():
     nominal, stress = robustness_grids.grid("nominal"), robustness_grids.grid("stress")
     assert len(nominal) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in nominal})
     assert {c["latency_ms"] for c in nominal} == {0, 20, 40} and not any(c["pushes"] for c in nominal)
-    assert len(stress) == 21 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    assert len(stress) == 25 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
     feet = [c for c in stress if c["foot_friction"] != (1,) * 4 or c["foot_anisotropy"] != (1,) * 4]
     assert [robustness_grids.label(c) for c in feet] == ["foot_friction x0.3/1/1/1", "foot_anisotropy x2.1/2.1/2.1/2.1"]
+    # the servo classes: one compiled env per servo model, each cell's class drawn into its episodes
+    groups = robustness_grids.rollout_groups(stress)
+    servos = [[c["servo"] for c in g] for g in groups if g[0]["servo"]]
+    assert servos == [["mg90s", "xl330_m288", "mx28"], ["dfr05sr"]] and sum(map(len, groups)) == len(stress)
+    overrides = robustness.env_overrides(groups[-2], 0.02, qacc_rule=False)
+    assert "env.servo.preset=mg90s" in overrides
+    assert 'env.randomization.servo_presets=["mg90s", "xl330_m288", "mx28"]' in overrides
+    drawn = robustness.cell_randomization(groups[-2], 2, 0.02)["physics"].servo_preset
+    assert drawn.tolist() == [0, 0, 1, 1, 2, 2]
     for name, ends in robustness_grids.STRESS_ENDS.items():  # each end alone, every other factor as trained
         for value in ends:
             assert robustness_grids.cell(**{name: value}) in stress
@@ -67,6 +76,8 @@ def test_the_grids_cells():
         ({"latency_ms": 500}, r"latency_ms must be in \[0, 200\]"),
         ({"pushes": "yes"}, "pushes must be true or false"),
         ({"foot_friction": (0.3, 1.0)}, "foot_friction takes 4 values"),
+        ({"servo": "sg90000"}, "servo must be None or a preset"),
+        ({"servo": "mx28", "servo_torque_limit": 0.5}, "act on the asset's springs"),
         ({"foot_anisotropy": (1.0, 1.0, 1.0, 5.0)}, r"foot_anisotropy must be in \[0.1, 3\]"),
         ({"gravity": 2.0}, "unknown factors"),
     ],
@@ -83,7 +94,8 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
     assert all((c["hsa_stiffness"], c["block_mass"], c["noise"]) == (1.3, 0.8, False) for c in chosen)
     assert robustness_grids.select(nominal, ["latency_ms=20.0"]) == [c for c in nominal if c["latency_ms"] == 20]
     stress = robustness_grids.grid("stress")
-    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 16
+    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 20
+    assert [c["servo"] for c in robustness_grids.select(stress, ["servo=mx28"])] == ["mx28"]
     slick = robustness_grids.cell(foot_friction=(0.3, 1, 1, 1))
     assert robustness_grids.select(stress, ["foot_friction=0.3/1/1/1"]) == [slick]
     with pytest.raises(ValueError, match="four numbers"):
@@ -102,11 +114,12 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     result = json.loads((tmp_path / "robustness_smoke.json").read_text())
     rows = result["cells"]
     assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
-    assert len(rows) == 21 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert len(rows) == 25 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert [r["label"] for r in rows] == [robustness_grids.label(c) for c in robustness_grids.grid("stress")]
     assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
     # the same episode (start, goal, policy) on every model: each factor alone moves the robot elsewhere
     trained = rows[0]["mean_final_distance"]
-    alone = [*rows[1:11], *rows[15:17]]  # the five scales at both ends, the slick foot, the isotropic feet
+    alone = [*rows[1:11], *rows[15:21]]  # the five scales at both ends, the feet's two cells, the servo classes
     assert all(round(r["mean_final_distance"], 6) != round(trained, 6) for r in alone), [r["label"] for r in alone]
     # every episode reached its goal or ended one way: the failure shares and the success rate add up to 1
     assert all(abs(r["success_rate"] + sum(r["failures"].values()) - 1) < 1e-6 for r in rows)
