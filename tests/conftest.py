@@ -42,7 +42,10 @@ def quick_warp_kernels() -> None:
 quick_warp_kernels()
 CACHE = Path(os.environ.get("HSA_MJX_JAX_CACHE", Path.home() / ".cache" / "hsa_mjx_jax"))
 jax.config.update("jax_compilation_cache_dir", str(CACHE))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+# every program, however quick to compile: the suite's many processes (xdist workers, the multi-device
+# scenarios, the installed copy) each compile the same small programs (a reset, a network's init, a
+# normaliser update) otherwise; cold, the multi-device module took 487 instead of 603 CPU-s
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 BATCH = 4
 
