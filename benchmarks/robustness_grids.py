@@ -19,7 +19,7 @@ from __future__ import annotations
 import itertools
 from typing import Any
 
-from hsa_mjx.deploy.perturbation import ONES, ModelPerturbation
+from hsa_mjx.deploy.perturbation import ONES, ModelPerturbation, per_foot
 from hsa_mjx.randomization_config import FOOT_KEYS, SCALE_KEYS
 from hsa_mjx.servo_config import PRESETS
 
@@ -172,7 +172,7 @@ def label(c: dict[str, Any]) -> str:
     parts = [f"{name} x{c[name]:g}" for name in SCALES if c[name] != 1.0]
     if c["servo_torque_limit"] is not None:
         parts.append(f"torque <= {c['servo_torque_limit']:g} N m")
-    parts += [f"{name} x{'/'.join(f'{v:g}' for v in c[name])}" for name in FOOT_KEYS if c[name] != ONES]
+    parts += [f"{name} x{per_foot(c[name])}" for name in FOOT_KEYS if c[name] != ONES]
     parts += [f"servo {c['servo']}"] if c["servo"] is not None else []
     if c["latency_ms"]:
         parts.append(f"{c['latency_ms']:g} ms")

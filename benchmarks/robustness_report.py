@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from hsa_mjx.deploy.perturbation import per_foot
+
 TARGET = 0.9  # a cell "below 90 %" when its whole interval is
 
 
@@ -37,7 +39,7 @@ def summary(rows: list[dict], resolving_episodes: int) -> dict[str, Any]:
 def _feet(r: dict) -> str:
     """The feet's factors off 1 ("-" when none), each as its four values."""
     parts = [
-        f"{name} x{'/'.join(f'{v:g}' for v in r[key])}"
+        f"{name} x{per_foot(r[key])}"
         for key, name in (("foot_friction", "friction"), ("foot_anisotropy", "anisotropy"))
         if any(v != 1.0 for v in r.get(key, (1.0,)))
     ]

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from hsa_mjx.deploy import loop, policy_file
-from hsa_mjx.deploy.perturbation import FEET, LIMITS, ModelPerturbation
+from hsa_mjx.deploy.perturbation import FEET, LIMITS, ModelPerturbation, per_foot
 from hsa_mjx.randomization_config import FOOT_KEYS
 
 ONNX_FILE = "policy.onnx"
@@ -82,7 +82,7 @@ def _changes(perturbation: ModelPerturbation) -> str:
     def words(name: str, value) -> str:
         if name == "servo_torque_limit":
             return f"{name} {value:g} N m"
-        return f"{name} x{'/'.join(f'{v:g}' for v in value)}" if name in FOOT_KEYS else f"{name} x{value:g}"
+        return f"{name} x{per_foot(value)}" if name in FOOT_KEYS else f"{name} x{value:g}"
 
     return ", ".join(words(k, v) for k, v in changed.items())
 

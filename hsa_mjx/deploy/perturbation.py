@@ -95,6 +95,11 @@ class ModelPerturbation:
         )
 
 
+def per_foot(values: tuple[float, ...]) -> str:
+    """A foot factor's four values as text, e.g. ``0.3/1/1/1`` (how the grid's ``--where`` reads them)."""
+    return "/".join(f"{v:g}" for v in values)
+
+
 def _span(values: tuple[float, ...]) -> tuple[float, float]:
     """(min, max) of a foot factor's four values."""
     return float(min(values)), float(max(values))
