@@ -8,7 +8,10 @@ evaluation. Every (arm, seed) is one run of ``python -m train`` in ``OUT/runs/<a
 per GPU at a time on a host of several (``CUDA_VISIBLE_DEVICES`` per process; in sequence on one GPU
 or a CPU), then one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat
 ground over ``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed
-the run never trained on. ``--time-limit`` sends SIGTERM to the runs still training when the time is
+the run never trained on. With ``evaluate.grid`` each run's policy is also exported and played over a
+``benchmarks.robustness`` grid, and so is every ``grid.reference`` policy (a shipped name or a policy
+folder): per cell, each arm pooled over its seeds and its difference to each reference, with intervals
+(``benchmarks.sweep_grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
 nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
 is done. The report (``benchmarks.sweep_report``): ``sweep.json``, ``sweep.md`` and one plot per arm
 plus ``sweep.png`` in ``OUT``; every figure with its 95 % interval, the arms against the first.
@@ -34,12 +37,16 @@ from typing import Any
 import jax
 import yaml
 
+from benchmarks import robustness_grids as grids
 from benchmarks import sweep_report
+from hsa_mjx.deploy import policy_file
 from train import config as train_config
 
 KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
-EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain")
+EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain", "grid")
+GRID_KEYS = ("name", "episodes", "reference")
 TERRAIN_KEYS = ("types", "levels", "tiles", "terrain_seed")
+GRID_TAG = "grid"  # robustness_grid.json in each run's sweep_grid/
 GRACE_S = 90  # --time-limit: SIGTERM this long before the limit (the epoch in flight ends, a checkpoint is written)
 
 
@@ -68,6 +75,21 @@ def _unknown(data: dict, valid: tuple[str, ...], where: str) -> None:
         raise ValueError(f"{where}: unknown key(s) {unknown}; valid keys: {list(valid)}")
 
 
+def _check_grid(grid: Any, where: str) -> None:
+    """ValueError (or FileNotFoundError for a reference policy) unless ``grid`` is None or a valid grid."""
+    if grid is None:
+        return
+    if not isinstance(grid, dict):
+        raise ValueError(f"{where}: a mapping with keys {list(GRID_KEYS)}, got {grid!r}")
+    _unknown(grid, GRID_KEYS, where)
+    if grid.get("name") not in grids.GRIDS:
+        raise ValueError(f"{where}.name: {grid.get('name')!r}; grids: {sorted(grids.GRIDS)}")
+    if int(grid.get("episodes", 1)) < 1:
+        raise ValueError(f"{where}.episodes must be >= 1, got {grid['episodes']!r}")
+    for policy in grid.get("reference") or ():
+        policy_file.locate(policy)
+
+
 def load(path: str | Path) -> Sweep:
     """Read and check a sweep file: every arm's config is built (and so validated) here, before any run."""
     path = Path(path)
@@ -81,6 +103,7 @@ def load(path: str | Path) -> Sweep:
     evaluate = dict(data["evaluate"] or {})
     _unknown(evaluate, EVALUATE_KEYS, f"{path}: evaluate")
     _unknown(evaluate.get("terrain") or {}, TERRAIN_KEYS, f"{path}: evaluate.terrain")
+    _check_grid(evaluate.get("grid"), f"{path}: evaluate.grid")
     arms = {str(k): tuple(v or ()) for k, v in (data["arms"] or {}).items()}
     seeds = tuple(int(s) for s in data["seeds"])
     if len(arms) < 1 or len(seeds) < 1 or len(set(seeds)) != len(seeds):
@@ -111,8 +134,14 @@ class Job:
     arm: str
     seed: int
     run_dir: Path
-    train: list[str]
-    evaluate: list[str]
+    train: list[str]  # empty: a reference policy, evaluated only
+    evaluate: list[str]  # empty: no evaluation at the training model
+    grid: list[list[str]] = dataclasses.field(default_factory=list)  # export, then the robustness grid
+
+    @property
+    def grid_result(self) -> Path:
+        """Where the grid evaluation writes its result."""
+        return self.run_dir / "sweep_grid" / f"robustness_{GRID_TAG}.json"
 
 
 def evaluation_args(sweep: Sweep, run_dir: Path) -> list[str]:
@@ -131,6 +160,32 @@ def evaluation_args(sweep: Sweep, run_dir: Path) -> list[str]:
     return args
 
 
+def grid_args(sweep: Sweep, policy: str | Path, out: Path) -> list[str]:
+    """``python -m benchmarks.robustness``'s arguments for one policy over the sweep's grid."""
+    ev, grid = sweep.evaluate, sweep.evaluate["grid"]
+    args = [str(policy), "--grid", grid["name"], "--episodes", str(grid.get("episodes", ev.get("episodes", 128)))]
+    args += ["--seed", str(ev.get("seed", 1000)), "--backend", str(ev.get("backend", "auto"))]
+    return ["-m", "benchmarks.robustness", *args, "--tag", GRID_TAG, "--out-dir", str(out / "sweep_grid")]
+
+
+def grid_commands(sweep: Sweep, run_dir: Path) -> list[list[str]]:
+    """A run's grid evaluation: its mean-action policy exported, then played over the grid."""
+    if not sweep.evaluate.get("grid"):
+        return []
+    export = ["-m", "train.export", str(run_dir), "--format", "npz", "--out", str(run_dir / "export_npz")]
+    return [export, grid_args(sweep, run_dir / "export_npz", run_dir)]
+
+
+def references(sweep: Sweep, out: Path) -> list[Job]:
+    """One job per reference policy of the grid evaluation: no training, the grid alone."""
+    refs = (sweep.evaluate.get("grid") or {}).get("reference") or ()
+    jobs = []
+    for policy in refs:
+        run_dir = out / "reference" / Path(str(policy)).name
+        jobs.append(Job(f"reference {policy}", 0, run_dir, [], [], [grid_args(sweep, policy, run_dir)]))
+    return jobs
+
+
 def plan(sweep: Sweep, out: Path) -> list[Job]:
     """Every (arm, seed) run, seeds outermost (so that a cut-off sweep has every arm at its first seeds)."""
     jobs = []
@@ -140,7 +195,8 @@ def plan(sweep: Sweep, out: Path) -> list[Job]:
             train = ["-m", "train", "--config", sweep.config, "--run-dir", str(run_dir), "--quiet"]
             for item in sweep.overrides(arm, seed):
                 train += ["--set", item]
-            jobs.append(Job(arm, seed, run_dir, train, ["-m", "train.evaluate", *evaluation_args(sweep, run_dir)]))
+            evaluate = ["-m", "train.evaluate", *evaluation_args(sweep, run_dir)]
+            jobs.append(Job(arm, seed, run_dir, train, evaluate, grid_commands(sweep, run_dir)))
     return jobs
 
 
@@ -176,15 +232,20 @@ class Runner:
     def _one(self, job: Job, env_steps: int, device: str | None) -> None:
         job.run_dir.mkdir(parents=True, exist_ok=True)
         log = job.run_dir / "sweep.log"
-        if not trained(job, env_steps):
+        if job.train and not trained(job, env_steps):
             resume = ["--resume"] if (job.run_dir / "checkpoints").is_dir() else ["--overwrite"]
             print(f"[{device}] train {job.arm} seed {job.seed}", flush=True)
             if self._call(job.train + resume, device, log) != 0 or not trained(job, env_steps):
                 return
-        if not (job.run_dir / "sweep_eval").is_dir():
+        if job.evaluate and not (job.run_dir / "sweep_eval").is_dir():
             print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
             if self._call(job.evaluate, device, log) != 0:
                 shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
+        if job.grid and not job.grid_result.is_file():
+            print(f"[{device}] grid {job.arm} seed {job.seed}", flush=True)
+            for args in job.grid:
+                if self._call(args, device, log) != 0:
+                    return
 
     def _worker(self, device: str | None, queue: list[Job], env_steps: int) -> None:
         while True:
@@ -252,13 +313,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     out = Path(args.out or Path("runs") / "sweeps" / sweep.name)
-    jobs = plan(sweep, out)
+    jobs, refs = plan(sweep, out), references(sweep, out)
     if not args.report_only:
         devices = [d.strip() for d in args.devices.split(",")] if args.devices else local_gpus()
         deadline = None if args.time_limit is None else start + args.time_limit
         print(f"sweep {sweep.name}: {len(jobs)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
-        Runner(devices, deadline).run(jobs, sweep.env_steps)
-    report = sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only)
+        Runner(devices, deadline).run(jobs + refs, sweep.env_steps)
+    report = sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs)
     print(sweep_report.markdown(report))
     return 0
 

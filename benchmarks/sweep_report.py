@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from benchmarks import time_to_target
+from benchmarks import sweep_grid, time_to_target
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
 from train.logger import read_jsonl
@@ -218,10 +218,18 @@ def plot_arms(report: dict[str, Any], out: Path) -> Path:
     return path
 
 
-def write(sweep: Any, jobs: list, out: Path, gpus: list[str] | None = None, rewrite: bool = False) -> dict[str, Any]:
+def write(
+    sweep: Any,
+    jobs: list,
+    out: Path,
+    gpus: list[str] | None = None,
+    rewrite: bool = False,
+    references: list | None = None,
+) -> dict[str, Any]:
     """``sweep.json``, ``sweep.md``, ``sweep.png`` and one ``arm_<arm>.png`` per arm into ``out`` (``gpus``: the
     host's GPUs, recorded). ``rewrite``: a report written again from the runs keeps the host and date its
-    runs were recorded with (the ``sweep.json`` already there), not this machine's."""
+    runs were recorded with (the ``sweep.json`` already there), not this machine's. ``references``: the
+    grid evaluation's reference policies (``benchmarks.sweep.references``)."""
     out.mkdir(parents=True, exist_ok=True)
     before = read_json(out / "sweep.json") if rewrite else {}
     report = {
@@ -235,11 +243,15 @@ def write(sweep: Any, jobs: list, out: Path, gpus: list[str] | None = None, rewr
         "evaluate": sweep.evaluate,
         "target_success": sweep.target_success,
         **collect(sweep, jobs),
+        "grid": sweep_grid.collect(list(sweep.arms), jobs, references or []),
         "gpus": before.get("gpus") or gpus or [],
         "run_info": before.get("run_info") or {k: v for k, v in run_info().items() if k not in _JAX_KEYS},
     }
     (out / "sweep.json").write_text(json.dumps(report, indent=1))
-    (out / "sweep.md").write_text(markdown(report))
+    text = markdown(report)
+    if report["grid"]:
+        text += "\n".join(sweep_grid.markdown(report["grid"])) + "\n"
+    (out / "sweep.md").write_text(text)
     for arm in sweep.arms:
         plot_arm(arm, [j for j in jobs if j.arm == arm], out)
     plot_arms(report, out)

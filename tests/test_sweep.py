@@ -123,3 +123,71 @@ def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path
     (jobs[0].run_dir / "sweep_eval").rmdir()
     sweep.Runner([None], deadline=None).run(jobs[:1], spec.env_steps)
     assert (jobs[0].run_dir / "sweep_eval").is_dir()
+
+
+GRID = {"name": "stress", "episodes": 50, "reference": ["flat"]}
+
+
+@pytest.mark.parametrize(
+    "grid, error, match",
+    [
+        ({"name": "hardest"}, ValueError, "grids: "),
+        ({"name": "stress", "cells": 3}, ValueError, "evaluate.grid: unknown key"),
+        ({"name": "stress", "reference": ["no_such_policy"]}, FileNotFoundError, "no_such_policy"),
+    ],
+)
+def test_a_bad_grid_evaluation_is_refused_before_anything_runs(tmp_path, grid, error, match):
+    with pytest.raises(error, match=match):
+        sweep.load(_write(tmp_path, evaluate={"episodes": 8, "grid": grid}))
+
+
+def _fake_grid(path: Path, rates: list[float], episodes: int = 50) -> None:
+    """A robustness result as benchmarks.robustness writes it: per cell, its label and counts."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cells = [
+        {"label": f"cell {i}", "successes": round(r * episodes), "episodes": episodes, "success_rate": r}
+        for i, r in enumerate(rates)
+    ]
+    path.write_text(json.dumps({"cells": cells}))
+
+
+def test_the_grid_evaluation_exports_each_run_and_compares_the_pooled_arms_to_each_reference(tmp_path):
+    spec = sweep.load(_write(tmp_path, evaluate={"episodes": 8, "backend": "warp", "grid": GRID}))
+    out = tmp_path / "out"
+    jobs, refs = sweep.plan(spec, out), sweep.references(spec, out)
+    export, grid = jobs[0].grid
+    assert export[:2] == ["-m", "train.export"] and str(jobs[0].run_dir) in export
+    assert grid[grid.index("--episodes") + 1] == "50" and grid[grid.index("--seed") + 1] == "1000"
+    assert grid[2] == export[export.index("--out") + 1] and grid[grid.index("--backend") + 1] == "warp"
+    assert [(r.arm, r.train, r.evaluate) for r in refs] == [("reference flat", [], [])]
+    assert refs[0].grid[0][2] == "flat"
+    rates = {("a", 0): [1.0, 0.2], ("a", 1): [1.0, 0.3], ("b", 0): [0.6, 0.9], ("b", 1): [0.7, 0.9]}
+    for job in jobs:
+        _fake_run(job.run_dir, 0.9, v_loss=1.0)
+        _fake_grid(job.grid_result, rates[(job.arm, job.seed)])
+    _fake_grid(refs[0].grid_result, [1.0, 0.3])
+    report = sweep_report.write(spec, jobs, out, references=refs)["grid"]
+    a, b = report["arms"]["a"], report["arms"]["b"]
+    assert [c["successes"] for c in b["cells"]] == [65, 90] and b["cells"][1]["per_seed"] == [0.9, 0.9]
+    assert b["min_success_cell"] == "cell 0" and b["mean_success_rate"] == pytest.approx(0.775)
+    worse, better = b["versus"]["flat"]
+    assert worse["ci95"][1] < 0 < better["ci95"][0]  # b loses cell 0 and wins cell 1 against flat
+    assert a["versus"]["flat"][1]["ci95"][0] < 0 < a["versus"]["flat"][1]["ci95"][1]  # a: not separated
+    assert report["references"]["flat"]["cells_upper_bound_below_90"] == 1
+    assert "| cell 1 | 30% " in (out / "sweep.md").read_text()
+
+
+def test_a_reference_is_played_once_and_never_trained(tmp_path):
+    spec = sweep.load(_write(tmp_path, evaluate={"episodes": 8, "grid": GRID}))
+    ref = sweep.references(spec, tmp_path / "out")[0]
+    ref.grid = [
+        [
+            "-c",
+            f"import pathlib; p = pathlib.Path({str(ref.grid_result)!r}); "
+            "p.parent.mkdir(parents=True); p.write_text('{}')",
+        ]
+    ]
+    sweep.Runner([None], deadline=None).run([ref], spec.env_steps)
+    assert ref.grid_result.is_file() and not (ref.run_dir / "sweep_eval").exists()
+    ref.grid = [["-c", "raise SystemExit(1)"]]  # would fail if played again
+    sweep.Runner([None], deadline=None).run([ref], spec.env_steps)

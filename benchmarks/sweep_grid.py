@@ -1,0 +1,111 @@
+"""The grid part of a sweep's report (``evaluate.grid``): per cell of a ``benchmarks.robustness`` grid, each
+arm's seeds pooled with a 95 % Wilson interval, each reference policy's figure, and each arm's difference
+to each reference with Newcombe's interval.
+
+Every run and reference plays the same episodes (the same seed: the same starts and goals in every
+cell), but the report keeps only the counts, so the differences use the interval for independent
+proportions, which is wider than a paired one would be.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.robustness_report import TARGET
+from benchmarks.stats import difference_interval, wilson_interval
+
+
+def _cells(path: Path) -> list[dict] | None:
+    """The cells of a finished grid evaluation (None before one, or where it is unreadable)."""
+    try:
+        return json.loads(Path(path).read_text()).get("cells") or None
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _pool(results: list[list[dict]]) -> list[dict[str, Any]]:
+    """Cell by cell, the successes of several evaluations of the same grid added up."""
+    pooled = []
+    for rows in zip(*results):
+        successes, episodes = sum(r["successes"] for r in rows), sum(r["episodes"] for r in rows)
+        pooled.append(
+            {
+                "label": rows[0]["label"],
+                "successes": successes,
+                "episodes": episodes,
+                "success_rate": successes / episodes,
+                "ci95": list(wilson_interval(successes, episodes)),
+                "per_seed": [r["success_rate"] for r in rows],
+            }
+        )
+    return pooled
+
+
+def _summary(cells: list[dict]) -> dict[str, Any]:
+    worst = min(cells, key=lambda c: c["success_rate"])
+    return {
+        "mean_success_rate": float(np.mean([c["success_rate"] for c in cells])),
+        "min_success_rate": worst["success_rate"],
+        "min_success_cell": worst["label"],
+        "cells_upper_bound_below_90": sum(c["ci95"][1] < TARGET for c in cells),
+        "cell_count": len(cells),
+    }
+
+
+def _versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
+    """Per cell, the arm minus the reference with its 95 % interval."""
+    out = []
+    for a, r in zip(arm, reference):
+        d, low, high = difference_interval((a["successes"], r["successes"]), (a["episodes"], r["episodes"]))
+        out.append({"label": a["label"], "difference": d, "ci95": [low, high]})
+    return out
+
+
+def collect(arms: list[str], jobs: list, references: list) -> dict[str, Any] | None:
+    """The grid report: per arm (its evaluated seeds pooled) and per reference, with the differences."""
+    refs = {job.arm.removeprefix("reference "): _cells(job.grid_result) for job in references}
+    refs = {name: _pool([cells]) for name, cells in refs.items() if cells}
+    out: dict[str, Any] = {"references": {}, "arms": {}}
+    for name, cells in refs.items():
+        out["references"][name] = {"cells": cells, **_summary(cells)}
+    for arm in arms:
+        seeds = [(job.seed, _cells(job.grid_result)) for job in jobs if job.arm == arm]
+        done = [(seed, cells) for seed, cells in seeds if cells]
+        if not done:
+            continue
+        cells = _pool([c for _, c in done])
+        versus = {name: _versus(cells, ref) for name, ref in refs.items()}
+        out["arms"][arm] = {"seeds": [s for s, _ in done], "cells": cells, **_summary(cells), "versus": versus}
+    return out if out["arms"] or out["references"] else None
+
+
+def _rate(c: dict) -> str:
+    return f"{c['success_rate']:.0%} ({c['ci95'][0]:.0%}-{c['ci95'][1]:.0%})"
+
+
+def markdown(grid: dict[str, Any]) -> list[str]:
+    """The grid section of ``sweep.md``: a row per cell, a column per reference and per arm (pooled)."""
+    columns = [(f"`{n}`", r) for n, r in grid["references"].items()] + list(grid["arms"].items())
+    refs = list(grid["references"])
+    lines = ["", "## The grid, cell by cell (95 % intervals; arms pooled over their seeds)", ""]
+    head = [name for name, _ in columns] + [f"{a} - `{r}`, points" for a in grid["arms"] for r in refs]
+    lines += ["| cell | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
+    labels = [c["label"] for c in next(iter(columns))[1]["cells"]] if columns else []
+    for i, label in enumerate(labels):
+        row = [_rate(col["cells"][i]) for _, col in columns]
+        for arm in grid["arms"].values():
+            for r in refs:
+                v = arm["versus"][r][i]
+                row.append(f"{100 * v['difference']:+.0f} ({100 * v['ci95'][0]:+.0f} to {100 * v['ci95'][1]:+.0f})")
+        lines.append(f"| {label} | " + " | ".join(row) + " |")
+    mean = [f"{col['mean_success_rate']:.1%}" for _, col in columns]
+    low = [f"{col['min_success_rate']:.0%} ({col['min_success_cell']})" for _, col in columns]
+    below = [f"{col['cells_upper_bound_below_90']} of {col['cell_count']}" for _, col in columns]
+    pad = [""] * (len(head) - len(columns))
+    for name, values in (("mean", mean), ("lowest cell", low), ("cells below 90 %", below)):
+        lines.append(f"| **{name}** | " + " | ".join(values + pad) + " |")
+    return lines
