@@ -179,7 +179,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
-        "--where", action="append", default=[], metavar="FACTOR=VALUE", help="only the matching cells (repeatable)"
+        "--where",
+        action="append",
+        default=[],
+        metavar="FACTOR=VALUE",
+        help="only the matching cells (repeatable: every factor given, any of a factor's values)",
     )
     parser.add_argument("--qacc-rule", choices=("off", "on"), default="off", help="end episodes on qacc_limit too")
     parser.add_argument("--sim-to-sim", action="store_true", help="also play the cells on C MuJoCo's deployment loop")

@@ -202,15 +202,16 @@ def _parse(name: str, text: str) -> Any:
 
 
 def select(cells: list[dict[str, Any]], where: list[str]) -> list[dict[str, Any]]:
-    """The cells matching every ``FACTOR=VALUE`` (ValueError naming the factors, or the values there are)."""
+    """The cells matching every factor of ``FACTOR=VALUE`` items, any of the values where a factor is given
+    more than once (ValueError naming the factors, or the values there are)."""
+    wanted: dict[str, list[Any]] = {}
     for item in where:
         name, _, text = item.partition("=")
         if name not in FACTORS:
             raise ValueError(f"--where {item!r}: unknown factor {name!r}; factors: {', '.join(FACTORS)}")
         value = _parse(name, text)
-        matching = [c for c in cells if c[name] == value]
-        if not matching:
+        if not any(c[name] == value for c in cells):
             there = sorted({str(c[name]) for c in cells})
             raise ValueError(f"--where {item!r}: no cell has {name} = {text}; values here: {', '.join(there)}")
-        cells = matching
-    return cells
+        wanted.setdefault(name, []).append(value)
+    return [c for c in cells if all(c[name] in values for name, values in wanted.items())]

@@ -18,13 +18,30 @@ import numpy as np
 from benchmarks.robustness_report import TARGET
 from benchmarks.stats import difference_interval, wilson_interval
 
+PLAYED = ("grid", "physics_backend", "episodes_per_cell", "where")
+
+
+def _read(path: Path) -> dict:
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
 
 def _cells(path: Path) -> list[dict] | None:
     """The cells of a finished grid evaluation (None before one, or where it is unreadable)."""
-    try:
-        return json.loads(Path(path).read_text()).get("cells") or None
-    except (OSError, json.JSONDecodeError):
-        return None
+    return _read(path).get("cells") or None
+
+
+def _played(paths: list[Path]) -> list[dict[str, Any]]:
+    """How the grid evaluations were played (grid, backend, episodes a cell, cells chosen), each setting once."""
+    seen = []
+    for path in paths:
+        result = _read(path)
+        settings = {key: result.get(key) for key in PLAYED}
+        if result.get("cells") and settings not in seen:
+            seen.append(settings)
+    return seen
 
 
 def _pool(results: list[list[dict]]) -> list[dict[str, Any]]:
@@ -80,6 +97,7 @@ def collect(arms: list[str], jobs: list, references: list) -> dict[str, Any] | N
         cells = _pool([c for _, c in done])
         versus = {name: _versus(cells, ref) for name, ref in refs.items()}
         out["arms"][arm] = {"seeds": [s for s, _ in done], "cells": cells, **_summary(cells), "versus": versus}
+    out["played"] = _played([job.grid_result for job in [*references, *jobs]])
     return out if out["arms"] or out["references"] else None
 
 
@@ -92,6 +110,11 @@ def markdown(grid: dict[str, Any]) -> list[str]:
     columns = [(f"`{n}`", r) for n, r in grid["references"].items()] + list(grid["arms"].items())
     refs = list(grid["references"])
     lines = ["", "## The grid, cell by cell (95 % intervals; arms pooled over their seeds)", ""]
+    for p in grid.get("played", []):
+        where = f", cells where {' and '.join(p['where'])}" if p.get("where") else ""
+        episodes = p["episodes_per_cell"]
+        lines.append(f"Played on {p['physics_backend']}: the {p['grid']} grid, {episodes} episodes a cell{where}.")
+    lines.append("")
     head = [name for name, _ in columns] + [f"{a} - `{r}`, points" for a in grid["arms"] for r in refs]
     lines += ["| cell | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
     labels = [c["label"] for c in next(iter(columns))[1]["cells"]] if columns else []

@@ -96,6 +96,12 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
     stress = robustness_grids.grid("stress")
     assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 20
     assert [c["servo"] for c in robustness_grids.select(stress, ["servo=mx28"])] == ["mx28"]
+    # a factor given twice: either value; with the others pinned, the training model and the torque cell
+    pinned = [f"{name}=1" for name in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")]
+    pinned += ["latency_ms=0", "pushes=off", "noise=off", "servo=none"]
+    pinned += ["foot_friction=1/1/1/1", "foot_anisotropy=1/1/1/1"]
+    both = robustness_grids.select(stress, [*pinned, "servo_torque_limit=none", "servo_torque_limit=0.5"])
+    assert [robustness_grids.label(c) for c in both] == ["training model", "torque <= 0.5 N m"]
     slick = robustness_grids.cell(foot_friction=(0.3, 1, 1, 1))
     assert robustness_grids.select(stress, ["foot_friction=0.3/1/1/1"]) == [slick]
     with pytest.raises(ValueError, match="four numbers"):

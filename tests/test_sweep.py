@@ -148,7 +148,8 @@ def _fake_grid(path: Path, rates: list[float], episodes: int = 50) -> None:
         {"label": f"cell {i}", "successes": round(r * episodes), "episodes": episodes, "success_rate": r}
         for i, r in enumerate(rates)
     ]
-    path.write_text(json.dumps({"cells": cells}))
+    played = {"grid": "stress", "physics_backend": "warp", "episodes_per_cell": episodes, "where": []}
+    path.write_text(json.dumps({**played, "cells": cells}))
 
 
 def test_the_grid_evaluation_exports_each_run_and_compares_the_pooled_arms_to_each_reference(tmp_path):
@@ -174,7 +175,8 @@ def test_the_grid_evaluation_exports_each_run_and_compares_the_pooled_arms_to_ea
     assert worse["ci95"][1] < 0 < better["ci95"][0]  # b loses cell 0 and wins cell 1 against flat
     assert a["versus"]["flat"][1]["ci95"][0] < 0 < a["versus"]["flat"][1]["ci95"][1]  # a: not separated
     assert report["references"]["flat"]["cells_upper_bound_below_90"] == 1
-    assert "| cell 1 | 30% " in (out / "sweep.md").read_text()
+    text = (out / "sweep.md").read_text()
+    assert "| cell 1 | 30% " in text and "Played on warp: the stress grid, 50 episodes a cell." in text
 
 
 def test_a_reference_is_played_once_and_never_trained(tmp_path):
