@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -112,6 +114,22 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
         robustness_grids.select(nominal, ["friction=2"])
     assert robustness.main(["flat", "--where", "noise=maybe"]) == 2
     assert robustness.main(["flat", "--grid", "hard"]) == 2
+
+
+def test_every_documented_robustness_command_parses_and_selects_cells():
+    """The commands the docs give (``python -m benchmarks.robustness ...``) name a grid and ``--where`` cells
+    that exist: a broken example is caught here, not by a reader."""
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    commands = [
+        line.split("python -m benchmarks.robustness", 1)[1].split("#")[0].split("`")[0]
+        for page in sorted(docs.glob("*.md"))
+        for line in page.read_text().splitlines()
+        if "python -m benchmarks.robustness " in line
+    ]
+    assert len(commands) >= 3
+    for command in commands:
+        args = robustness.parse_args(shlex.split(command))
+        assert robustness_grids.select(robustness_grids.grid(args.grid), args.where), command
 
 
 def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path):
