@@ -229,6 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         "policy": str(directory),
         "grid": args.grid,
         "episodes_per_cell": args.episodes,
+        "seed": args.seed,
         "max_steps": args.steps,
         "physics_backend": backend,
         "qacc_rule": args.qacc_rule,

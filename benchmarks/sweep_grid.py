@@ -18,7 +18,7 @@ import numpy as np
 from benchmarks.robustness_report import TARGET
 from benchmarks.stats import difference_interval, wilson_interval
 
-PLAYED = ("grid", "physics_backend", "episodes_per_cell", "where")
+PLAYED = ("grid", "physics_backend", "episodes_per_cell", "seed", "where")
 
 
 def _read(path: Path) -> dict:
@@ -113,7 +113,9 @@ def markdown(grid: dict[str, Any]) -> list[str]:
     for p in grid.get("played", []):
         where = f", cells where {' and '.join(p['where'])}" if p.get("where") else ""
         episodes = p["episodes_per_cell"]
-        lines.append(f"Played on {p['physics_backend']}: the {p['grid']} grid, {episodes} episodes a cell{where}.")
+        seed = f", episode seed {p['seed']}" if p.get("seed") is not None else ""
+        grid_name, backend = p["grid"], p["physics_backend"]
+        lines.append(f"Played on {backend}: the {grid_name} grid, {episodes} episodes a cell{seed}{where}.")
     lines.append("")
     head = [name for name, _ in columns] + [f"{a} - `{r}`, points" for a in grid["arms"] for r in refs]
     lines += ["| cell | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
