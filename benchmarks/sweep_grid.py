@@ -21,7 +21,8 @@ from benchmarks.stats import difference_interval, wilson_interval
 PLAYED = ("grid", "physics_backend", "episodes_per_cell", "seed", "where")
 
 
-def _read(path: Path) -> dict:
+def read_json(path: Path) -> dict:
+    """A JSON file's object, or {} where it is missing or unreadable (a run that did not get that far)."""
     try:
         return json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError):
@@ -30,14 +31,14 @@ def _read(path: Path) -> dict:
 
 def _cells(path: Path) -> list[dict] | None:
     """The cells of a finished grid evaluation (None before one, or where it is unreadable)."""
-    return _read(path).get("cells") or None
+    return read_json(path).get("cells") or None
 
 
 def _played(paths: list[Path]) -> list[dict[str, Any]]:
     """How the grid evaluations were played (grid, backend, episodes a cell, cells chosen), each setting once."""
     seen = []
     for path in paths:
-        result = _read(path)
+        result = read_json(path)
         settings = {key: result.get(key) for key in PLAYED}
         if result.get("cells") and settings not in seen:
             seen.append(settings)
@@ -84,7 +85,7 @@ def _versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
 
 def collect(arms: list[str], jobs: list, references: list) -> dict[str, Any] | None:
     """The grid report: per arm (its evaluated seeds pooled) and per reference, with the differences."""
-    refs = {job.arm.removeprefix("reference "): _cells(job.grid_result) for job in references}
+    refs = {job.run_dir.name: _cells(job.grid_result) for job in references}
     refs = {name: _pool([cells]) for name, cells in refs.items() if cells}
     out: dict[str, Any] = {"references": {}, "arms": {}}
     for name, cells in refs.items():

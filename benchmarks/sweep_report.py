@@ -21,17 +21,10 @@ from matplotlib.figure import Figure
 from benchmarks import sweep_grid, time_to_target
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
+from benchmarks.sweep_grid import read_json
 from train.logger import read_jsonl
 
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
-
-
-def read_json(path: Path) -> dict:
-    """A JSON file's object, or {} where it is missing or unreadable (a run that did not get that far)."""
-    try:
-        return json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError):
-        return {}
 
 
 def evaluation(run_dir: Path) -> dict[str, Any] | None:
