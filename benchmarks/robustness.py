@@ -47,7 +47,7 @@ from train.policy_sources import default_goal_range, load_shipped_policy
 from train.rollout import episode_success, rollout, summarize
 
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
-RESOLVING_EPISODES = 32  # a cell of 32 successes has its lower bound at 89 %: fewer cannot show 90 %
+RESOLVING_EPISODES = report.RESOLVING_EPISODES
 
 
 def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, ...]:
@@ -185,6 +185,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         metavar="FACTOR=VALUE",
         help="only the matching cells (repeatable: every factor given, any of a factor's values)",
     )
+    parser.add_argument(
+        "--part",
+        default=None,
+        metavar="K/N",
+        help="every N-th chosen cell from the K-th: a long grid in parts (joined by benchmarks.robustness_merge)",
+    )
     parser.add_argument("--qacc-rule", choices=("off", "on"), default="off", help="end episodes on qacc_limit too")
     parser.add_argument("--sim-to-sim", action="store_true", help="also play the cells on C MuJoCo's deployment loop")
     parser.add_argument("--workers", type=int, default=None, help="--sim-to-sim processes (default: all CPUs)")
@@ -203,7 +209,20 @@ def resolve(args: argparse.Namespace) -> tuple[Path, str, list[dict]]:
         raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    return directory, backend, grids.select(grids.grid(args.grid), args.where)
+    return directory, backend, part(grids.select(grids.grid(args.grid), args.where), args.part)
+
+
+def part(cells: list[dict], spec: str | None) -> list[dict]:
+    """Share ``K/N`` of ``cells`` (every N-th from the K-th, so the shares are alike; all for None)."""
+    if spec is None:
+        return cells
+    k, _, n = spec.partition("/")
+    if not (k.isdigit() and n.isdigit() and 1 <= int(k) <= int(n)):
+        raise ValueError(f"--part takes K/N with 1 <= K <= N, got {spec!r}")
+    chosen = cells[int(k) - 1 :: int(n)]
+    if not chosen:
+        raise ValueError(f"--part {spec}: no cell left of the {len(cells)} chosen")
+    return chosen
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -234,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         "physics_backend": backend,
         "qacc_rule": args.qacc_rule,
         "where": args.where,
+        "part": args.part,
         "noise_on": grids.NOISE,
         "pushes_on": {"interval_s": list(grids.PUSH_INTERVAL_S), "speed_m_per_s": grids.PUSH_SPEED},
         **report.summary(rows, RESOLVING_EPISODES),

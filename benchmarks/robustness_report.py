@@ -11,6 +11,7 @@ import numpy as np
 from hsa_mjx.deploy.perturbation import per_foot
 
 TARGET = 0.9  # a cell "below 90 %" when its whole interval is
+RESOLVING_EPISODES = 32  # a cell of 32 successes has its lower bound at 89 %: fewer cannot show 90 %
 
 
 def summary(rows: list[dict], resolving_episodes: int) -> dict[str, Any]:

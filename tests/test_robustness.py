@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from benchmarks import robustness, robustness_grids, stats
+from benchmarks import robustness, robustness_grids, robustness_merge, stats
 
 
 def test_wilson_interval_matches_known_values_and_stays_in_range():
@@ -156,6 +156,35 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
         assert sum(r["pairs"].values()) == 1 and r["gap_ci95"][0] <= r["gap"] <= r["gap_ci95"][1]
         assert r["gap"] == (r["pairs"]["c_only"] - r["pairs"]["mjx_only"])
     assert "## Sim-to-sim" in (tmp_path / "robustness_smoke.md").read_text()
+    check_parts_join_into_the_whole(result, tmp_path)
+
+
+def check_parts_join_into_the_whole(result: dict, tmp_path) -> None:
+    """Parts (``--part K/N``) cover the grid once; ``benchmarks.robustness_merge`` joins them into the whole."""
+    cells = robustness_grids.grid("stress")
+    shares = [robustness.part(cells, f"{k}/3") for k in (1, 2, 3)]
+    assert sorted(len(s) for s in shares) == [8, 8, 9] and sum(shares, []) != cells
+    assert sorted(map(robustness_grids.label, sum(shares, []))) == sorted(map(robustness_grids.label, cells))
+    for spec in ("0/2", "3/2", "a/b", "2"):
+        with pytest.raises(ValueError, match="--part"):
+            robustness.part(cells, spec)
+    labels = [[robustness_grids.label(c) for c in share] for share in shares]
+    for k, share in enumerate(labels):  # the parts as three runs would have written them
+        part = {**result, "part": f"{k + 1}/3", "cells": [r for r in result["cells"] if r["label"] in share]}
+        part["sim_to_sim"] = [r for r in result["sim_to_sim"] if r["label"] in share]
+        (tmp_path / f"part{k}.json").write_text(json.dumps(part))
+    files = [str(tmp_path / f"part{k}.json") for k in (2, 0, 1)]
+    assert robustness_merge.main([*files, "--tag", "joined"]) == 0
+    joined = json.loads((tmp_path / "robustness_joined.json").read_text())
+    assert joined["cells"] == result["cells"] and joined["sim_to_sim"] == result["sim_to_sim"]
+    assert all(joined[k] == result[k] for k in ("mean_success_rate", "min_success_cell", "cell_count", "note"))
+    assert [p["part"] for p in joined["parts"]] == ["3/3", "1/3", "2/3"]
+    assert robustness_merge.main([files[0], files[0], "--tag", "twice"]) == 2  # a cell played twice
+    other = {**json.loads(Path(files[1]).read_text()), "seed": 2}
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    with pytest.raises(ValueError, match="differs from part 1 in seed"):
+        robustness_merge.merge([json.loads(Path(files[0]).read_text()), other])
+    assert robustness_merge.main([str(tmp_path / "missing.json"), "--tag", "x"]) == 2
 
 
 def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():

@@ -1,0 +1,109 @@
+"""Join the parts of one robustness grid: ``python -m benchmarks.robustness_merge PART.json ... --tag TAG``.
+
+A long grid (many episodes a cell, ``--sim-to-sim``) can be played in parts, one call or machine
+each: ``python -m benchmarks.robustness POLICY ... --part 1/2``, then ``--part 2/2`` (or disjoint
+``--where`` selections). The parts must agree on everything but their cells (policy, grid, episodes,
+seed, steps, backend, rules, noise and pushes); their cells are joined in the grid's order and the
+summary is computed over all of them. The joined result keeps the first part's provenance and each
+part's command, date, device and commit under ``parts``; it is written as ``benchmarks.robustness``
+writes one (``robustness_<tag>.{json,md,png}``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchmarks import robustness_grids as grids
+from benchmarks import robustness_report as report
+
+# what every part of one grid shares
+SAME = (
+    "policy",
+    "grid",
+    "episodes_per_cell",
+    "seed",
+    "max_steps",
+    "physics_backend",
+    "qacc_rule",
+    "noise_on",
+    "pushes_on",
+)
+PROVENANCE = ("command", "date", "host", "device", "git_commit", "git_dirty", "where", "part")
+
+
+def read_part(path: Path) -> dict[str, Any]:
+    """One part's result (FileNotFoundError or ValueError naming the file and what is missing)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"no robustness result at {path}")
+    try:
+        result = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not JSON: {err}") from err
+    missing = [k for k in (*SAME, "cells", "sim_to_sim") if k not in result]
+    if missing:
+        raise ValueError(f"{path} is not a benchmarks.robustness result: no {', '.join(missing)}")
+    return result
+
+
+def merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The parts joined into one result (ValueError where they differ or share a cell)."""
+    if not parts:
+        raise ValueError("no parts to join")
+    first = parts[0]
+    for i, result in enumerate(parts[1:], 2):
+        differ = [k for k in SAME if result[k] != first[k]]
+        if differ:
+            raise ValueError(f"part {i} differs from part 1 in {', '.join(differ)}: not parts of one grid")
+    order = [grids.label(c) for c in grids.grid(first["grid"])]
+    cells = [r for result in parts for r in result["cells"]]
+    labels = [r["label"] for r in cells]
+    repeated = sorted({name for name in labels if labels.count(name) > 1})
+    if repeated:
+        raise ValueError(f"cells played in more than one part: {', '.join(repeated)}")
+    rank = {name: i for i, name in enumerate(order)}
+    unknown = [name for name in labels if name not in rank]
+    if unknown:
+        raise ValueError(f"cells not in the {first['grid']} grid: {', '.join(unknown)}")
+    cells.sort(key=lambda r: rank[r["label"]])
+    sims = sorted((r for result in parts for r in result["sim_to_sim"]), key=lambda r: rank[r["label"]])
+    summary = report.summary(cells, report.RESOLVING_EPISODES)
+    kept = {k: v for k, v in first.items() if k not in (*summary, "note", "cells", "sim_to_sim", "parts")}
+    return {
+        **kept,
+        "where": [],
+        "part": None,
+        "parts": [{k: result.get(k) for k in PROVENANCE} for result in parts],
+        **summary,
+        "cells": cells,
+        "sim_to_sim": sims,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m benchmarks.robustness_merge``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.robustness_merge",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("parts", nargs="+", metavar="PART.json", help="the parts' robustness_<tag>.json files")
+    parser.add_argument("--tag", required=True, help="the joined files' tag: robustness_<tag>.{json,md,png}")
+    parser.add_argument("--out-dir", default=None, help="where to write (default: the first part's folder)")
+    args = parser.parse_args(argv)
+    try:
+        joined = merge([read_part(Path(p)) for p in args.parts])
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    out = Path(args.out_dir) if args.out_dir else Path(args.parts[0]).parent
+    for line in report.write(joined, out, args.tag):
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
