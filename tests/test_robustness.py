@@ -11,7 +11,8 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from benchmarks import robustness, robustness_grids, robustness_merge, stats
+from benchmarks import robustness, robustness_grids, robustness_merge, sim_to_sim, stats
+from hsa_mjx.deploy import policy_file
 
 
 def test_wilson_interval_matches_known_values_and_stays_in_range():
@@ -303,3 +304,13 @@ def test_the_randomised_config_trains_over_the_stress_grid_it_is_scored_on():
     assert env.randomization.push_speed == robustness_grids.PUSH_SPEED
     assert tuple(env.randomization.push_interval_s) == robustness_grids.PUSH_INTERVAL_S
     assert dataclasses.asdict(env.observation.noise) == robustness_grids.NOISE
+
+
+def test_sim_to_sim_plays_a_servo_class_under_a_policy_trained_with_randomised_spring_servos():
+    """flat_dr trained over spring-servo gains and torque limits, which a servo class refuses: the
+    deployment loop plays the class's cell on the cell's model alone, as the MJX rollout does."""
+    directory = str(policy_file.locate("flat_dr"))
+    for name in ("mx28", "dfr05sr"):
+        reached = sim_to_sim.play_episode(directory, robustness_grids.cell(servo=name), [1.5, 0.0], 5, 0)
+        assert reached is False  # 5 steps: not at a goal 1.5 m away, but played
+        assert sim_to_sim._loaded(directory, name)[1].servo.preset == name
