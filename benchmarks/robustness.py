@@ -45,6 +45,7 @@ from hsa_mjx.task.randomization import PhysicsScales
 from train.config import from_dict
 from train.policy_sources import default_goal_range, load_shipped_policy
 from train.rollout import episode_success, rollout, summarize
+from train.run_dir import portable
 
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
 RESOLVING_EPISODES = report.RESOLVING_EPISODES
@@ -245,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     tag = args.tag or f"{directory.resolve().name}_{args.grid}"
     result = {
         **run_info(),
-        "policy": str(directory),
+        "policy": portable(directory),  # no machine's absolute path
         "grid": args.grid,
         "episodes_per_cell": args.episodes,
         "seed": args.seed,

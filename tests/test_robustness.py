@@ -140,6 +140,7 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     rows = result["cells"]
     assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
     assert result["seed"] == 1  # the episodes' starts and goals, as given (the default)
+    assert not Path(result["policy"]).is_absolute() and Path(result["policy"]).name == "flat"
     assert len(rows) == 25 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
     assert [r["label"] for r in rows] == [robustness_grids.label(c) for c in robustness_grids.grid("stress")]
     assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
