@@ -35,15 +35,16 @@ SAME = (
 PROVENANCE = ("command", "date", "host", "device", "git_commit", "git_dirty", "where", "part")
 
 
-def read_part(path: Path) -> dict[str, Any]:
-    """One part's result (FileNotFoundError or ValueError naming the file and what is missing)."""
+def read_part(path: Path, keys: tuple[str, ...] = SAME) -> dict[str, Any]:
+    """One result with ``keys``, its cells and sim-to-sim rows (FileNotFoundError or ValueError naming
+    the file and what is missing)."""
     if not path.is_file():
         raise FileNotFoundError(f"no robustness result at {path}")
     try:
         result = json.loads(path.read_text())
     except json.JSONDecodeError as err:
         raise ValueError(f"{path} is not JSON: {err}") from err
-    missing = [k for k in (*SAME, "cells", "sim_to_sim") if k not in result]
+    missing = [k for k in (*keys, "cells", "sim_to_sim") if k not in result]
     if missing:
         raise ValueError(f"{path} is not a benchmarks.robustness result: no {', '.join(missing)}")
     return result

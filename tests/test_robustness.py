@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from benchmarks import robustness, robustness_grids, robustness_merge, sim_to_sim, stats
+from benchmarks import robustness, robustness_compare, robustness_grids, robustness_merge, sim_to_sim, stats
 from hsa_mjx.deploy import policy_file
 
 
@@ -315,3 +315,28 @@ def test_sim_to_sim_plays_a_servo_class_under_a_policy_trained_with_randomised_s
         reached = sim_to_sim.play_episode(directory, robustness_grids.cell(servo=name), [1.5, 0.0], 5, 0)
         assert reached is False  # 5 steps: not at a goal 1.5 m away, but played
         assert sim_to_sim._loaded(directory, name)[1].servo.preset == name
+
+
+def _scored(label: str, successes: int, episodes: int) -> dict:
+    return {"label": label, **robustness.score(successes, episodes)}
+
+
+def test_compare_matches_cells_by_label_and_calls_a_difference_only_outside_its_interval(tmp_path):
+    head = {"physics_backend": "warp", "cells": [], "sim_to_sim": []}
+    a = {**head, "policy": "policies/flat_dr", "episodes_per_cell": 256}
+    b = {**head, "policy": "policies/flat", "episodes_per_cell": 32}
+    a["cells"] = [_scored("training model", 250, 256), _scored("torque <= 0.5 N m", 80, 256), _scored("noise", 1, 256)]
+    b["cells"] = [_scored("torque <= 0.5 N m", 10, 32), _scored("training model", 20, 32)]
+    rows = robustness_compare.compare(a, b)
+    assert [r["label"] for r in rows] == ["training model", "torque <= 0.5 N m"]  # A's order; "noise" unshared
+    assert [r["verdict"] for r in rows] == ["A better", "not separated"]
+    assert rows[1]["ci95"][0] < rows[1]["difference"] < rows[1]["ci95"][1]
+    with pytest.raises(ValueError, match="share no cell"):
+        robustness_compare.compare(a, {**b, "cells": [_scored("pushes", 1, 2)]})
+    files = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path, result in zip(files, (a, b)):
+        path.write_text(json.dumps(result))
+    out = tmp_path / "versus.md"
+    assert robustness_compare.main([*map(str, files), "--out", str(out)]) == 0
+    assert "| training model | 98% (95%-99%, 256) | 62% (45%-77%, 32) |" in out.read_text()
+    assert robustness_compare.main([str(files[0]), str(tmp_path / "none.json")]) == 2

@@ -1,0 +1,90 @@
+"""Two policies' robustness results, cell by cell: ``python -m benchmarks.robustness_compare A.json B.json``.
+
+For every cell both results played (matched by the cell's label), each policy's success with its
+95 % Wilson interval and A minus B with Newcombe's interval (the two results' episodes are
+independent draws: different policies, and possibly other seeds or episode counts). A difference is
+called only where its interval excludes zero. Prints a markdown table, with ``--out FILE`` also
+writes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchmarks.robustness_merge import read_part
+from benchmarks.stats import difference_interval
+
+NEEDED = ("policy", "physics_backend", "episodes_per_cell")  # what the table's heading names
+
+
+def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
+    """A row per cell of ``a`` that ``b`` also played: both scores and A - B with its 95 % interval."""
+    theirs = {c["label"]: c for c in b["cells"]}
+    rows = []
+    for mine in a["cells"]:
+        other = theirs.get(mine["label"])
+        if other is None:
+            continue
+        d, low, high = difference_interval(
+            (mine["successes"], other["successes"]), (mine["episodes"], other["episodes"])
+        )
+        verdict = "A better" if low > 0 else "B better" if high < 0 else "not separated"
+        rows.append(
+            {"label": mine["label"], "a": mine, "b": other, "difference": d, "ci95": [low, high], "verdict": verdict}
+        )
+    if not rows:
+        raise ValueError("the two results share no cell: nothing to compare")
+    return rows
+
+
+def _rate(c: dict) -> str:
+    return f"{c['success_rate']:.0%} ({c['ci95'][0]:.0%}-{c['ci95'][1]:.0%}, {c['episodes']})"
+
+
+def markdown(rows: list[dict[str, Any]], a: dict[str, Any], b: dict[str, Any]) -> str:
+    """The comparison as a markdown table, headed by what each side played."""
+
+    def played(r: dict) -> str:
+        return f"`{Path(r['policy']).name}` ({r['physics_backend']}, {r['episodes_per_cell']} episodes a cell)"
+
+    lines = [
+        f"A: {played(a)}; B: {played(b)}; {len(rows)} shared cells.",
+        "",
+        "| cell | A (95 %, episodes) | B (95 %, episodes) | A - B, points (95 %) | |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        low, high = (100 * v for v in r["ci95"])
+        diff = f"{100 * r['difference']:+.0f} ({low:+.0f} to {high:+.0f})"
+        lines.append(f"| {r['label']} | {_rate(r['a'])} | {_rate(r['b'])} | {diff} | {r['verdict']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m benchmarks.robustness_compare``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.robustness_compare",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("a", metavar="A.json", help="a benchmarks.robustness result")
+    parser.add_argument("b", metavar="B.json", help="another, compared against")
+    parser.add_argument("--out", default=None, help="also write the table to this markdown file")
+    args = parser.parse_args(argv)
+    try:
+        a, b = (read_part(Path(p), NEEDED) for p in (args.a, args.b))
+        text = markdown(compare(a, b), a, b)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    print(text, end="")
+    if args.out:
+        Path(args.out).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
