@@ -15,7 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.robustness_merge import read_part
-from benchmarks.stats import difference_interval
+from benchmarks.robustness_report import rate
+from benchmarks.sweep_grid import versus
 
 NEEDED = ("policy", "physics_backend", "episodes_per_cell")  # what the table's heading names
 
@@ -23,25 +24,15 @@ NEEDED = ("policy", "physics_backend", "episodes_per_cell")  # what the table's 
 def compare(a: dict[str, Any], b: dict[str, Any]) -> list[dict[str, Any]]:
     """A row per cell of ``a`` that ``b`` also played: both scores and A - B with its 95 % interval."""
     theirs = {c["label"]: c for c in b["cells"]}
-    rows = []
-    for mine in a["cells"]:
-        other = theirs.get(mine["label"])
-        if other is None:
-            continue
-        d, low, high = difference_interval(
-            (mine["successes"], other["successes"]), (mine["episodes"], other["episodes"])
-        )
-        verdict = "A better" if low > 0 else "B better" if high < 0 else "not separated"
-        rows.append(
-            {"label": mine["label"], "a": mine, "b": other, "difference": d, "ci95": [low, high], "verdict": verdict}
-        )
-    if not rows:
+    pairs = [(mine, theirs[mine["label"]]) for mine in a["cells"] if mine["label"] in theirs]
+    if not pairs:
         raise ValueError("the two results share no cell: nothing to compare")
+    rows = []
+    for (mine, other), d in zip(pairs, versus([m for m, _ in pairs], [o for _, o in pairs])):
+        low, high = d["ci95"]
+        verdict = "A better" if low > 0 else "B better" if high < 0 else "not separated"
+        rows.append({**d, "a": mine, "b": other, "verdict": verdict})
     return rows
-
-
-def _rate(c: dict) -> str:
-    return f"{c['success_rate']:.0%} ({c['ci95'][0]:.0%}-{c['ci95'][1]:.0%}, {c['episodes']})"
 
 
 def markdown(rows: list[dict[str, Any]], a: dict[str, Any], b: dict[str, Any]) -> str:
@@ -59,7 +50,8 @@ def markdown(rows: list[dict[str, Any]], a: dict[str, Any], b: dict[str, Any]) -
     for r in rows:
         low, high = (100 * v for v in r["ci95"])
         diff = f"{100 * r['difference']:+.0f} ({low:+.0f} to {high:+.0f})"
-        lines.append(f"| {r['label']} | {_rate(r['a'])} | {_rate(r['b'])} | {diff} | {r['verdict']} |")
+        scores = " | ".join(rate(r[side], episodes=True) for side in ("a", "b"))
+        lines.append(f"| {r['label']} | {scores} | {diff} | {r['verdict']} |")
     return "\n".join(lines) + "\n"
 
 

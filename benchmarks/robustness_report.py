@@ -54,9 +54,11 @@ def _factors(r: dict) -> str:
     return f"{scales} | {limit} | {_feet(r)} | {r.get('servo') or '-'} | {r['latency_ms']:g} | {flags}"
 
 
-def _rate(r: dict) -> str:
+def rate(r: dict, episodes: bool = False) -> str:
+    """A cell's success with its 95 % interval, e.g. "98% (95%-99%)" (and its episodes after the interval)."""
     low, high = r["ci95"]
-    return f"{r['success_rate']:.0%} ({low:.0%}-{high:.0%})"
+    count = f", {r['episodes']}" if episodes else ""
+    return f"{r['success_rate']:.0%} ({low:.0%}-{high:.0%}{count})"
 
 
 def table(rows: list[dict]) -> str:
@@ -68,7 +70,7 @@ def table(rows: list[dict]) -> str:
     lines = [head, "|" + "---|" * 14]
     for r in rows:
         ended = ", ".join(f"{k} {v:.0%}" for k, v in r["failures"].items()) or "-"
-        lines.append(f"| {_factors(r)} | {_rate(r)} | {r['mean_progress_m']:.2f} | {ended} |")
+        lines.append(f"| {_factors(r)} | {rate(r)} | {r['mean_progress_m']:.2f} | {ended} |")
     return "\n".join(lines)
 
 
@@ -82,7 +84,7 @@ def sim_table(rows: list[dict]) -> str:
         mjx = {"success_rate": r["mjx_success_rate"], "ci95": r["mjx_ci95"]}
         low, high = r.get("gap_ci95", (r["gap"], r["gap"]))
         gap = f"{100 * r['gap']:+.0f} ({100 * low:+.0f} to {100 * high:+.0f})"
-        lines.append(f"| {r['label']} | {_rate(mjx)} | {_rate(r)} | {gap} |")
+        lines.append(f"| {r['label']} | {rate(mjx)} | {rate(r)} | {gap} |")
     return "\n".join(lines)
 
 

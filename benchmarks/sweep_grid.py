@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.robustness_report import TARGET
+from benchmarks.robustness_report import TARGET, rate
 from benchmarks.stats import difference_interval, wilson_interval
 
 PLAYED = ("grid", "physics_backend", "episodes_per_cell", "seed", "where")
@@ -74,7 +74,7 @@ def _summary(cells: list[dict]) -> dict[str, Any]:
     }
 
 
-def _versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
+def versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
     """Per cell, the arm minus the reference with its 95 % interval."""
     out = []
     for a, r in zip(arm, reference):
@@ -96,14 +96,10 @@ def collect(arms: list[str], jobs: list, references: list) -> dict[str, Any] | N
         if not done:
             continue
         cells = _pool([c for _, c in done])
-        versus = {name: _versus(cells, ref) for name, ref in refs.items()}
-        out["arms"][arm] = {"seeds": [s for s, _ in done], "cells": cells, **_summary(cells), "versus": versus}
+        differences = {name: versus(cells, ref) for name, ref in refs.items()}
+        out["arms"][arm] = {"seeds": [s for s, _ in done], "cells": cells, **_summary(cells), "versus": differences}
     out["played"] = _played([job.grid_result for job in [*references, *jobs]])
     return out if out["arms"] or out["references"] else None
-
-
-def _rate(c: dict) -> str:
-    return f"{c['success_rate']:.0%} ({c['ci95'][0]:.0%}-{c['ci95'][1]:.0%})"
 
 
 def markdown(grid: dict[str, Any]) -> list[str]:
@@ -122,7 +118,7 @@ def markdown(grid: dict[str, Any]) -> list[str]:
     lines += ["| cell | " + " | ".join(head) + " |", "|---|" + "---|" * len(head)]
     labels = [c["label"] for c in next(iter(columns))[1]["cells"]] if columns else []
     for i, label in enumerate(labels):
-        row = [_rate(col["cells"][i]) for _, col in columns]
+        row = [rate(col["cells"][i]) for _, col in columns]
         for arm in grid["arms"].values():
             for r in refs:
                 v = arm["versus"][r][i]
