@@ -210,20 +210,7 @@ def resolve(args: argparse.Namespace) -> tuple[Path, str, list[dict]]:
         raise ValueError(f"--episodes and --steps must be >= 1, got {args.episodes} and {args.steps}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    return directory, backend, part(grids.select(grids.grid(args.grid), args.where), args.part)
-
-
-def part(cells: list[dict], spec: str | None) -> list[dict]:
-    """Share ``K/N`` of ``cells`` (every N-th from the K-th, so the shares are alike; all for None)."""
-    if spec is None:
-        return cells
-    k, _, n = spec.partition("/")
-    if not (k.isdigit() and n.isdigit() and 1 <= int(k) <= int(n)):
-        raise ValueError(f"--part takes K/N with 1 <= K <= N, got {spec!r}")
-    chosen = cells[int(k) - 1 :: int(n)]
-    if not chosen:
-        raise ValueError(f"--part {spec}: no cell left of the {len(cells)} chosen")
-    return chosen
+    return directory, backend, grids.part(grids.select(grids.grid(args.grid), args.where), args.part)
 
 
 def main(argv: list[str] | None = None) -> int:

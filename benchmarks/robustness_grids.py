@@ -215,3 +215,16 @@ def select(cells: list[dict[str, Any]], where: list[str]) -> list[dict[str, Any]
             raise ValueError(f"--where {item!r}: no cell has {name} = {text}; values here: {', '.join(there)}")
         wanted.setdefault(name, []).append(value)
     return [c for c in cells if all(c[name] in values for name, values in wanted.items())]
+
+
+def part(cells: list[dict[str, Any]], spec: str | None) -> list[dict[str, Any]]:
+    """Share ``K/N`` of ``cells`` (every N-th from the K-th, so the shares are alike; all for None)."""
+    if spec is None:
+        return cells
+    k, _, n = spec.partition("/")
+    if not (k.isdigit() and n.isdigit() and 1 <= int(k) <= int(n)):
+        raise ValueError(f"--part takes K/N with 1 <= K <= N, got {spec!r}")
+    chosen = cells[int(k) - 1 :: int(n)]
+    if not chosen:
+        raise ValueError(f"--part {spec}: no cell left of the {len(cells)} chosen")
+    return chosen

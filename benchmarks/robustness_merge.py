@@ -7,6 +7,11 @@ seed, steps, backend, rules, noise and pushes); their cells are joined in the gr
 summary is computed over all of them. The joined result keeps the first part's provenance and each
 part's command, date, device and commit under ``parts``; it is written as ``benchmarks.robustness``
 writes one (``robustness_<tag>.{json,md,png}``).
+
+A joined result can be a part again: it is split back into its parts (each part's cells are the ones
+its ``--where`` and ``--part`` choose). With ``--replace`` a later part's cells replace the same cells
+of earlier parts (a part played again, e.g. with ``--sim-to-sim``); an earlier part left without a
+cell drops out, its provenance with it.
 """
 
 from __future__ import annotations
@@ -48,6 +53,41 @@ def read_part(path: Path, keys: tuple[str, ...] = SAME) -> dict[str, Any]:
     if missing:
         raise ValueError(f"{path} is not a benchmarks.robustness result: no {', '.join(missing)}")
     return result
+
+
+def split(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """A joined result as its parts (each with its provenance and the cells its selection chose); a
+    result that was not joined, as itself."""
+    if not result.get("parts"):
+        return [result]
+    shared = {k: v for k, v in result.items() if k not in ("parts", "cells", "sim_to_sim")}
+    cells = grids.grid(result["grid"])
+    out = []
+    for provenance in result["parts"]:
+        chosen = {grids.label(c) for c in grids.part(grids.select(cells, provenance["where"]), provenance["part"])}
+        out.append(
+            {
+                **shared,
+                **provenance,
+                "cells": [r for r in result["cells"] if r["label"] in chosen],
+                "sim_to_sim": [r for r in result["sim_to_sim"] if r["label"] in chosen],
+            }
+        )
+    return out
+
+
+def replaced(parts: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The parts with each cell kept from the last part that played it; parts left without a cell dropped."""
+    later: set[str] = set()
+    kept = []
+    for result in reversed(parts):
+        mine = {r["label"] for r in result["cells"]}
+        cells = [r for r in result["cells"] if r["label"] not in later]
+        sims = [r for r in result["sim_to_sim"] if r["label"] not in later]
+        later |= mine
+        if cells:
+            kept.append({**result, "cells": cells, "sim_to_sim": sims})
+    return kept[::-1]
 
 
 def merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
@@ -94,9 +134,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("parts", nargs="+", metavar="PART.json", help="the parts' robustness_<tag>.json files")
     parser.add_argument("--tag", required=True, help="the joined files' tag: robustness_<tag>.{json,md,png}")
     parser.add_argument("--out-dir", default=None, help="where to write (default: the first part's folder)")
+    parser.add_argument(
+        "--replace", action="store_true", help="a later part's cells replace the same cells of earlier parts"
+    )
     args = parser.parse_args(argv)
     try:
-        joined = merge([read_part(Path(p)) for p in args.parts])
+        parts = [split_part for p in args.parts for split_part in split(read_part(Path(p)))]
+        joined = merge(replaced(parts) if args.replace else parts)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -164,12 +164,12 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
 def check_parts_join_into_the_whole(result: dict, tmp_path) -> None:
     """Parts (``--part K/N``) cover the grid once; ``benchmarks.robustness_merge`` joins them into the whole."""
     cells = robustness_grids.grid("stress")
-    shares = [robustness.part(cells, f"{k}/3") for k in (1, 2, 3)]
+    shares = [robustness_grids.part(cells, f"{k}/3") for k in (1, 2, 3)]
     assert sorted(len(s) for s in shares) == [8, 8, 9] and sum(shares, []) != cells
     assert sorted(map(robustness_grids.label, sum(shares, []))) == sorted(map(robustness_grids.label, cells))
     for spec in ("0/2", "3/2", "a/b", "2"):
         with pytest.raises(ValueError, match="--part"):
-            robustness.part(cells, spec)
+            robustness_grids.part(cells, spec)
     labels = [[robustness_grids.label(c) for c in share] for share in shares]
     for k, share in enumerate(labels):  # the parts as three runs would have written them
         part = {**result, "part": f"{k + 1}/3", "cells": [r for r in result["cells"] if r["label"] in share]}
@@ -182,11 +182,36 @@ def check_parts_join_into_the_whole(result: dict, tmp_path) -> None:
     assert all(joined[k] == result[k] for k in ("mean_success_rate", "min_success_cell", "cell_count", "note"))
     assert [p["part"] for p in joined["parts"]] == ["3/3", "1/3", "2/3"]
     assert robustness_merge.main([files[0], files[0], "--tag", "twice"]) == 2  # a cell played twice
+    check_a_part_played_again_replaces_its_cells(joined, files, tmp_path)
     other = {**json.loads(Path(files[1]).read_text()), "seed": 2}
     (tmp_path / "other.json").write_text(json.dumps(other))
     with pytest.raises(ValueError, match="differs from part 1 in seed"):
         robustness_merge.merge([json.loads(Path(files[0]).read_text()), other])
     assert robustness_merge.main([str(tmp_path / "missing.json"), "--tag", "x"]) == 2
+
+
+def check_a_part_played_again_replaces_its_cells(joined: dict, files: list[str], tmp_path) -> None:
+    """A joined result splits back into its parts; with ``--replace`` a part played again (here the
+    first part's cells with other counts and without sim-to-sim rows) replaces those cells alone."""
+    again = json.loads(Path(files[1]).read_text())  # part 1/3
+    again.update(command="played again", sim_to_sim=[])
+    again["cells"] = [{**r, "successes": 0, "success_rate": 0.0} for r in again["cells"]]
+    (tmp_path / "again.json").write_text(json.dumps(again))
+    whole = str(tmp_path / "robustness_joined.json")
+    assert robustness_merge.merge(robustness_merge.split(joined)) == joined  # split and joined again: the same
+    assert robustness_merge.main([whole, str(tmp_path / "again.json"), "--tag", "clash"]) == 2
+    assert robustness_merge.main([whole, str(tmp_path / "again.json"), "--tag", "replaced", "--replace"]) == 0
+    replaced = json.loads((tmp_path / "robustness_replaced.json").read_text())
+    mine = {r["label"] for r in again["cells"]}
+    assert [r["label"] for r in replaced["cells"]] == [r["label"] for r in joined["cells"]]
+    assert [r for r in replaced["cells"] if r["label"] not in mine] == [
+        r for r in joined["cells"] if r["label"] not in mine
+    ]
+    assert [r for r in replaced["cells"] if r["label"] in mine] == again["cells"]
+    assert {r["label"] for r in replaced["sim_to_sim"]} == {r["label"] for r in joined["sim_to_sim"]} - mine
+    # the replaced part's provenance dropped (none of its cells left), the new one's kept
+    assert [p["command"] for p in replaced["parts"]][-1] == "played again" and len(replaced["parts"]) == 3
+    assert "1/3" not in [p["part"] for p in replaced["parts"][:2]]
 
 
 def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
