@@ -67,7 +67,11 @@ def simulate(
         data = mjx.step(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 
-    start = SubstepStats(jnp.zeros(()), jnp.zeros(()), jnp.zeros((), bool), jnp.zeros(()))
+    # zeros computed from ``data`` (its clock, always finite): under ``vmap`` they are batched like the rest
+    # of the carry, so the scan's batching rule batches the substep once, not twice (a constant carry
+    # turns batched in the body and the rule starts again)
+    zero = 0.0 * data.time
+    start = SubstepStats(zero, zero, zero.astype(bool), zero)
     (data, stats), _ = jax.lax.scan(substep, (data, start), targets)
     return data, stats
 
