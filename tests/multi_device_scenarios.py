@@ -52,10 +52,12 @@ ONE_DEVICE_RESUME = [
         ("run.collection", "thread_per_device"),
     )
 ]
-# The preempted run of two processes: the flat tiny config (its programs compile in a fraction of the
-# terrain run's time), 8 envs, one 80-step epoch a checkpoint, to 160 steps over two launches.
-PREEMPTED_CONFIG = {
+# The run of two processes: the flat tiny config (its programs compile in a fraction of the terrain
+# run's time), 8 envs, one 80-step epoch a checkpoint; killed in its second epoch, then resumed and
+# stopped by SIGTERM. The scenario trains the same config on two devices of one process to compare.
+PROCESSES_CONFIG = {
     **TINY,
+    "env": {**TINY["env"], "termination": {"max_episode_steps": 10}},  # every env ends one in the first epoch
     "ppo": {**TINY["ppo"], "batch_size": 8},
     "run": {**TINY["run"], "num_envs": 8, "num_timesteps": 160, "checkpoint_every": 80},
 }
@@ -236,9 +238,10 @@ def _curriculum_facts() -> dict:
     }
 
 
-def scenario_two_devices(config_path: str, run_dir: str) -> dict:
+def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) -> dict:
     """Train through the CLI on two devices of one process, resume, refusals, per-device facts, the
-    thread-per-device strategy on the Warp backend last (``phase_s``: each part's seconds)."""
+    thread-per-device strategy on the Warp backend, then the two-process run's config on two devices of
+    this process (``phase_s``: each part's seconds)."""
     compiles, saved = _compile_counter(), _record_saves()
     clock, phases = time.perf_counter(), {}
 
@@ -292,6 +295,10 @@ def scenario_two_devices(config_path: str, run_dir: str) -> dict:
     _fresh_traces()
     facts["rc_warp"] = _warp_thread_per_device(config_path, str(Path(run_dir).parent / "run_warp"))
     phase("warp_thread_per_device")
+    _fresh_traces()
+    flat_dir = str(Path(run_dir).parent / "run_flat")
+    facts["rc_processes_config"] = main(["--config", processes_config, "--run-dir", flat_dir, "--quiet"])
+    phase("processes_config")
     return {**facts, "phase_s": phases}
 
 
