@@ -67,10 +67,10 @@ def simulate(
         data = mjx.step(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 
-    # zeros computed from ``data`` (its clock, always finite): under ``vmap`` they are batched like the rest
-    # of the carry, so the scan's batching rule batches the substep once, not twice (a constant carry
-    # turns batched in the body and the rule starts again)
-    zero = 0.0 * data.time
+    # zeros that depend on ``data`` (exactly 0, whatever its clock holds): under ``vmap`` they are batched
+    # like the rest of the carry, so the scan's batching rule batches the substep once, not twice (a
+    # constant carry turns batched in the body and the rule starts again)
+    zero = jnp.where(jnp.isfinite(data.time), 0.0, 0.0).astype(jnp.float32)
     start = SubstepStats(zero, zero, zero.astype(bool), zero)
     (data, stats), _ = jax.lax.scan(substep, (data, start), targets)
     return data, stats
