@@ -13,6 +13,13 @@ from hsa_mjx.sim import servo
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 
+# ``mjx.step`` jitted on its own, the model an argument: a nested call that XLA inlines (the compiled
+# program is the same), while JAX keeps its trace per model layout, so every later env step, reset or
+# training epoch of this process over a model of that layout reuses it instead of tracing MJX again
+# (1.3-2.0 s per vmapped flat step on a CPU, about 0.1 s with it). Batching under ``vmap`` is still
+# done once per batch size.
+_STEP = jax.jit(mjx.step)
+
 
 @struct.dataclass
 class SubstepStats:
@@ -64,7 +71,7 @@ def simulate(
         ctrl = data.ctrl.at[index.servo_ids].set(servo_target)
         if motors is not None:
             ctrl = ctrl.at[drives].set(servo.drive(motors, servo_target, data.qpos[index.joint_qpos]))
-        data = mjx.step(model, data.replace(ctrl=ctrl))
+        data = _STEP(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 
     # zeros that depend on ``data`` (exactly 0, whatever its clock holds): under ``vmap`` they are batched

@@ -375,7 +375,7 @@ class HSAEnv(BraxEnv):
             data = data.replace(mocap_pos=floor)
         if move is not None:
             qpos = pose.move_free_joints(qpos, self.index.block_qpos, *move)
-        return mjx.kinematics(self.robot.mjx_model, data.replace(qpos=qpos))
+        return compiled_kinematics(self.robot.mjx_model, data.replace(qpos=qpos))
 
     def _with_goal_marker(self, data: mjx.Data, goal_xy: jax.Array, tile: jax.Array) -> mjx.Data:
         """Place this env's goal marker above the ground at the goal (a mocap body; purely visual)."""
