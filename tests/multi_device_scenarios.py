@@ -74,17 +74,6 @@ def _compile_counter() -> list:
     return events
 
 
-def _fresh_traces() -> None:
-    """Forget this process's traces before a phase, so that it compiles the same program text as the first.
-
-    JAX shares private functions inside one lowered module through caches keyed by in-memory objects,
-    so the same epoch traced again later in a process can lower to different (equivalent) text and
-    miss the persistent compilation cache: a second 30-s compile per phase on a 2-core CPU."""
-    import jax
-
-    jax.clear_caches()
-
-
 def _record_saves() -> list[int]:
     """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
     from train import checkpoint
@@ -259,7 +248,6 @@ def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) 
     phase("pmap_train")
     saved_first = list(saved)
     learner = _learner_facts(pmap_seen)
-    _fresh_traces()
     rc_resume = main(args + ["--resume", "--set", "run.num_timesteps=240"])
     phase("pmap_resume")
     facts = {
@@ -273,7 +261,6 @@ def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) 
     phase("refusals")
     # the same run (config, seed, keys) with one jitted collection per device: checkpoints and logs as pmap's
     per_device_dir = str(Path(run_dir).parent / "run_per_device")
-    _fresh_traces()
     per_device_seen = _probe(ThreadPerDevice, compiles)
     facts["rc_per_device"] = main(
         ["--config", config_path, "--run-dir", per_device_dir, "--quiet", "--set", "run.collection=thread_per_device"]
@@ -285,17 +272,14 @@ def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) 
         per_device_epoch_compiles=list(per_device_seen["epoch_compiles"]),
     )
     # the two-device checkpoint resumed on one device by the thread-per-device strategy (see ONE_DEVICE_RESUME)
-    _fresh_traces()
     before = len(saved)
     facts["rc_one_device"] = main(args + ["--resume", *ONE_DEVICE_RESUME])
     facts["saved_one_device"] = saved[before:]
     phase("one_device_resume")
     facts.update(_curriculum_facts())
     phase("curriculum")
-    _fresh_traces()
     facts["rc_warp"] = _warp_thread_per_device(config_path, str(Path(run_dir).parent / "run_warp"))
     phase("warp_thread_per_device")
-    _fresh_traces()
     flat_dir = str(Path(run_dir).parent / "run_flat")
     facts["rc_processes_config"] = main(["--config", processes_config, "--run-dir", flat_dir, "--quiet"])
     phase("processes_config")
