@@ -37,10 +37,12 @@ def test_step_contract_terminal_observation_and_episode_info(envs):
     assert envs.get_attr("render_mode") == [None] * ENVS and envs.env_is_wrapped(object) == [False] * ENVS
 
 
-def test_sb3_ppo_trains_2048_steps_on_the_adapter(envs):
+def test_sb3_ppo_trains_2048_steps_on_the_adapter(envs, tmp_path):
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
 
     model = PPO("MlpPolicy", envs, n_steps=256, batch_size=256, n_epochs=1, seed=0, device="cpu")
+    model.set_logger(configure(str(tmp_path), []))  # SB3's default logger leaves an empty folder in /tmp
     model.learn(total_timesteps=2048)
     assert model.num_timesteps == 2048
     assert len(model.ep_info_buffer) > 0 and all(e["l"] == EPISODE for e in model.ep_info_buffer)
