@@ -206,17 +206,31 @@ SHARED_RUN_MODULES = (
 )
 WARP_MODULES = ("tests/test_backend.py", "tests/test_randomization.py")
 GROUPS = {module: group[0] for group in (SHARED_RUN_MODULES, WARP_MODULES) for module in group}
+# Modules by their time on the 2-core machine (cold caches, longest first; the rest, a few seconds each,
+# follow in file order). xdist sends a worker the next module in this order when it is nearly done with
+# its last, so the long ones start early and the short ones fill the end.
 LONGEST_FIRST = (
     "tests/test_multi_device.py",
     *WARP_MODULES,
     *SHARED_RUN_MODULES,
-    "tests/test_quickstart.py",
-    "tests/test_install.py",  # after the quickstart: its installed copy trains the same programs, from the cache
+    "tests/test_env.py",
+    "tests/test_install.py",
     "tests/test_checkpoint_compat.py",
     "tests/test_terrain_env.py",
-    "tests/test_env.py",
     "tests/test_gym_vector.py",
+    "tests/test_servo.py",
+    "tests/test_terrain_progress_env.py",
+    "tests/test_ppo_update.py",
     "tests/test_sb3.py",
+    "tests/test_host_physics.py",
+    "tests/test_video.py",
+    "tests/test_fidelity.py",
+    "tests/test_model.py",
+    "tests/test_gymnasium.py",
+    "tests/test_tracker.py",
+    "tests/test_terrain.py",
+    "tests/test_robustness.py",
+    "tests/test_gym_vector_ppo.py",
 )
 
 
@@ -232,8 +246,11 @@ def pytest_collection_modifyitems(items):
 
 
 def pytest_xdist_make_scheduler(config, log):
-    """Send whole modules to workers, each group of modules (above) together."""
+    """Send whole modules to workers, each group of modules (above) together, in ``LONGEST_FIRST``'s order
+    (xdist would otherwise reorder them by their number of tests)."""
     from xdist.scheduler import LoadFileScheduling
+
+    config.option.loadscopereorder = False
 
     class ModuleScheduling(LoadFileScheduling):
         def _split_scope(self, nodeid: str) -> str:

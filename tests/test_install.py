@@ -1,12 +1,14 @@
 """The package installs like a library: a built wheel carries the robot assets, the configs and the
-shipped policies, and, installed on its own, builds an env, evaluates a shipped policy and trains
-with its default config (``hsa-train``) from an empty folder."""
+shipped policies, and, installed on its own, builds an env, evaluates a shipped policy and runs the
+README's main command from an empty folder: ``hsa-train`` with its default config, the CPU quickstart,
+which continues the shipped flat policy, says so and reaches goals."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -17,6 +19,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMEOUT_S = 600
+# The quickstart run, shortened to 3,200 env steps here (the README's run is 9,600).
+QUICKSTART_STEPS = 3200
 
 
 @pytest.fixture(scope="module")
@@ -110,17 +114,25 @@ def test_installed_package_runs_from_an_empty_folder(wheel, tmp_path):
     )
     assert evaluated.returncode == 0, evaluated.stderr[-3000:]
     assert (work / "runs" / "eval_flat" / "eval.json").is_file()
-    # the console script with its default config (the CPU quickstart, from the shipped flat policy)
+    # the console script with its default config (the CPU quickstart, from the shipped flat policy), its
+    # programs compiled at LLVM O1 instead of the suite's O0: 15 instead of 9 s of compiling, 4x faster steps
+    run_dir = work / "runs" / "quick"
     trained = subprocess.run(
-        [str(site / "bin" / "hsa-train"), "--set", "run.num_timesteps=160", "--run-dir", "runs/q"],
+        [str(site / "bin" / "hsa-train"), "--run-dir", str(run_dir)]
+        + [f"--set=run.{key}={QUICKSTART_STEPS}" for key in ("num_timesteps", "checkpoint_every")],
         cwd=work,
-        env=env,
+        env={**env, "XLA_FLAGS": env.get("XLA_FLAGS", "").replace("optimization_level=0", "optimization_level=1")},
         capture_output=True,
         text=True,
         timeout=TIMEOUT_S,
     )
     assert trained.returncode == 0, trained.stderr[-3000:]
-    assert "policy file" in trained.stdout and (work / "runs" / "q" / "summary.json").is_file()
+    out = trained.stdout
+    assert f"run dir: {run_dir}" in out.splitlines()[0]  # printed before anything compiles
+    assert re.search(r"starting from the policy network and observation statistics of the policy file \S*flat", out)
+    success = float(re.search(r"episode/success_rate: (\S+)", out).group(1))
+    assert success > 0.5, out[-2000:]
+    assert (run_dir / "learning_curve.png").is_file() and (run_dir / "summary.json").is_file()
 
 
 MARKER = "THE-CHECKOUT-COPY"
