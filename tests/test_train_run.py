@@ -80,6 +80,22 @@ def test_resume_continues_step_and_curriculum(run_dir):
     assert after["curriculum/max_distance"] >= before["curriculum/max_distance"]
 
 
+def test_a_restored_learner_state_has_the_types_of_a_fresh_one(run_dir):
+    """Shapes, dtypes and weak types alike: a resumed run's epoch is the fresh run's program (the
+    persistent compilation cache serves it; a weakly typed leaf would make it another program)."""
+    import jax
+
+    from train import run_state, strategies
+    from train.networks import init_training_state
+
+    config = tiny()
+    learner = strategies.build(config, jax.devices()[:1]).learner
+    fresh = init_training_state(config, learner.networks, jax.random.PRNGKey(0), learner.network_input_size)
+    restored = run_state.restore_training_state(checkpoint.latest(run_dir), fresh, config)
+    assert jax.tree.map(jax.typeof, restored) == jax.tree.map(jax.typeof, fresh)
+    assert not [x for x in jax.tree.leaves(fresh) if jax.typeof(x).weak_type]
+
+
 def test_resume_refuses_other_config_and_overwrite(run_dir):
     from train.trainer import train
 

@@ -11,6 +11,7 @@ import hsa_mjx.sim.backend  # noqa: F401  (MJX imported quietly, before Brax imp
 # isort: split
 import functools
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -102,13 +103,28 @@ def network_obs(state: EnvState, with_privileged: bool) -> jax.Array:
     return jnp.concatenate([state.obs, state.info["privileged_obs"]], axis=-1)
 
 
+def _strongly_typed(x: Any) -> jax.Array:
+    """``x`` as an array of its own dtype, not weakly typed (the normaliser's ``std_eps`` is a Python float)."""
+    x = jnp.asarray(x)
+    return x.astype(x.dtype)
+
+
 def init_training_state(
     config: TrainConfig, networks: ppo_networks.PPONetworks, key: jax.Array, observation_size: int
 ) -> TrainingState:
-    """Fresh parameters, optimiser and normaliser state (unreplicated)."""
-    k_policy, k_value = jax.random.split(key)
-    params = ppo_losses.PPONetworkParams(
-        policy=networks.policy_network.init(k_policy), value=networks.value_network.init(k_value)
-    )
-    normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((observation_size,), jnp.float32))
-    return TrainingState(params=params, optimizer_state=make_optimizer(config.ppo).init(params), normalizer=normalizer)
+    """Fresh parameters, optimiser and normaliser state (unreplicated), made by one compiled program
+    (not one per operation), every leaf strongly typed as a restored checkpoint's is: a resumed run's
+    epoch is then the fresh run's program, which the persistent compilation cache serves."""
+
+    def init(key: jax.Array) -> TrainingState:
+        k_policy, k_value = jax.random.split(key)
+        params = ppo_losses.PPONetworkParams(
+            policy=networks.policy_network.init(k_policy), value=networks.value_network.init(k_value)
+        )
+        normalizer = running_statistics.init_state(jax.ShapeDtypeStruct((observation_size,), jnp.float32))
+        state = TrainingState(
+            params=params, optimizer_state=make_optimizer(config.ppo).init(params), normalizer=normalizer
+        )
+        return jax.tree.map(_strongly_typed, state)
+
+    return jax.jit(init)(key)
