@@ -202,7 +202,8 @@ def test_next_step_autoreset_suits_gymnasiums_vector_wrappers():
 
 def test_async_vectorization_with_spawned_workers(tmp_path):
     """make_vec(..., vectorization_mode="async") as a user's script runs it (its own process, the main guard),
-    with the spawn context the docs give: importing hsa_mjx leaves the start method alone."""
+    with the spawn context the docs give: importing hsa_mjx leaves the start method alone (one spawned
+    worker: each one imports JAX and MuJoCo and builds its env)."""
     import subprocess
     import sys
 
@@ -212,15 +213,15 @@ def test_async_vectorization_with_spawned_workers(tmp_path):
         "from hsa_mjx.adapters.entry_points import SPAWN\n"
         "if __name__ == '__main__':\n"
         "    method = multiprocessing.get_start_method(allow_none=True)  # after import hsa_mjx: the program's own\n"
-        "    envs = gymnasium.make_vec('hsa_mjx/HSA-v0', num_envs=2, vectorization_mode='async', vector_kwargs=SPAWN)\n"
+        "    envs = gymnasium.make_vec('hsa_mjx/HSA-v0', num_envs=1, vectorization_mode='async', vector_kwargs=SPAWN)\n"
         "    obs, _ = envs.reset(seed=0)\n"
-        "    obs, reward, *_ = envs.step(np.zeros((2, 8), np.float32))\n"
+        "    obs, reward, *_ = envs.step(np.zeros((1, 8), np.float32))\n"
         "    print(method, obs.shape, np.isfinite(reward).all())\n"
         "    envs.close()\n"
     )
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().splitlines()[-1] == "None (2, 24) True"  # no start method set by the import
+    assert out.stdout.strip().splitlines()[-1] == "None (1, 24) True"  # no start method set by the import
 
 
 def test_an_env_in_a_forked_copy_of_a_jax_process_is_refused(monkeypatch):
