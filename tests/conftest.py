@@ -22,8 +22,9 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # XLA's default 32 split for parallel code generation: on two cores already busy with the two workers,
 # the split saves no time and costs CPU (the flat step's compile: 3.9 instead of 4.8 CPU-s, mean of three
 # each, 2026-11-28). Subprocesses inherit them, and the persistent compilation cache keys on them.
+XLA_NO_LLVM_OPTIMISATION = "--xla_backend_optimization_level=0"
 XLA_TEST_FLAGS = (
-    "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false --xla_cpu_parallel_codegen_split_count=1"
+    f"{XLA_NO_LLVM_OPTIMISATION} --xla_cpu_use_fusion_emitters=false --xla_cpu_parallel_codegen_split_count=1"
 )
 if XLA_TEST_FLAGS not in os.environ.get("XLA_FLAGS", ""):  # once: subprocesses inherit them and import this file
     os.environ["XLA_FLAGS"] = " ".join(f for f in (os.environ.get("XLA_FLAGS", ""), XLA_TEST_FLAGS) if f)
