@@ -1,6 +1,6 @@
 """How a policy fares on models that differ from the one it trained on: ``python -m benchmarks.robustness POLICY``.
 
-``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (19 cells that
+``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (24 cells that
 go past it: each factor alone at both ends of its stress range, and four corners), described in
 ``benchmarks/robustness_grids.py``. Every cell plays ``--episodes`` episodes from the same starts and
 goals (the policy's training goal range) with the policy's mean action, for at most ``--steps`` steps.
@@ -40,8 +40,9 @@ from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.deploy.loop import latency_steps
 from hsa_mjx.randomization_config import FOOT_KEYS, RandomizationConfig
+from hsa_mjx.robots import profile_servo
 from hsa_mjx.sim.backend import for_one_env
-from hsa_mjx.task.randomization import PhysicsScales
+from hsa_mjx.task.randomization import SERVO_FIGURES, PhysicsScales
 from train.config import from_dict
 from train.policy_sources import default_goal_range, load_shipped_policy
 from train.rollout import episode_success, rollout, summarize
@@ -70,17 +71,18 @@ def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, .
     if any(c["pushes"] for c in group):
         ranges["push_interval_s"], ranges["push_speed"] = list(grids.PUSH_INTERVAL_S), grids.PUSH_SPEED
     classes = servo_classes(group)
-    if classes:  # the group's servo classes, drawn per cell (rollout_groups: all of one servo model)
-        ranges["servo_presets"] = list(classes)
+    if classes:  # the group's profiles' servos, drawn per cell
+        ranges["robots"] = list(classes)
     out = [f"env.randomization.{k}={json.dumps(list(v) if isinstance(v, tuple) else v)}" for k, v in ranges.items()]
-    out += [f"env.servo.preset={classes[0]}"] if classes else []
+    own = dataclasses.asdict(profile_servo(classes[0])) if classes else {}  # the nominal: the first profile's
+    out += [f"env.servo.{k}={json.dumps(v)}" for k, v in own.items()]
     out += [f"env.observation.noise.{k}={v if group[0]['noise'] else 0}" for k, v in grids.NOISE.items()]
     out.append(f"env.termination.qacc_termination={'true' if qacc_rule else 'false'}")  # whatever it trained with
     return tuple(out)
 
 
 def servo_classes(group: list[dict]) -> tuple[str, ...]:
-    """The servo classes of a group's cells, in order of first use (empty: the policy's own servos)."""
+    """The robot profiles whose servos a group's cells drive, in order of first use (empty: the policy's own)."""
     return tuple(dict.fromkeys(c["servo"] for c in group if c["servo"] is not None))
 
 
@@ -88,7 +90,7 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
     """Each episode's physical scales, latency and pushes, (cells x episodes,) leading axis."""
 
     classes = servo_classes(group)
-    group = [{**c, "servo_preset": classes.index(c["servo"]) if c["servo"] else 0} for c in group]
+    group = [{**c, "robot": classes.index(c["servo"]) if c["servo"] else 0} for c in group]
 
     def per_episode(name: str, dtype=jnp.float32) -> jnp.ndarray:
         return jnp.repeat(jnp.asarray([c[name] for c in group], dtype), episodes)
@@ -103,7 +105,8 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         servo_force_limit=jnp.repeat(jnp.asarray(limits, jnp.float32), episodes),
         foot_friction=jnp.repeat(jnp.asarray([c["foot_friction"] for c in group], jnp.float32), episodes, axis=0),
         foot_anisotropy=jnp.repeat(jnp.asarray([c["foot_anisotropy"] for c in group], jnp.float32), episodes, axis=0),
-        servo_preset=per_episode("servo_preset", jnp.int32),
+        robot=per_episode("robot", jnp.int32),
+        servo_figures=jnp.ones((len(group) * episodes, len(SERVO_FIGURES)), jnp.float32),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}

@@ -9,8 +9,8 @@ alone), so both grids run through one code path:
 - ``stress``: the training model, each factor alone at both ends of its stress range (friction x0.3
   and x2, masses x0.6 and x1.4, HSA stiffness and damping x0.5 and x1.5, servo gain x0.6 and x1.2,
   a servo torque limit, 60 ms latency, pushes, observation noise, one slick foot, feet without
-  their anisotropy, four servo classes of ``hsa_mjx.servo_config.PRESETS`` in place of the policy's
-  own servos), and four corners where they combine: 25 cells. ``docs/robustness.md`` justifies each
+  their anisotropy, the servos of the three hardware robot profiles (``hsa_mjx.robots``) in place of the
+  policy's own), and four corners where they combine: 24 cells. ``docs/robustness.md`` justifies each
   range from what varies on a real robot.
 """
 
@@ -21,7 +21,7 @@ from typing import Any
 
 from hsa_mjx.deploy.perturbation import ONES, ModelPerturbation, per_foot
 from hsa_mjx.randomization_config import FOOT_KEYS, SCALE_KEYS
-from hsa_mjx.servo_config import PRESETS
+from hsa_mjx.robots import profile_names, profile_servo
 
 SCALES = SCALE_KEYS  # the physical scales, as the env's randomisation names them
 MODEL = (*SCALES, "servo_torque_limit", *FOOT_KEYS)  # the factors a ModelPerturbation carries
@@ -30,7 +30,7 @@ TRAINING = {
     **dict.fromkeys(SCALES, 1.0),
     "servo_torque_limit": None,
     **dict.fromkeys(FOOT_KEYS, ONES),  # four scales each, one per foot (hsa_mjx.sim.model.FOOT_PAIRS' order)
-    "servo": None,  # a PRESETS name: the robot's servos are that class (None: the policy's own)
+    "servo": None,  # a robot profile's name: the robot's servos are that profile's (None: the policy's own)
     "latency_ms": 0,
     "pushes": False,
     "noise": False,
@@ -58,9 +58,9 @@ SLICK_FOOT = (0.3, 1.0, 1.0, 1.0)
 # every foot's lower sliding coefficient raised to its higher one (0.1 -> 0.21): feet that grip the same
 # along and across the robot (worn or other pads), the anisotropy the crawl relies on gone
 ISOTROPIC_FEET = (2.1,) * 4
-# servo classes in place of the policy's servos: the weakest and a strong hobby servo, the smart servo
-# whose stall torque the torque cell stands for, and the continuous-rotation servo the robot uses
-STRESS_SERVOS = ("mg90s", "xl330_m288", "mx28", "dfr05sr")
+# servos in place of the policy's: the hardware profiles' (a continuous-rotation hobby servo, the class the
+# robot is built with; a Dynamixel position servo; a strong hobby position servo)
+STRESS_SERVOS = ("dfr05sr", "xl330_m288", "st3215")
 
 
 def cell(**changes: Any) -> dict[str, Any]:
@@ -79,10 +79,15 @@ def check(c: dict[str, Any]) -> None:
     """ValueError unless every factor of cell ``c`` is in its valid range."""
     ModelPerturbation(**{name: c[name] for name in MODEL})  # the scales, the limit and the feet
     if c["servo"] is not None:
-        if c["servo"] not in PRESETS:
-            raise ValueError(f"servo must be None or a preset, got {c['servo']!r}; presets: {sorted(PRESETS)}")
+        hardware = [name for name in profile_names() if profile_servo(name).model != "spring"]
+        if c["servo"] not in hardware:
+            raise ValueError(
+                f"servo must be None or a robot profile with DC-motor servos, got {c['servo']!r}: {hardware}"
+            )
         if c["servo_gain"] != 1.0 or c["servo_torque_limit"] is not None:
-            raise ValueError("servo_gain and servo_torque_limit act on the asset's springs: not with a servo class")
+            raise ValueError(
+                "servo_gain and servo_torque_limit act on the asset's springs: not with a profile's servos"
+            )
     if not (isinstance(c["latency_ms"], int | float) and 0 <= c["latency_ms"] <= MAX_LATENCY_MS):
         raise ValueError(f"latency_ms must be in [0, {MAX_LATENCY_MS}], got {c['latency_ms']!r}")
     for name in ("pushes", "noise"):
@@ -149,15 +154,11 @@ def stress_grid() -> list[dict[str, Any]]:
 GRIDS = {"nominal": nominal_grid, "stress": stress_grid}
 
 
-def servo_model(c: dict[str, Any]) -> str | None:
-    """The servo model a cell's class needs (None: the policy's own servos)."""
-    return None if c["servo"] is None else PRESETS[c["servo"]].model
-
-
 def rollout_groups(cells: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
-    """The cells in groups that share one compiled env: the same noise setting and servo model."""
-    keys = list(dict.fromkeys((c["noise"], servo_model(c) or "") for c in cells))
-    return [[c for c in cells if (c["noise"], servo_model(c) or "") == key] for key in keys]
+    """The cells in groups that share one compiled env: the same noise setting, and the policy's own servos
+    or a profile's (each env then drives its cell's profile's servo, of either DC-motor model)."""
+    keys = list(dict.fromkeys((c["noise"], c["servo"] is None) for c in cells))
+    return [[c for c in cells if (c["noise"], c["servo"] is None) == key] for key in keys]
 
 
 def grid(name: str) -> list[dict[str, Any]]:

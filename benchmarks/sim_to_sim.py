@@ -59,17 +59,17 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
 @functools.lru_cache(maxsize=8)
 def _loaded(directory: str, servo_class: str | None = None) -> tuple:
     """(policy, env config, observation labels, (C model, index)) of a policy directory, its servos
-    replaced by the class ``servo_class`` where given; once per worker. The cell's model is the
+    replaced by robot profile ``servo_class``'s where given; once per worker. The cell's model is the
     perturbation's alone: the ranges the policy trained over (a spring servo's gain and torque limit
-    among them, which a servo class refuses) are dropped, as the MJX rollout drops them."""
+    among them, which a DC-motor servo refuses) are dropped, as the MJX rollout drops them."""
     from hsa_mjx.deploy import loop, policy_file
     from hsa_mjx.randomization_config import RandomizationConfig
-    from hsa_mjx.servo_config import ServoConfig
+    from hsa_mjx.robots import profile_servo
 
     policy = policy_file.load_policy(Path(directory))
     config, labels, _ = loop.policy_env(policy.meta)
     if servo_class is not None:
-        config = dataclasses.replace(config, servo=ServoConfig(preset=servo_class), randomization=RandomizationConfig())
+        config = dataclasses.replace(config, servo=profile_servo(servo_class), randomization=RandomizationConfig())
     return policy, config, labels, loop.load_model(config)
 
 

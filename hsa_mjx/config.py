@@ -19,7 +19,9 @@ from hsa_mjx.config_schema import build_section, non_finite, plain
 from hsa_mjx.randomization_config import NOMINAL, ObservationNoiseConfig, RandomizationConfig
 from hsa_mjx.randomization_config import validate as validate_randomization
 from hsa_mjx.resources import data_dir, merge, read_yaml
-from hsa_mjx.servo_config import ServoConfig, check_presets, resolve_servo
+from hsa_mjx.robots import DEFAULT as DEFAULT_ROBOT
+from hsa_mjx.robots import drawn_servos, robot_env
+from hsa_mjx.servo_config import ServoConfig, resolve_servo
 from hsa_mjx.servo_config import validate as validate_servo
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from hsa_mjx.terrain.height_scan import validate as validate_height_scan
@@ -191,6 +193,9 @@ class EnvConfig:
     """Everything that defines one HSA environment."""
 
     name: str = "flat"
+    # the robot profile (hsa_mjx.robots, a shipped name or a file): the servo, control rate, sensors and
+    # latency a builder chose; keys given beside it win over it
+    robot: str = DEFAULT_ROBOT
     scene: str = "flat"
     spawn_height: float = 0.2
     physics: PhysicsConfig = PhysicsConfig()
@@ -292,11 +297,22 @@ def validate(config: EnvConfig) -> EnvConfig:
 
 def _validate_servo(config: EnvConfig) -> None:
     """The servo section; the randomised servo gain and torque limit act on the asset's springs only,
-    the drawn servo classes on DC-motor servos only."""
+    the drawn robots and servo figures on DC-motor servos only."""
     validate_servo(config.servo)
     rand = config.randomization
-    check_presets(config.servo, rand.servo_presets)
-    if resolve_servo(config.servo) is not None and (rand.limits_force or rand.servo_gain != NOMINAL):
+    dc_motors = resolve_servo(config.servo) is not None
+    if (rand.robots or rand.servo_figures != NOMINAL) and not dc_motors:
+        raise ValueError(
+            "config keys 'randomization.robots' and 'randomization.servo_figures' draw DC-motor servos: set "
+            "env.robot to a profile with one (or servo.model position or continuous)"
+        )
+    drawn = drawn_servos(rand.robots)  # each a profile with a DC-motor servo
+    if any(p.friction > 0 for p in drawn) and not config.servo.friction > 0:
+        raise ValueError(
+            "config key 'randomization.robots' draws servos with friction: the env's own servo needs "
+            "servo.friction > 0 too (MJX builds friction rows only for joints whose model has friction)"
+        )
+    if dc_motors and (rand.limits_force or rand.servo_gain != NOMINAL):
         raise ValueError(
             "config keys 'randomization.servo_gain' and 'randomization.servo_force_limit' act on the asset's "
             "spring servos: leave them at their defaults with servo.model position or continuous"
@@ -366,9 +382,15 @@ def _get(config: Any, path: tuple[str, ...]) -> Any:
 
 def from_dict(data: Mapping[str, Any] | None, base: EnvConfig | None = None) -> EnvConfig:
     """Merge a nested mapping (older keys mapped, ``hsa_mjx.migrations``) over ``base`` (default: the
-    defaults, the original's flat task) and build it (validated as it is built)."""
+    defaults, the original's flat task) and build it (validated as it is built). Where the mapping names a
+    ``robot``, that profile's keys go over ``base`` first and the mapping's own keys over them."""
     data = with_default_proportions(migrations.env_keys(dict(data or {}), GENERATOR_TYPES))
-    return build_section(EnvConfig, merge(to_dict(base or EnvConfig()), data))
+    layers = to_dict(base or EnvConfig())
+    if "robot" in data:  # the profile over the base, the keys given beside it over both
+        if not isinstance(data["robot"], str):
+            raise ValueError(f"config key 'robot' must be a profile's name or file, got {data['robot']!r}")
+        layers = merge(layers, robot_env(data["robot"], to_dict(EnvConfig())))
+    return build_section(EnvConfig, merge(layers, data))
 
 
 def to_dict(config: EnvConfig) -> dict:

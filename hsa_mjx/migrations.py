@@ -11,7 +11,10 @@ Env config (``env_keys``):
 - ``goal.spiral_start_radius`` / ``spiral_end_radius`` / ``spiral_turns`` are ``terrain.spiral``'s
   ``start_radius`` / ``end_radius`` / ``turns`` (the checkpoints lie on the track);
 - the reward weights ``lateral``, ``ctrl``, ``contact``, ``constraint``, ``acceleration``,
-  ``joint_velocity`` and ``stagnation`` carry their terms' names: ``lateral_cost``, ``ctrl_cost``, ...
+  ``joint_velocity`` and ``stagnation`` carry their terms' names: ``lateral_cost``, ``ctrl_cost``, ...;
+- ``servo.preset: NAME`` named a servo class: it is the robot profile ``robot: NAME`` (``hsa_mjx.robots``;
+  refused where no profile has that name), an empty one is dropped; ``randomization.servo_presets`` is
+  ``randomization.robots``.
 
 Training config (``training_keys``), after ``env_keys`` on its ``env`` section:
 
@@ -52,7 +55,33 @@ def env_keys(data: Mapping[str, Any], terrain_types: tuple[str, ...]) -> dict:
         reward = dict(data["reward"])
         _move_keys(reward, reward, REWARD_WEIGHTS, ("reward", "reward"))
         data["reward"] = reward
+    _servo_classes_into_robots(data)
     return data
+
+
+def _servo_classes_into_robots(data: dict) -> None:
+    """``servo.preset`` as ``robot``, ``randomization.servo_presets`` as ``randomization.robots`` (in place)."""
+    servo = data.get("servo")
+    if isinstance(servo, Mapping) and "preset" in servo:
+        servo = dict(servo)
+        name = servo.pop("preset")
+        data["servo"] = servo
+        if name:
+            from hsa_mjx.robots import profile_names  # the profiles are package data: read on use
+
+            if name not in profile_names():
+                raise ValueError(
+                    f"config key 'servo.preset' = {name!r}: servo classes are robot profiles now ('robot: NAME'), "
+                    f"and none is named {name!r}; profiles: {profile_names()}"
+                )
+            if data.get("robot", name) != name:
+                raise ValueError(f"config keys 'servo.preset' = {name!r} and 'robot' = {data['robot']!r} differ")
+            data["robot"] = name
+    rand = data.get("randomization")
+    if isinstance(rand, Mapping) and "servo_presets" in rand:
+        rand = dict(rand)
+        _move_keys(rand, rand, {"servo_presets": "robots"}, ("randomization", "randomization"))
+        data["randomization"] = rand
 
 
 def _move_keys(source: dict, target: dict, names: Mapping[str, str], paths: tuple[str, str], why: str = "") -> None:

@@ -32,18 +32,21 @@ class RandomizationConfig:
     # lower one alone (across the robot on a plane: the anisotropy the crawl relies on)
     foot_friction: tuple[float, float] = NOMINAL
     foot_anisotropy: tuple[float, float] = NOMINAL
-    # servo classes (hsa_mjx.servo_config.PRESETS names): each env drives its servos as one of them,
-    # drawn per episode (DC-motor servos only: env.servo.preset names the nominal class)
-    servo_presets: tuple[str, ...] = ()
+    # robot profiles (hsa_mjx.robots) whose servos each env drives as one of them, drawn per episode (their
+    # DC-motor servo figures and model; the control, sensors and latency stay the env's own robot's)
+    robots: tuple[str, ...] = ()
+    # DC-motor servos: scales of the stall torque, no-load speed, damping, friction and rotor inertia,
+    # each drawn on its own (the same for the eight servos of an env)
+    servo_figures: tuple[float, float] = NOMINAL
     latency_steps: tuple[int, int] = (0, 0)  # control steps before an action reaches the servos
     push_interval_s: tuple[float, float] = (0.0, 0.0)  # s between pushes; [0, 0]: no pushes
     push_speed: float = 0.0  # m/s, the largest horizontal speed one push adds to both blocks
 
     @property
     def physical(self) -> bool:
-        """Whether any model field is randomised (scales off [1, 1], a torque limit or a servo class)."""
+        """Whether any model field is randomised (scales off [1, 1], a torque limit or a drawn robot)."""
         scaled = any(getattr(self, name) != NOMINAL for name in SCALE_KEYS + FOOT_KEYS)
-        return scaled or self.limits_force or bool(self.servo_presets)
+        return scaled or self.limits_force or bool(self.robots) or self.servo_figures != NOMINAL
 
     @property
     def per_foot(self) -> bool:
@@ -98,7 +101,7 @@ def _check_range(key: str, lo: float, hi: float, low_bound: float, strictly: boo
 
 def validate(config: RandomizationConfig, noise: ObservationNoiseConfig) -> None:
     """Raise ValueError naming the key and its valid range."""
-    for name in SCALE_KEYS + FOOT_KEYS:
+    for name in SCALE_KEYS + FOOT_KEYS + ("servo_figures",):
         _check_range(f"randomization.{name}", *getattr(config, name), 0.0, strictly=True)
     lo, hi = config.servo_force_limit
     if config.limits_force:

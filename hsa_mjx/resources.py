@@ -1,7 +1,8 @@
-"""Where the package's files live: robot assets, env presets and training configs, shipped policies.
+"""Where the package's files live: robot assets, env presets and training configs, shipped policies,
+robot profiles.
 
-A checkout (or an editable install) reads the repository's top-level ``assets/``, ``configs/`` and
-``policies/``. A built wheel or ``pip install .`` carries the same folders as package data under
+A checkout (or an editable install) reads the repository's top-level ``assets/``, ``configs/``,
+``policies/`` and ``robots/``. A built wheel or ``pip install .`` carries the same folders as package data under
 ``hsa_mjx/data/`` (``pyproject.toml`` maps them there at build time), so an installed package finds
 them from any working directory.
 """
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-KINDS = ("assets", "configs", "policies")
+KINDS = ("assets", "configs", "policies", "robots")
 SCENE_FILES = {"flat": "scene_flat.xml", "terrain": "scene_terrain.xml"}
 _PACKAGE = Path(__file__).resolve().parent
 

@@ -132,7 +132,7 @@ def test_simulated_robot_perturbation_writes_the_fields_the_env_randomises():
     # the env drawing exactly these values (every range [v, v]) on the same model
     env = hsa_mjx.make_env(config, physics__backend="c", randomization=dataclasses.asdict(perturbation.randomization()))
     expected = _captured_fields(env, env.reset(jax.random.PRNGKey(0)))
-    assert set(expected) == set(FIELDS)  # every randomised field
+    assert set(expected) == set(FIELDS) - {"dof_damping", "dof_frictionloss", "dof_armature"}  # all but a DC servo's
     for name, value in expected.items():
         np.testing.assert_allclose(getattr(robot.model, name), value, rtol=1e-6, err_msg=name)
         assert not np.allclose(getattr(mj_model, name), value), name  # changed, and in a copy only

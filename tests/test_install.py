@@ -47,17 +47,19 @@ def _repo_files(folder: str, pattern: str) -> set[str]:
     }
 
 
-def test_wheel_holds_the_code_assets_configs_and_policies(wheel):
+def test_wheel_holds_the_code_assets_configs_policies_and_robot_profiles(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     for package, folder in (("hsa_mjx", "hsa_mjx"), ("hsa_mjx_train", "train")):
         missing = {f"{package}/{f}" for f in _repo_files(folder, "**/*.py")} - names
         assert not missing, f"modules left out of the wheel (pyproject's packages list): {sorted(missing)}"
     # the trainer ships under its own name: no top-level "train" package to collide with another's
     assert not [n for n in names if n.startswith("train/")]
-    for folder, pattern in (("assets", "*.xml"), ("configs", "*.yaml"), ("policies", "*/policy.*")):
+    shipped = (("assets", "*.xml"), ("configs", "*.yaml"), ("policies", "*/policy.*"), ("robots", "*.*"))
+    for folder, pattern in shipped:
         expected = {f"hsa_mjx/data/{folder}/{f}" for f in _repo_files(folder, pattern)}
         assert expected and expected <= names, sorted(expected - names)
-    assert not [n for n in names if n.startswith(("tests/", "benchmarks/", "assets/", "configs/", "policies/"))]
+    top = ("tests/", "benchmarks/", "assets/", "configs/", "policies/", "robots/")
+    assert not [n for n in names if n.startswith(top)]
 
 
 def _compilation_cache() -> dict[str, str]:

@@ -19,6 +19,7 @@ LAYERS = (
         "hsa_mjx.migrations",
         "hsa_mjx.randomization_config",
         "hsa_mjx.servo_config",
+        "hsa_mjx.robots",
         "hsa_mjx.pose",
         "hsa_mjx.terrain",
     ),
@@ -26,7 +27,7 @@ LAYERS = (
     ("hsa_mjx.task",),
     ("hsa_mjx.curricula",),
     ("hsa_mjx.batch",),
-    ("hsa_mjx.adapters", "hsa_mjx.deploy"),
+    ("hsa_mjx.adapters", "hsa_mjx.deploy", "hsa_mjx.sysid"),
     ("hsa_mjx",),  # the package's own __init__: make_env and the public names
     # the trainer, floor by floor: file formats and host tools; networks; the run state and the PPO
     # learner; what builds on them; the collection strategies; the training loop and the evaluation;

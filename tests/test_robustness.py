@@ -13,6 +13,7 @@ import pytest
 
 from benchmarks import robustness, robustness_compare, robustness_grids, robustness_merge, sim_to_sim, stats
 from hsa_mjx.deploy import policy_file
+from hsa_mjx.robots import profile_servo
 
 
 def test_wilson_interval_matches_known_values_and_stays_in_range():
@@ -47,17 +48,19 @@ def test_the_grids_cells():
     nominal, stress = robustness_grids.grid("nominal"), robustness_grids.grid("stress")
     assert len(nominal) == 3 * 2 * 2 * 3 * 2 == len({tuple(c.values()) for c in nominal})
     assert {c["latency_ms"] for c in nominal} == {0, 20, 40} and not any(c["pushes"] for c in nominal)
-    assert len(stress) == 25 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
+    assert len(stress) == 24 == len({tuple(c.values()) for c in stress}) and stress[0] == robustness_grids.TRAINING
     feet = [c for c in stress if c["foot_friction"] != (1,) * 4 or c["foot_anisotropy"] != (1,) * 4]
     assert [robustness_grids.label(c) for c in feet] == ["foot_friction x0.3/1/1/1", "foot_anisotropy x2.1/2.1/2.1/2.1"]
-    # the servo classes: one compiled env per servo model, each cell's class drawn into its episodes
+    # the hardware profiles' servos: one compiled env for the three (either servo model, drawn per env),
+    # each cell's profile drawn into its episodes, the first profile's servo the env's own
     groups = robustness_grids.rollout_groups(stress)
     servos = [[c["servo"] for c in g] for g in groups if g[0]["servo"]]
-    assert servos == [["mg90s", "xl330_m288", "mx28"], ["dfr05sr"]] and sum(map(len, groups)) == len(stress)
-    overrides = robustness.env_overrides(groups[-2], 0.02, qacc_rule=False)
-    assert "env.servo.preset=mg90s" in overrides
-    assert 'env.randomization.servo_presets=["mg90s", "xl330_m288", "mx28"]' in overrides
-    drawn = robustness.cell_randomization(groups[-2], 2, 0.02)["physics"].servo_preset
+    assert servos == [list(robustness_grids.STRESS_SERVOS)] and sum(map(len, groups)) == len(stress)
+    servo_group = next(g for g in groups if g[0]["servo"])
+    overrides = robustness.env_overrides(servo_group, 0.02, qacc_rule=False)
+    assert 'env.servo.model="continuous"' in overrides and "env.servo.stall_torque=0.4707" in overrides
+    assert 'env.randomization.robots=["dfr05sr", "xl330_m288", "st3215"]' in overrides
+    drawn = robustness.cell_randomization(servo_group, 2, 0.02)["physics"].robot
     assert drawn.tolist() == [0, 0, 1, 1, 2, 2]
     for name, ends in robustness_grids.STRESS_ENDS.items():  # each end alone, every other factor as trained
         for value in ends:
@@ -79,8 +82,9 @@ def test_the_grids_cells():
         ({"latency_ms": 500}, r"latency_ms must be in \[0, 200\]"),
         ({"pushes": "yes"}, "pushes must be true or false"),
         ({"foot_friction": (0.3, 1.0)}, "foot_friction takes 4 values"),
-        ({"servo": "sg90000"}, "servo must be None or a preset"),
-        ({"servo": "mx28", "servo_torque_limit": 0.5}, "act on the asset's springs"),
+        ({"servo": "sg90000"}, "servo must be None or a robot profile with DC-motor servos"),
+        ({"servo": "original"}, "servo must be None or a robot profile with DC-motor servos"),
+        ({"servo": "xl330_m288", "servo_torque_limit": 0.5}, "act on the asset's springs"),
         ({"foot_anisotropy": (1.0, 1.0, 1.0, 5.0)}, r"foot_anisotropy must be in \[0.1, 3\]"),
         ({"gravity": 2.0}, "unknown factors"),
     ],
@@ -97,8 +101,8 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
     assert all((c["hsa_stiffness"], c["block_mass"], c["noise"]) == (1.3, 0.8, False) for c in chosen)
     assert robustness_grids.select(nominal, ["latency_ms=20.0"]) == [c for c in nominal if c["latency_ms"] == 20]
     stress = robustness_grids.grid("stress")
-    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 20
-    assert [c["servo"] for c in robustness_grids.select(stress, ["servo=mx28"])] == ["mx28"]
+    assert len(robustness_grids.select(stress, ["servo_torque_limit=none", "pushes=off"])) == 19
+    assert [c["servo"] for c in robustness_grids.select(stress, ["servo=st3215"])] == ["st3215"]
     # a factor given twice: either value; with the others pinned, the training model and the torque cell
     pinned = [f"{name}=1" for name in ("friction", "block_mass", "hsa_stiffness", "hsa_damping", "servo_gain")]
     pinned += ["latency_ms=0", "pushes=off", "noise=off", "servo=none"]
@@ -141,12 +145,12 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
     assert result["grid"] == "stress" and result["physics_backend"] == "c" and result["qacc_rule"] == "off"
     assert result["seed"] == 1  # the episodes' starts and goals, as given (the default)
     assert not Path(result["policy"]).is_absolute() and Path(result["policy"]).name == "flat"
-    assert len(rows) == 25 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
+    assert len(rows) == 24 and all(r["episodes"] == 1 and len(r["ci95"]) == 2 for r in rows)
     assert [r["label"] for r in rows] == [robustness_grids.label(c) for c in robustness_grids.grid("stress")]
     assert {p.name for p in tmp_path.iterdir()} == {f"robustness_smoke.{ext}" for ext in ("json", "md", "png")}
     # the same episode (start, goal, policy) on every model: each factor alone moves the robot elsewhere
     trained = rows[0]["mean_final_distance"]
-    alone = [*rows[1:11], *rows[15:21]]  # the five scales at both ends, the feet's two cells, the servo classes
+    alone = [*rows[1:11], *rows[15:20]]  # the five scales at both ends, the feet's two cells, the profiles' servos
     assert all(round(r["mean_final_distance"], 6) != round(trained, 6) for r in alone), [r["label"] for r in alone]
     # every episode reached its goal or ended one way: the failure shares and the success rate add up to 1
     assert all(abs(r["success_rate"] + sum(r["failures"].values()) - 1) < 1e-6 for r in rows)
@@ -165,7 +169,7 @@ def check_parts_join_into_the_whole(result: dict, tmp_path) -> None:
     """Parts (``--part K/N``) cover the grid once; ``benchmarks.robustness_merge`` joins them into the whole."""
     cells = robustness_grids.grid("stress")
     shares = [robustness_grids.part(cells, f"{k}/3") for k in (1, 2, 3)]
-    assert sorted(len(s) for s in shares) == [8, 8, 9] and sum(shares, []) != cells
+    assert sorted(len(s) for s in shares) == [8, 8, 8] and sum(shares, []) != cells
     assert sorted(map(robustness_grids.label, sum(shares, []))) == sorted(map(robustness_grids.label, cells))
     for spec in ("0/2", "3/2", "a/b", "2"):
         with pytest.raises(ValueError, match="--part"):
@@ -332,14 +336,14 @@ def test_the_randomised_config_trains_over_the_stress_grid_it_is_scored_on():
     assert dataclasses.asdict(env.observation.noise) == robustness_grids.NOISE
 
 
-def test_sim_to_sim_plays_a_servo_class_under_a_policy_trained_with_randomised_spring_servos():
-    """flat_dr trained over spring-servo gains and torque limits, which a servo class refuses: the
-    deployment loop plays the class's cell on the cell's model alone, as the MJX rollout does."""
+def test_sim_to_sim_plays_a_profiles_servos_under_a_policy_trained_with_randomised_spring_servos():
+    """flat_dr trained over spring-servo gains and torque limits, which a DC-motor servo refuses: the
+    deployment loop plays the profile's cell on the cell's model alone, as the MJX rollout does."""
     directory = str(policy_file.locate("flat_dr"))
-    for name in ("mx28", "dfr05sr"):
+    for name in ("xl330_m288", "dfr05sr"):
         reached = sim_to_sim.play_episode(directory, robustness_grids.cell(servo=name), [1.5, 0.0], 5, 0)
         assert reached is False  # 5 steps: not at a goal 1.5 m away, but played
-        assert sim_to_sim._loaded(directory, name)[1].servo.preset == name
+        assert sim_to_sim._loaded(directory, name)[1].servo == profile_servo(name)
 
 
 def _scored(label: str, successes: int, episodes: int) -> dict:

@@ -253,6 +253,17 @@ class Controller:
         return self.targets
 
 
+def play(targets: np.ndarray, robot: Robot) -> np.ndarray:
+    """Play a test signal (``hsa_mjx.sysid``): each row of ``targets`` (ticks, 8) commanded for one control
+    tick; the hinge angles read at each tick before its command, (ticks, 8): a log's angle columns."""
+    angles = []
+    for row in np.asarray(targets, np.float64):
+        angles.append(robot.read().hinge_angles)
+        robot.command(row)
+        robot.wait()
+    return np.asarray(angles)
+
+
 def run(
     controller: Controller, robot: Robot, goal_xy: np.ndarray, max_steps: int, success_radius: float
 ) -> dict[str, Any]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from hsa_mjx.randomization_config import FOOT_KEYS, NO_LIMIT, NOMINAL, SCALE_KEYS, RandomizationConfig
 from hsa_mjx.sim.model import RobotIndex
-from hsa_mjx.task.randomization import NominalModel, PhysicsScales, model_fields
+from hsa_mjx.task.randomization import SERVO_FIGURES, NominalModel, PhysicsScales, model_fields
 
 # (min, max) of each factor: scales of the asset's values, the torque limit in N m
 LIMITS = {
@@ -91,7 +91,8 @@ class ModelPerturbation:
             servo_force_limit=np.float32(limit),
             foot_friction=np.asarray(self.foot_friction, np.float32),
             foot_anisotropy=np.asarray(self.foot_anisotropy, np.float32),
-            servo_preset=np.zeros((), np.int32),
+            robot=np.zeros((), np.int32),
+            servo_figures=np.ones(len(SERVO_FIGURES), np.float32),
         )
 
 

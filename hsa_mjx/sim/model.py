@@ -78,6 +78,7 @@ class RobotIndex:
     joint_qvel: np.ndarray  # (8,) dof address of each actuated hinge
     servo_ids: np.ndarray  # (8,) actuator id of each servo, action-slot order
     drive_ids: np.ndarray  # (8,) actuator id of each servo's motor drive (hsa_mjx.sim.servo); (0,) for springs
+    play_act: np.ndarray  # (8,) act address of each servo's gear-play state (hsa_mjx.sim.servo); (0,) without play
     block_body: np.ndarray  # (2,) body ids of block_a, block_b
     block_qpos: np.ndarray  # (2,) qpos address of each block's free joint
     block_z: np.ndarray  # (2,) qpos address of each block's height (its free joint's z)
@@ -89,16 +90,29 @@ class RobotIndex:
     terrain_mocap: int  # mocap index of the heightfield's body; -1 on the plane scene
 
 
+def robot_spec(config: EnvConfig, asset_dir: Path | None = None) -> mujoco.MjSpec:
+    """The scene for ``config`` as a spec, its servos the configured ones (not yet compiled)."""
+    spec = mujoco.MjSpec.from_file(str(scene_path(config.scene, asset_dir)))
+    params = resolve_servo(config.servo)
+    if params is not None:  # DC-motor servos: a drive actuator beside each (inert) position actuator
+        servo.add_drives(spec, params, SERVOS, ACTUATED_JOINTS)
+    return spec
+
+
+def compile_robot(spec: mujoco.MjSpec, config: EnvConfig) -> mujoco.MjModel:
+    """A spec of :func:`robot_spec` compiled, with the configured physics."""
+    model = spec.compile()
+    _apply_physics(model, config)
+    return model
+
+
 def load_scene(config: EnvConfig, asset_dir: Path | None = None) -> tuple[mujoco.MjModel, TerrainPool | None]:
     """The scene for ``config`` as a C MuJoCo model with the configured physics, and its terrain pool.
 
     On the terrain scene the asset's heightfield is one tile: it becomes an atlas of the run's
     terrain tiles (drawn from ``terrain.seed``), written into the model's ``hfield_data``.
     """
-    spec = mujoco.MjSpec.from_file(str(scene_path(config.scene, asset_dir)))
-    params = resolve_servo(config.servo)
-    if params is not None:  # DC-motor servos: a drive actuator beside each (inert) position actuator
-        servo.add_drives(spec, params, SERVOS, ACTUATED_JOINTS)
+    spec = robot_spec(config, asset_dir)
     pool = None
     if config.scene == "terrain":
         field = spec.hfield(HFIELD_NAME)
@@ -109,10 +123,9 @@ def load_scene(config: EnvConfig, asset_dir: Path | None = None) -> tuple[mujoco
         field.size = [atlas.half_x, atlas.half_y, atlas.z_scale, atlas.base]
         field.userdata = [0.0] * atlas.size
         pool = TerrainPool(config.terrain, layout)
-    model = spec.compile()
+    model = compile_robot(spec, config)
     if pool is not None:
         model.hfield_data[:] = pool.atlas
-    _apply_physics(model, config)
     return model, pool
 
 
@@ -172,6 +185,14 @@ def _drive_ids(model: mujoco.MjModel) -> np.ndarray:
     return _ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, names)
 
 
+def _play_act(model: mujoco.MjModel) -> np.ndarray:
+    """act addresses of the servos' gear-play states in action-slot order, none without gear play."""
+    names = tuple(joint + servo.PLAY_SUFFIX for joint in ACTUATED_JOINTS)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, names[0]) < 0:
+        return np.zeros((0,), np.int32)
+    return model.actuator_actadr[_ids(model, mujoco.mjtObj.mjOBJ_ACTUATOR, names)].astype(np.int32)
+
+
 def build_index(model: mujoco.MjModel) -> RobotIndex:
     """Resolve every name the env uses into static ids."""
     joints = _ids(model, mujoco.mjtObj.mjOBJ_JOINT, ACTUATED_JOINTS)
@@ -187,6 +208,7 @@ def build_index(model: mujoco.MjModel) -> RobotIndex:
         joint_qvel=model.jnt_dofadr[joints].astype(np.int32),
         servo_ids=servos,
         drive_ids=_drive_ids(model),
+        play_act=_play_act(model),
         block_body=_ids(model, mujoco.mjtObj.mjOBJ_BODY, BLOCKS),
         block_qpos=model.jnt_qposadr[block_joints].astype(np.int32),
         block_z=(model.jnt_qposadr[block_joints] + FREE_JOINT_Z).astype(np.int32),

@@ -64,13 +64,14 @@ def simulate(
 
     drives = index.drive_ids
     if motors is not None:  # this env's figures, as its model holds them (drawn per episode or not)
-        motors = servo.figures(model.actuator_gainprm[drives], model.actuator_biasprm[drives], motors.model)
+        gains, biases = model.actuator_gainprm[drives], model.actuator_biasprm[drives]
+        motors = servo.figures(gains, biases, servo.static_model(motors))
 
     def substep(carry, servo_target):
         data, stats = carry
         ctrl = data.ctrl.at[index.servo_ids].set(servo_target)
         if motors is not None:
-            ctrl = ctrl.at[drives].set(servo.drive(motors, servo_target, data.qpos[index.joint_qpos]))
+            ctrl, data = _drive_servos(model, data, ctrl, servo_target, index, motors)
         data = _STEP(model, data.replace(ctrl=ctrl))
         return (data, merge_stats(stats, substep_stats(data))), None
 
@@ -81,6 +82,19 @@ def simulate(
     start = SubstepStats(zero, zero, zero.astype(bool), zero)
     (data, stats), _ = jax.lax.scan(substep, (data, start), targets)
     return data, stats
+
+
+def _drive_servos(
+    model: mjx.Model, data: mjx.Data, ctrl: jax.Array, target: jax.Array, index: RobotIndex, motors: ServoParams
+) -> tuple[jax.Array, mjx.Data]:
+    """The drive actuators' ``ctrl`` for one substep, and the data with the gear play's motor angles."""
+    angle = data.qpos[index.joint_qpos]
+    value = servo.drive(motors, target, angle)
+    if len(index.play_act):  # static: the model has gear play
+        speed = data.qvel[index.joint_qvel]
+        value, motor = servo.through_play(motors, value, data.act[index.play_act], angle, speed, model.opt.timestep)
+        data = data.replace(act=data.act.at[index.play_act].set(motor))
+    return ctrl.at[index.drive_ids].set(value), data
 
 
 def foot_forces(data: mjx.Data, sensors: np.ndarray) -> jax.Array:

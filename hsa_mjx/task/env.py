@@ -17,7 +17,8 @@ from brax.envs.base import Env as BraxEnv
 
 from hsa_mjx import pose
 from hsa_mjx.config import EnvConfig
-from hsa_mjx.servo_config import preset_servos, resolve_servo
+from hsa_mjx.robots import drawn_servos, env_motors
+from hsa_mjx.servo_config import resolve_servo
 from hsa_mjx.sim import backend, physics
 from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.host_physics import HostPhysics
@@ -88,7 +89,7 @@ class HSAEnv(BraxEnv):
         self.progress = progress.GoalProgress(config, self.world)
         self.observer = Observer(config, self.robot, self.progress, self.privileged)
         self.weights = reward.RewardWeights.from_config(config.reward)
-        self.motors = resolve_servo(config.servo)  # DC-motor servos' figures; None: the asset's springs
+        self.motors = env_motors(config.servo, config.randomization.robots)  # None: the asset's springs
         # physics.backend c: the substeps in C MuJoCo on the host (one env after another under vmap)
         self._host = HostPhysics(self.robot.mj_model, self.index, self.motors) if self.robot.backend == "c" else None
         self._init_static_arrays()
@@ -113,8 +114,8 @@ class HSAEnv(BraxEnv):
         )
         self._radial_range = jnp.asarray(cfg.goal.radial_range, jnp.float32)
         self._origin = observation.robot_xy(self._data0, self.index)  # the spawn pose's position
-        presets = preset_servos(cfg.servo, cfg.randomization.servo_presets)
-        self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index, presets)
+        own, robots = resolve_servo(cfg.servo), tuple(drawn_servos(cfg.randomization.robots))
+        self._nominal = randomization.NominalModel.from_model(self.robot.mj_model, self.index, own, robots)
 
     def with_terrain(self, tiles) -> HSAEnv:
         """This env on the terrain ``tiles`` (``hsa_mjx.terrain.regeneration.TerrainTiles``, traced): the

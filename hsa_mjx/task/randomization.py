@@ -19,9 +19,13 @@ hsa_stiffness      ``tendon_stiffness`` of every HSA tendon spring
 hsa_damping        ``tendon_damping`` of every HSA tendon spring
 servo_gain         the servos' ``actuator_gainprm[:, 0]`` and ``actuator_biasprm[:, 1]`` (kp)
 servo_force_limit  the servos' ``actuator_forcerange`` (the model is compiled force-limited)
-servo_presets      one drawn servo class: the drive actuators' ``actuator_gainprm[:, :4]`` (stall
-                   torque and the drive's figures), ``actuator_biasprm[:, 2]`` (back-EMF) and
-                   ``actuator_forcerange`` (the stall torque), as ``env.servo`` set to that preset
+robots             one drawn profile's DC-motor servo: the drive actuators' ``actuator_gainprm``
+                   (stall torque, the drive's figures and model: ``hsa_mjx.sim.servo.SLOTS``),
+                   ``actuator_biasprm[:, 2]`` (back-EMF), ``actuator_forcerange`` (the stall
+                   torque) and the hinges' ``dof_damping``, ``dof_frictionloss`` and ``dof_armature``,
+                   as the env built with that profile's servo holds them
+servo_figures      scales of the stall torque, no-load speed, damping, friction and rotor inertia
+                   of the env's servo (or of the drawn robot's), in the same fields
 =================  =========================================================================
 """
 
@@ -41,6 +45,7 @@ from hsa_mjx.randomization_config import (
     ObservationNoiseConfig,
     RandomizationConfig,
 )
+from hsa_mjx.servo_config import ServoParams
 from hsa_mjx.sim import servo
 from hsa_mjx.sim.model import RobotIndex
 
@@ -54,7 +59,11 @@ FIELDS = (
     "actuator_gainprm",
     "actuator_biasprm",
     "actuator_forcerange",
+    "dof_damping",
+    "dof_frictionloss",
+    "dof_armature",
 )
+SERVO_FIGURES = ("stall_torque", "no_load_speed", "damping", "friction", "armature")  # servo_figures' scales
 # observation slot label prefixes of each noise group (hsa_mjx.task.observation.observation_labels)
 NOISE_LABELS = {
     "hinge_angles": ("hinge_angle_", "hinge_sin_", "hinge_cos_"),
@@ -78,7 +87,8 @@ class PhysicsScales:
     servo_force_limit: jax.Array  # () N m (inf: no limit)
     foot_friction: jax.Array  # (4,) each foot's floor contact, both sliding coefficients
     foot_anisotropy: jax.Array  # (4,) each foot's lower sliding coefficient alone
-    servo_preset: jax.Array  # () int32, the drawn servo class's place in ``servo_presets`` (0: none drawn)
+    robot: jax.Array  # () int32, the drawn robot's place in ``randomization.robots`` (0: none drawn)
+    servo_figures: jax.Array  # (5,) scales of SERVO_FIGURES
 
     @staticmethod
     def nominal() -> PhysicsScales:
@@ -93,7 +103,8 @@ class PhysicsScales:
             servo_force_limit=jnp.full((), jnp.inf, jnp.float32),
             foot_friction=jnp.ones((4,), jnp.float32),
             foot_anisotropy=jnp.ones((4,), jnp.float32),
-            servo_preset=jnp.zeros((), jnp.int32),
+            robot=jnp.zeros((), jnp.int32),
+            servo_figures=jnp.ones((len(SERVO_FIGURES),), jnp.float32),
         )
 
 
@@ -107,7 +118,7 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
     """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
     keys = jax.random.split(key, 6)
     feet = jax.random.split(jax.random.fold_in(key, 6), 2)  # the other draws stay what they were before the feet's
-    presets = max(len(config.servo_presets), 1)
+    robots = max(len(config.robots), 1)
     limit = _uniform(keys[5], config.servo_force_limit) if config.limits_force else jnp.full((), jnp.inf)
     return PhysicsScales(
         friction=_uniform(keys[0], config.friction),
@@ -118,7 +129,8 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
         servo_force_limit=limit.astype(jnp.float32),
         foot_friction=_uniform(feet[0], config.foot_friction, (4,)),
         foot_anisotropy=_uniform(feet[1], config.foot_anisotropy, (4,)),
-        servo_preset=jax.random.randint(jax.random.fold_in(key, 7), (), 0, presets, jnp.int32),
+        robot=jax.random.randint(jax.random.fold_in(key, 7), (), 0, robots, jnp.int32),
+        servo_figures=_uniform(jax.random.fold_in(key, 8), config.servo_figures, (len(SERVO_FIGURES),)),
     )
 
 
@@ -133,18 +145,30 @@ class NominalModel:
     feet: np.ndarray  # (4,) each foot's floor contact pair
     lower: np.ndarray  # (4,) the column (0, 1) of each foot pair's lower sliding coefficient
     drives: np.ndarray  # the DC-motor servos' drive actuators (none for the asset's springs)
-    servos_drawn: np.ndarray  # (presets, 5) each drawable servo class: its 4 gain slots, its back-EMF
+    hinges: np.ndarray  # (8,) the actuated hinges' dofs
+    hinge_damping: np.ndarray  # (8,) their damping without the servo's (the asset's own)
+    servo_rows: np.ndarray  # (robots, SERVO_ROW) the env's own servo, or each drawable robot's
 
     @staticmethod
-    def from_model(mj_model: mujoco.MjModel, index: RobotIndex, presets: tuple = ()) -> NominalModel:
-        """Read the fields once from the compiled C model; ``presets``: the drawable servo classes'
-        ``ServoParams`` (``hsa_mjx.servo_config.preset_servos``)."""
+    def from_model(
+        mj_model: mujoco.MjModel, index: RobotIndex, own: ServoParams | None = None, robots: tuple = ()
+    ) -> NominalModel:
+        """Read the fields once from the compiled C model; ``own``: the env's DC-motor servo (None: the
+        springs), ``robots``: the drawable robots' servos (``hsa_mjx.robots.drawn_servos``)."""
         values = {name: np.array(getattr(mj_model, name), np.float32) for name in FIELDS}
         feet = np.asarray(index.foot_pairs)
         lower = np.argmin(values["pair_friction"][feet, :2], axis=1)
-        drawn = np.asarray([[*servo.gain_slots(p), p.back_emf] for p in presets], np.float32).reshape(-1, 5)
+        hinges = np.asarray(index.joint_qvel)
+        rows = np.asarray([servo_row(p) for p in (robots or ([own] if own else []))], np.float32)
+        damping = values["dof_damping"][hinges] - (own.damping if own else 0.0)
         ids = np.asarray(index.servo_ids), np.arange(mj_model.ntendon)
-        return NominalModel(values, np.asarray(index.block_body), *ids, feet, lower, np.asarray(index.drive_ids), drawn)
+        drives = np.asarray(index.drive_ids)
+        return NominalModel(values, np.asarray(index.block_body), *ids, feet, lower, drives, hinges, damping, rows)
+
+
+def servo_row(params: ServoParams) -> list[float]:
+    """A DC-motor servo's figures as one row: its drive actuators' gain slots, then SERVO_FIGURES[1:]."""
+    return [*servo.gain_slots(params), params.no_load_speed, params.damping, params.friction, params.armature]
 
 
 def model_fields(nominal: NominalModel, scales: PhysicsScales, config: RandomizationConfig) -> dict[str, jax.Array]:
@@ -172,20 +196,28 @@ def model_fields(nominal: NominalModel, scales: PhysicsScales, config: Randomiza
     if config.limits_force:
         limit = jnp.stack([-scales.servo_force_limit, scales.servo_force_limit])
         fields["actuator_forcerange"] = jnp.asarray(v["actuator_forcerange"]).at[servos].set(limit)
-    if config.servo_presets:
-        fields.update(_drawn_servo(nominal, scales.servo_preset))
+    if config.robots or config.servo_figures != NOMINAL:
+        row = jnp.asarray(nominal.servo_rows)[scales.robot]
+        fields.update(servo_fields(nominal, row, scales.servo_figures))
     return fields
 
 
-def _drawn_servo(nominal: NominalModel, preset: jax.Array) -> dict[str, jax.Array]:
-    """The drive actuators' fields of the drawn servo class (``hsa_mjx.sim.servo``: where each figure sits)."""
-    v, drives = nominal.values, nominal.drives
-    row = jnp.asarray(nominal.servos_drawn)[preset]
-    stall, back_emf = row[servo.STALL], row[-1]
+def servo_fields(nominal: NominalModel, row: jax.Array, figures: jax.Array) -> dict[str, jax.Array]:
+    """The drive actuators' and hinges' fields of the servo ``row`` (:func:`servo_row`: the drawn robot's,
+    or the env's own where none is drawn) with its SERVO_FIGURES scaled by ``figures`` (5,)
+    (``hsa_mjx.sim.servo``: where each figure sits)."""
+    v, drives, hinges = nominal.values, nominal.drives, nominal.hinges
+    slots, (speed, damping, friction, armature) = row[: servo.FIGURE_SLOTS], row[servo.FIGURE_SLOTS :]
+    stall = slots[servo.STALL] * figures[0]
     return {
-        "actuator_gainprm": jnp.asarray(v["actuator_gainprm"]).at[drives, : servo.FIGURE_SLOTS].set(row[:-1]),
-        "actuator_biasprm": jnp.asarray(v["actuator_biasprm"]).at[drives, 2].set(-back_emf),
+        "actuator_gainprm": jnp.asarray(v["actuator_gainprm"])
+        .at[drives, : servo.FIGURE_SLOTS]
+        .set(slots.at[servo.STALL].set(stall)),
+        "actuator_biasprm": jnp.asarray(v["actuator_biasprm"]).at[drives, 2].set(-stall / (speed * figures[1])),
         "actuator_forcerange": jnp.asarray(v["actuator_forcerange"]).at[drives].set(jnp.stack([-stall, stall])),
+        "dof_damping": jnp.asarray(v["dof_damping"]).at[hinges].set(nominal.hinge_damping + damping * figures[2]),
+        "dof_frictionloss": jnp.asarray(v["dof_frictionloss"]).at[hinges].set(friction * figures[3]),
+        "dof_armature": jnp.asarray(v["dof_armature"]).at[hinges].set(armature * figures[4]),
     }
 
 
@@ -220,14 +252,16 @@ FOOT_MODEL_LABELS = tuple(f"true_foot_{kind}_{i}" for kind in ("friction", "anis
 
 
 def servo_model_labels(config: RandomizationConfig) -> tuple[str, ...]:
-    """Appended where each env draws its servo class: one per class (the drawn one 1, the others 0)."""
-    return tuple(f"true_servo_{name}" for name in config.servo_presets)
+    """Appended where each env draws its robot (one per profile: the drawn one 1, the others 0) and its
+    servo figures (their scales)."""
+    robots = tuple(f"true_robot_{name}" for name in config.robots)
+    return robots + (tuple(f"true_servo_{name}" for name in SERVO_FIGURES) if config.servo_figures != NOMINAL else ())
 
 
 def true_model(state: RandomizationState, config: RandomizationConfig) -> jax.Array:
     """The episode's model as the privileged critic sees it, float32 in ``TRUE_MODEL_LABELS``' order (8
-    values), then where drawn the feet's in ``FOOT_MODEL_LABELS``' order and the servo class's
-    (``servo_model_labels``)."""
+    values), then where drawn the feet's in ``FOOT_MODEL_LABELS``' order and the drawn robot's and the
+    servo figures' (``servo_model_labels``)."""
     p = state.physics
     parts = [
         jnp.stack([p.friction]),
@@ -236,7 +270,8 @@ def true_model(state: RandomizationState, config: RandomizationConfig) -> jax.Ar
         jnp.stack([state.latency.astype(jnp.float32)]),
     ]
     parts += [p.foot_friction, p.foot_anisotropy] if config.per_foot else []
-    parts += [jax.nn.one_hot(p.servo_preset, len(config.servo_presets))] if config.servo_presets else []
+    parts += [jax.nn.one_hot(p.robot, len(config.robots))] if config.robots else []
+    parts += [p.servo_figures] if config.servo_figures != NOMINAL else []
     return jnp.concatenate(parts).astype(jnp.float32)
 
 
@@ -291,7 +326,8 @@ def toward_nominal(physics: PhysicsScales, scale: jax.Array) -> PhysicsScales:
         servo_force_limit=physics.servo_force_limit / scale,  # inf at scale 0: no limit
         foot_friction=toward_one(physics.foot_friction),
         foot_anisotropy=toward_one(physics.foot_anisotropy),
-        servo_preset=physics.servo_preset,  # a class is drawn whole at every level
+        robot=physics.robot,  # a robot is drawn whole at every level
+        servo_figures=toward_one(physics.servo_figures),
     )
 
 

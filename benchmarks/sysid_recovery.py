@@ -1,0 +1,132 @@
+"""Does the servo fit recover known figures? ``python -m benchmarks.sysid_recovery``.
+
+For each robot profile: a "true" servo (the profile's figures moved by ``TRUTH`` factors, so the fit
+does not start at the answer), its 60 s log made by the rig (``hsa_mjx.sysid synth``: tracker noise
+and latency), then the fit from the profile's own figures (``hsa_mjx.sysid fit``). Each figure's
+relative error (``rel_error``; the absolute error where the truth is 0), whether the log pins it down
+(its sensitivity) and the recovered latency go to ``--out`` (JSON and Markdown).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from benchmarks.run_info import report, run_info
+from hsa_mjx.config import get_preset, with_overrides
+from hsa_mjx.sysid import fit as fitting
+from hsa_mjx.sysid.rig import synthesize
+from hsa_mjx.sysid.signals import SignalSpec, test_signal
+
+RESULTS = Path(__file__).resolve().parent / "results" / "sysid"
+ROBOTS = ("dfr05sr", "xl330_m288", "st3215")  # the hardware profiles: both DC-motor servo models
+TRUTH = {  # the true servo: each fitted figure times this (the dead band too, where the profile has one)
+    "stall_torque": 1.15,
+    "no_load_speed": 0.85,
+    "gain": 1.2,
+    "deadband": 1.25,
+    "damping": 1.3,
+    "friction": 0.8,
+    "armature": 1.25,
+}
+PASS = 0.05  # the relative error an identifiable figure must stay within
+
+
+def truth_servo(start):
+    """The profile's servo (at its supply voltage) with each figure moved by ``TRUTH``."""
+    servo = fitting.at_supply(start)
+    moved = {}
+    for name, factor in TRUTH.items():
+        key = fitting.gain_key(servo.model) if name == "gain" else name
+        moved[key] = fitting.figure(servo, name) * factor
+    return dataclasses.replace(servo, **moved)
+
+
+def recover(robot: str, args: argparse.Namespace) -> dict:
+    """One profile's row: the true and fitted figures, their errors and sensitivities."""
+    config = with_overrides(get_preset("flat"), robot=robot)
+    truth = dataclasses.replace(config, servo=truth_servo(config.servo))
+    signal = test_signal(SignalSpec(), config.dt, config.control.servo_target_limit)
+    log, _ = synthesize(truth, signal, args.noise, args.latency_ms / 1000.0, args.seed)
+    start = time.perf_counter()
+    result = fitting.fit(config, log, args.generations, args.population, args.seed, args.workers)
+    rows = {}
+    for name in fitting.FITTED:
+        true, fitted = fitting.figure(truth.servo, name), fitting.figure(result.servo, name)
+        error = abs(fitted - true) / true if true else abs(fitted - true)
+        rows[name] = {
+            "true": true,
+            "start": fitting.figure(fitting.at_supply(config.servo), name),
+            "fitted": fitted,
+            "rel_error" if true else "abs_error": error,
+            "sensitivity": result.sensitivity[name],
+            "identifiable": result.identifiable(name),
+        }
+    held = {
+        name: {"value": getattr(result.servo, name), "sensitivity": result.sensitivity[name]} for name in fitting.HELD
+    }
+    passed = all(r.get("rel_error", r.get("abs_error")) <= PASS for r in rows.values() if r["identifiable"])
+    return {
+        "robot": robot,
+        "model": config.servo.model,
+        "log_seconds": log.seconds,
+        "rms_error_rad": result.loss**0.5,
+        "noise_rad": args.noise,
+        "latency_s": {"true": args.latency_ms / 1000.0, "fitted": result.latency_s},
+        "generations": result.generations,
+        "fit_seconds": round(time.perf_counter() - start, 1),
+        "figures": rows,
+        "held": held,
+        "passed": passed,
+    }
+
+
+def markdown(rows: list[dict], info: dict) -> str:
+    """The result as a table per profile."""
+    out = [f"# Servo fit recovery ({info['date'][:10]}, {info['cpu_count']} CPU cores)", "", f"`{info['command']}`", ""]
+    for row in rows:
+        verdict = "every identifiable figure within 5 %" if row["passed"] else "FAILED"
+        out += [
+            f"## {row['robot']} ({row['model']}): {verdict}",
+            f"rms error {row['rms_error_rad']:.4f} rad (noise {row['noise_rad']:g}), latency "
+            f"{row['latency_s']['fitted'] * 1000:.0f} ms (true {row['latency_s']['true'] * 1000:.0f}), "
+            f"{row['generations']} generations, {row['fit_seconds']:.0f} s",
+            "",
+            "| figure | true | start | fitted | error | sensitivity | identifiable |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for name, r in row["figures"].items():
+            error = f"{r['rel_error']:.1%}" if "rel_error" in r else f"{r['abs_error']:.4g} (abs)"
+            out.append(
+                f"| {name} | {r['true']:.4g} | {r['start']:.4g} | {r['fitted']:.4g} | {error} | "
+                f"{r['sensitivity']:.3g} | {'yes' if r['identifiable'] else 'no'} |"
+            )
+        out.append("")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``python -m benchmarks.sysid_recovery``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.sysid_recovery", description=__doc__)
+    parser.add_argument("--robots", nargs="+", default=list(ROBOTS))
+    parser.add_argument("--generations", type=int, default=80)
+    parser.add_argument("--population", type=int, default=12)
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--noise", type=float, default=0.005, help="tracker noise, rad")
+    parser.add_argument("--latency-ms", type=float, default=20.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULTS / "recovery.json")
+    args = parser.parse_args(argv)
+    rows, info = [], run_info()
+    for robot in args.robots:  # the files written again after each profile: a long run keeps what it has
+        rows.append(recover(robot, args))
+        print(f"{robot}: passed {rows[-1]['passed']}", flush=True)
+        report(args.out, {**info, "rows": rows}, markdown(rows, info))
+    return 0 if all(r["passed"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

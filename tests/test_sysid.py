@@ -1,0 +1,79 @@
+"""Servo identification: the test signal, the log format, the lifted rig, the fit and its command."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import hsa_mjx
+from hsa_mjx.deploy.loop import SimulatedRobot, play
+from hsa_mjx.sysid import fit, logs, rig, signals
+from hsa_mjx.sysid.__main__ import main
+
+CONFIG = hsa_mjx.config.with_overrides(hsa_mjx.get_preset("flat"), robot="xl330_m288")
+RATIO = 0.75  # of the start's error the fit must get below in its few generations
+SHORT = signals.SignalSpec(chirp_amplitudes=(0.5,), chirp_seconds=1.0, steps=(1.0,), step_seconds=0.5)
+
+
+def test_the_signal_stays_in_range_and_round_trips_as_csv(tmp_path):
+    full = signals.test_signal(signals.SignalSpec(), CONFIG.dt, CONFIG.control.servo_target_limit)
+    assert 55 <= full.seconds <= 65 and np.abs(full.targets).max() == 2.0
+    assert np.ptp(full.targets, axis=1).max() == 0.0  # the same on every servo
+    path = logs.write_log(tmp_path / "signal.csv", full)
+    back = logs.read_log(path, need_angles=False)
+    assert back.angles is None and back.dt == pytest.approx(CONFIG.dt)
+    np.testing.assert_allclose(back.targets, full.targets, atol=1e-6)
+    with pytest.raises(ValueError, match="outside the servos' range of \\+-1.5 rad"):
+        signals.test_signal(signals.SignalSpec(), CONFIG.dt, 1.5)
+    with pytest.raises(ValueError, match="half the control rate"):
+        signals.test_signal(signals.SignalSpec(frequencies=(0.1, 40.0)), CONFIG.dt, 3.0)
+    with pytest.raises(ValueError, match="missing column.*angle_0"):
+        logs.read_log(path)
+    (tmp_path / "uneven.csv").write_text(
+        "time," + ",".join(logs.TARGETS) + "\n0," + "0," * 7 + "0\n0.5," + "0," * 7 + "0\n0.6," + "0," * 7 + "0\n"
+    )
+    with pytest.raises(ValueError, match="one control tick a row"):
+        logs.read_log(tmp_path / "uneven.csv", need_angles=False)
+    with pytest.raises(FileNotFoundError, match="servo log not found"):
+        logs.read_log(tmp_path / "none.csv")
+
+
+def test_the_rig_holds_the_blocks_and_reads_late_as_a_tracker_does():
+    signal = signals.test_signal(SHORT, CONFIG.dt, 3.0)
+    log, exact = rig.synthesize(CONFIG, signal, noise=0.0, latency_s=0.02)
+    # 20 ms late: each tick reads the angles of the tick before (the first: the start)
+    ticks = exact[:: CONFIG.control.frame_skip][: len(signal.targets)]
+    np.testing.assert_allclose(log.angles[1:], ticks[:-1], atol=1e-9)
+    assert np.abs(exact).max() > 0.5  # the servos turned their HSA ends
+    # the deployment loop playing the signal on the rig reads the same angles, on time
+    model, index = rig.rig_model(CONFIG)
+    robot = SimulatedRobot(model, index, dataclasses.replace(CONFIG, spawn_height=0.2 + rig.LIFT))
+    np.testing.assert_allclose(play(signal.targets, robot), ticks, atol=1e-9)
+    start = model.qpos0[np.concatenate([index.block_qpos + k for k in range(3)])]
+    held = robot.data.qpos[np.concatenate([index.block_qpos + k for k in range(3)])]
+    assert np.abs(held - start).max() < 3e-3  # held where they were, within the welds' give
+
+
+def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_figures_pull(tmp_path):
+    truth = dataclasses.replace(
+        CONFIG, servo=dataclasses.replace(CONFIG.servo, stall_torque=0.7, no_load_speed=8.0, damping=0.02)
+    )
+    signal = signals.test_signal(SHORT, CONFIG.dt, 3.0)
+    log, _ = rig.synthesize(truth, signal, noise=0.002, latency_s=0.02)
+    evaluate = fit.Evaluator(CONFIG, log, workers=1)
+    start = evaluate([fit.at_supply(CONFIG.servo)])[0][0]
+    result = fit.fit(CONFIG, log, generations=4, population=6, workers=1)
+    assert result.loss < RATIO * start and 0.0 <= result.latency_s <= fit.MAX_LATENCY_S
+    assert set(result.sensitivity) == set(fit.FITTED + fit.HELD)
+    assert result.identifiable("stall_torque") and result.sensitivity["stall_torque"] > 0.1  # it pins the torque
+    # the command: a fitted profile that an env takes by path
+    path = logs.write_log(tmp_path / "log.csv", log)
+    out = tmp_path / "fitted.yaml"
+    args = ["fit", str(path), "--robot", "xl330_m288", "--generations", "1", "--population", "4", "--workers", "1"]
+    assert main([*args, "--out", str(out)]) == 0
+    fitted = hsa_mjx.config.with_overrides(hsa_mjx.get_preset("flat"), robot=str(out))
+    assert fitted.servo.model == "position" and fitted.control == CONFIG.control
+    assert hsa_mjx.robots.load_profile(out).identification["rms_error_rad"] > 0
+    assert main(["fit", str(path), "--robot", "original", "--out", str(out)]) == 2  # springs: nothing to fit
