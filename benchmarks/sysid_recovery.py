@@ -3,8 +3,8 @@
 For each robot profile: a "true" servo (the profile's figures moved by ``TRUTH`` factors, so the fit
 does not start at the answer), its 60 s log made by the rig (``hsa_mjx.sysid synth``: tracker noise
 and latency), then the fit from the profile's own figures (``hsa_mjx.sysid fit``). Each figure's
-relative error (``rel_error``; the absolute error where the truth is 0), whether the log pins it down
-(its sensitivity) and the recovered latency go to ``--out`` (JSON and Markdown).
+relative error (``rel_error``; the absolute error where the truth is 0), the fit's own 95 % bound on
+it and whether the log pins it down, and the recovered latency go to ``--out`` (JSON and Markdown).
 """
 
 from __future__ import annotations
@@ -62,11 +62,11 @@ def recover(robot: str, args: argparse.Namespace) -> dict:
             "start": fitting.figure(fitting.at_supply(config.servo), name),
             "fitted": fitted,
             "rel_error" if true else "abs_error": error,
-            "sensitivity": result.sensitivity[name],
+            "bound_95": result.bound[name],
             "identifiable": result.identifiable(name),
         }
     held = {
-        name: {"value": getattr(result.servo, name), "sensitivity": result.sensitivity[name]} for name in fitting.HELD
+        name: {"value": getattr(result.servo, name), "pull_of_50_percent": result.held[name]} for name in fitting.HELD
     }
     passed = all(r.get("rel_error", r.get("abs_error")) <= PASS for r in rows.values() if r["identifiable"])
     return {
@@ -95,14 +95,14 @@ def markdown(rows: list[dict], info: dict) -> str:
             f"{row['latency_s']['fitted'] * 1000:.0f} ms (true {row['latency_s']['true'] * 1000:.0f}), "
             f"{row['generations']} generations, {row['fit_seconds']:.0f} s",
             "",
-            "| figure | true | start | fitted | error | sensitivity | identifiable |",
+            "| figure | true | start | fitted | error | 95 % bound (fit's own) | identifiable |",
             "|---|---|---|---|---|---|---|",
         ]
         for name, r in row["figures"].items():
             error = f"{r['rel_error']:.1%}" if "rel_error" in r else f"{r['abs_error']:.4g} (abs)"
             out.append(
                 f"| {name} | {r['true']:.4g} | {r['start']:.4g} | {r['fitted']:.4g} | {error} | "
-                f"{r['sensitivity']:.3g} | {'yes' if r['identifiable'] else 'no'} |"
+                f"{r['bound_95']:.1%} | {'yes' if r['identifiable'] else 'no'} |"
             )
         out.append("")
     return "\n".join(out)

@@ -14,7 +14,9 @@ from hsa_mjx.sysid.__main__ import main
 
 CONFIG = hsa_mjx.config.with_overrides(hsa_mjx.get_preset("flat"), robot="xl330_m288")
 RATIO = 0.75  # of the start's error the fit must get below in its few generations
-SHORT = signals.SignalSpec(chirp_amplitudes=(0.5,), chirp_seconds=1.0, steps=(1.0,), step_seconds=0.5)
+SHORT = signals.SignalSpec(
+    chirp_amplitudes=(0.5,), chirp_seconds=1.0, ramp_speeds=(3.0,), ramp_amplitude=0.5, steps=(1.0,), step_seconds=0.5
+)
 
 
 def test_the_signal_stays_in_range_and_round_trips_as_csv(tmp_path):
@@ -66,8 +68,8 @@ def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_
     start = evaluate([fit.at_supply(CONFIG.servo)])[0][0]
     result = fit.fit(CONFIG, log, generations=4, population=6, workers=1)
     assert result.loss < RATIO * start and 0.0 <= result.latency_s <= fit.MAX_LATENCY_S
-    assert set(result.sensitivity) == set(fit.FITTED + fit.HELD)
-    assert result.identifiable("stall_torque") and result.sensitivity["stall_torque"] > 0.1  # it pins the torque
+    assert set(result.bound) == set(fit.FITTED) and set(result.held) == set(fit.HELD)
+    assert result.identifiable("stall_torque") and np.isfinite(result.held["backlash"])  # the torque pinned down
     # the command: a fitted profile that an env takes by path
     path = logs.write_log(tmp_path / "log.csv", log)
     out = tmp_path / "fitted.yaml"

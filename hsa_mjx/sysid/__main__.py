@@ -87,8 +87,9 @@ def write_profile(path: Path, robot: str, result: fitting.FitResult, log_path: s
         "rms_error_rad": result.loss**0.5,
         "latency_s": result.latency_s,
         "generations": result.generations,
-        "sensitivity": result.sensitivity,
-        "not_identifiable": [n for n in result.sensitivity if not result.identifiable(n)],
+        "bound_95": result.bound,
+        "not_identifiable": [n for n in result.bound if not result.identifiable(n)],
+        "held_pull": result.held,
     }
     data = {
         "description": f"{profile.description} (servo figures fitted to {Path(log_path).name})",

@@ -4,10 +4,12 @@ Each candidate set of figures is rolled out on the lifted rig in C MuJoCo with t
 (``hsa_mjx.sysid.rig``: the env's own servo law, one process per core), its angles read at each tick
 after the best latency (searched on a grid of substeps for every candidate), and scored by the mean
 squared angle error. CMA-ES (``hsa_mjx.sysid.cmaes``) searches the figures in log scale around the
-profile's (the data sheet's) values. After the fit, each figure is moved 10 % either way to measure
-how much the error grows: a figure whose move changes the error by less than ``IDENTIFIABLE`` of it is
-reported as not identifiable from this log (with its sensitivity), not silently kept. Gear play and the
-encoder's resolution are held at the profile's values and reported with their sensitivity.
+profile's (the data sheet's) values. After the fit, the log's information on each figure is measured:
+the angles' derivatives with respect to the figures (central differences) and the residual noise give
+the Fisher information, whose inverse bounds each figure's error with the others free to trade off
+against it; a figure whose 95 % bound is wider than ``IDENTIFIABLE`` is reported as not identifiable
+from this log, with its bound, not silently kept. Gear play and the encoder's resolution are held at the
+profile's values; how much a 50 % move of each changes the error is reported beside.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ from hsa_mjx.sysid.logs import ServoLog
 from hsa_mjx.sysid.rig import measured, rig_rollout, substep_schedule
 
 FITTED = ("stall_torque", "no_load_speed", "gain", "deadband", "damping", "friction", "armature")
-HELD = ("backlash", "encoder_resolution")  # kept at the profile's values, their sensitivity reported
-IDENTIFIABLE = 0.01  # a 10 % move must change the mean squared error by at least this share
+HELD = ("backlash", "encoder_resolution")  # kept at the profile's values, their pull on the error reported
+IDENTIFIABLE = 0.05  # a figure's 95 % bound (relative) must be this narrow for the log to identify it
+STEP = 0.05  # the central differences' step in the search's coordinates (5 % of a figure)
 MAX_LATENCY_S = 0.1
 # where the profile gives 0 for a figure, the search starts from this (per N m of stall torque for friction)
 STARTS = {"damping": 0.01, "friction": 0.02, "armature": 1e-3}
@@ -37,18 +40,19 @@ DEADBAND_SCALE = {"position": 0.02, "continuous": 0.05}  # rad / share of full c
 
 @dataclasses.dataclass(frozen=True)
 class FitResult:
-    """The fitted servo, its error, latency and each figure's sensitivity."""
+    """The fitted servo, its error and latency, each fitted figure's 95 % bound and the held ones' pull."""
 
     servo: ServoConfig
     loss: float  # mean squared angle error, rad^2
     latency_s: float
     generations: int
-    sensitivity: dict[str, float]  # relative growth of the error for a 10 % move (held ones: 50 %)
+    bound: dict[str, float]  # each fitted figure's 95 % error bound, relative to its value
+    held: dict[str, float]  # the error's relative growth when a held figure moves 50 %
     history: list[float]  # best loss per generation
 
     def identifiable(self, name: str) -> bool:
-        """Whether the log pins figure ``name`` down (its sensitivity reaches ``IDENTIFIABLE``)."""
-        return self.sensitivity[name] >= IDENTIFIABLE
+        """Whether the log pins fitted figure ``name`` down (its 95 % bound within ``IDENTIFIABLE``)."""
+        return self.bound[name] <= IDENTIFIABLE
 
 
 def gain_key(model: str) -> str:
@@ -121,11 +125,19 @@ def _setup(config: EnvConfig, schedule: np.ndarray) -> None:
     _WORK.update(config=config, schedule=schedule)
 
 
+def _angles(servo: ServoConfig) -> np.ndarray:
+    return rig_rollout(dataclasses.replace(_WORK["config"], servo=servo), _WORK["schedule"])
+
+
 def _score(servo: ServoConfig, log: ServoLog) -> tuple[float, float]:
-    config = dataclasses.replace(_WORK["config"], servo=servo)
-    if not np.all(np.isfinite(angles := rig_rollout(config, _WORK["schedule"]))):
+    if not np.all(np.isfinite(angles := _angles(servo))):
         return np.inf, 0.0
-    return best_latency(angles, log, config.control.frame_skip)
+    return best_latency(angles, log, _WORK["config"].control.frame_skip)
+
+
+def _read(servo: ServoConfig, log: ServoLog, latency_s: float) -> np.ndarray:
+    frame_skip = _WORK["config"].control.frame_skip
+    return measured(_angles(servo), latency_s, log.dt, len(log.targets), frame_skip)
 
 
 class Evaluator:
@@ -142,8 +154,15 @@ class Evaluator:
             self.pool = ProcessPoolExecutor(self.workers, context, initializer=_setup, initargs=(config, schedule))
 
     def __call__(self, servos: list[ServoConfig]) -> list[tuple[float, float]]:
-        logs = [self.log] * len(servos)
-        return list(map(_score, servos, logs)) if self.pool is None else list(self.pool.map(_score, servos, logs))
+        """Each servo's (mean squared error, latency) at its best latency."""
+        return self._map(_score, servos, [self.log] * len(servos))
+
+    def readings(self, servos: list[ServoConfig], latency_s: float) -> list[np.ndarray]:
+        """Each servo's angles as the log's tracker reads them, ``latency_s`` late."""
+        return self._map(_read, servos, [self.log] * len(servos), [latency_s] * len(servos))
+
+    def _map(self, function, *columns) -> list:
+        return list(map(function, *columns)) if self.pool is None else list(self.pool.map(function, *columns))
 
     def close(self) -> None:
         if self.pool is not None:
@@ -174,7 +193,7 @@ def fit(
     search, evaluate = Search(config.servo), Evaluator(config, log, workers)
     try:
         es = CMAES(search.initial(), 0.3, population, seed)
-        best, history = (np.inf, 0.0, search.start), []
+        best, best_x, history = (np.inf, 0.0, search.start), search.initial(), []
         for _ in range(generations):
             xs = es.ask()
             servos = [search.servo(x) for x in xs]
@@ -183,34 +202,43 @@ def fit(
             es.tell(losses)
             i = int(np.argmin(losses))
             if losses[i] < best[0]:
-                best = (float(losses[i]), scores[i][1], servos[i])
+                best, best_x = (float(losses[i]), scores[i][1], servos[i]), xs[i]
             history.append(best[0])
             if progress:
                 progress(es.generation, best[0], es.sigma)
             if es.sigma < 1e-3:
                 break
-        sensitivity = sensitivities(best[2], best[0], evaluate)
+        bound = bounds(search, best_x, best[0], best[1], evaluate)
+        held = held_pull(best[2], best[0], evaluate)
     finally:
         evaluate.close()
-    return FitResult(best[2], best[0], best[1], es.generation, sensitivity, history)
+    return FitResult(best[2], best[0], best[1], es.generation, bound, held, history)
 
 
-def sensitivities(servo: ServoConfig, loss: float, evaluate: Evaluator) -> dict[str, float]:
-    """Each figure's relative growth of the error when moved 10 % up and down (held figures: 50 %; a zero
-    dead band: by 10 % of its search unit)."""
-    moves, names = [], []
-    for name in FITTED + HELD:
-        value, share = figure(servo, name), (0.5 if name in HELD else 0.1)
-        if name in HELD and value == 0:  # the servo has none: nothing to move
-            continue
-        key = gain_key(servo.model) if name == "gain" else name
-        step = value * share if value > 0 else DEADBAND_SCALE[servo.model] * share
-        for sign in (1, -1):
-            moves.append(dataclasses.replace(servo, **{key: max(value + sign * step, 0.0)}))
-            names.append(name)
-    scores = [s[0] for s in evaluate(moves)]
+def bounds(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> dict[str, float]:
+    """Each fitted figure's 95 % error bound relative to its value, from the Fisher information of the log
+    at ``x`` (the residual's variance ``loss``): the others free, so a trade-off between two figures
+    widens both bounds."""
+    moves = [x + sign * STEP * np.eye(len(x))[i] for i in range(len(x)) for sign in (1, -1)]
+    readings = evaluate.readings([search.servo(m) for m in moves], latency_s)
+    jacobian = np.stack([(readings[2 * i] - readings[2 * i + 1]).ravel() / (2 * STEP) for i in range(len(x))], 1)
+    covariance = np.linalg.pinv(jacobian.T @ jacobian / max(loss, 1e-12))
+    spread = 1.96 * np.sqrt(np.maximum(np.diag(covariance), 0.0))
     out = {}
-    for name in FITTED + HELD:
-        pair = [score for n, score in zip(names, scores) if n == name]
-        out[name] = float((np.mean(pair) - loss) / max(loss, 1e-12)) if pair else 0.0
+    for i, name in enumerate(FITTED):  # log figures: relative already; the dead band: against its size
+        size = max(search.servo(x).deadband, 0.1 * search.scale) if name == "deadband" else 1.0
+        out[name] = float(spread[i] * (search.scale / size if name == "deadband" else 1.0))
     return out
+
+
+def held_pull(servo: ServoConfig, loss: float, evaluate: Evaluator) -> dict[str, float]:
+    """The error's relative growth when each held figure moves 50 % up and down (0: the servo has none)."""
+    present = [name for name in HELD if getattr(servo, name) > 0]
+    moves = [(n, dataclasses.replace(servo, **{n: getattr(servo, n) * f})) for n in present for f in (1.5, 0.5)]
+    scores = [s[0] for s in evaluate([m for _, m in moves])]
+    return {
+        name: float(np.mean([s for (n, _), s in zip(moves, scores) if n == name]) / max(loss, 1e-12) - 1.0)
+        if getattr(servo, name) > 0
+        else 0.0
+        for name in HELD
+    }
