@@ -4,12 +4,14 @@ Each candidate set of figures is rolled out on the lifted rig in C MuJoCo with t
 (``hsa_mjx.sysid.rig``: the env's own servo law, one process per core), its angles read at each tick
 after the best latency (searched on a grid of substeps for every candidate), and scored by the mean
 squared angle error. CMA-ES (``hsa_mjx.sysid.cmaes``) searches the figures in log scale around the
-profile's (the data sheet's) values. After the fit, the log's information on each figure is measured:
-the angles' derivatives with respect to the figures (central differences) and the residual noise give
-the Fisher information, whose inverse bounds each figure's error with the others free to trade off
-against it; a figure whose 95 % bound is wider than ``IDENTIFIABLE`` is reported as not identifiable
-from this log, with its bound, not silently kept. Gear play and the encoder's resolution are held at the
-profile's values; how much a 50 % move of each changes the error is reported beside.
+profile's (the data sheet's) values; a few Gauss-Newton steps on the angles' derivatives finish the
+search where figures trade off and the strategy closes in slowly. After the fit, the log's information
+on each figure is measured: the angles' derivatives with respect to the figures (central differences)
+and the residual noise give the Fisher information, whose inverse bounds each figure's error with the
+others free to trade off against it; a figure whose 95 % bound is wider than ``IDENTIFIABLE`` is
+reported as not identifiable from this log, with its bound, not silently kept. Gear play and the
+encoder's resolution are held at the profile's values; how much a 50 % move of each changes the error
+is reported beside.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ FITTED = ("stall_torque", "no_load_speed", "gain", "deadband", "damping", "frict
 HELD = ("backlash", "encoder_resolution")  # kept at the profile's values, their pull on the error reported
 IDENTIFIABLE = 0.05  # a figure's 95 % bound (relative) must be this narrow for the log to identify it
 STEP = 0.05  # the central differences' step in the search's coordinates (5 % of a figure)
+POLISH_STEPS = 4  # Gauss-Newton steps after the evolution strategy
 MAX_LATENCY_S = 0.1
 # where the profile gives 0 for a figure, the search starts from this (per N m of stall torque for friction)
 STARTS = {"damping": 0.01, "friction": 0.02, "armature": 1e-3}
@@ -192,37 +195,64 @@ def fit(
         raise ValueError("the spring servos have no figures to fit: choose a profile with DC-motor servos")
     search, evaluate = Search(config.servo), Evaluator(config, log, workers)
     try:
-        es = CMAES(search.initial(), 0.3, population, seed)
-        best, best_x, history = (np.inf, 0.0, search.start), search.initial(), []
-        for _ in range(generations):
-            xs = es.ask()
-            servos = [search.servo(x) for x in xs]
-            scores = evaluate(servos)
-            losses = np.array([s[0] for s in scores])
-            es.tell(losses)
-            i = int(np.argmin(losses))
-            if losses[i] < best[0]:
-                best, best_x = (float(losses[i]), scores[i][1], servos[i]), xs[i]
-            history.append(best[0])
-            if progress:
-                progress(es.generation, best[0], es.sigma)
-            if es.sigma < 1e-3:
-                break
-        bound = bounds(search, best_x, best[0], best[1], evaluate)
-        held = held_pull(best[2], best[0], evaluate)
+        x, loss, latency, history = _search(search, evaluate, generations, population, seed, progress)
+        x, loss, latency = polish(search, x, loss, latency, evaluate)
+        bound = bounds(search, x, loss, latency, evaluate)
+        held = held_pull(search.servo(x), loss, evaluate)
     finally:
         evaluate.close()
-    return FitResult(best[2], best[0], best[1], es.generation, bound, held, history)
+    return FitResult(search.servo(x), loss, latency, len(history), bound, held, history + [loss])
+
+
+def _search(search: Search, evaluate: Evaluator, generations: int, population: int, seed: int, progress) -> tuple:
+    """CMA-ES from the profile's figures: the best (vector, loss, latency) and the best loss per generation."""
+    es = CMAES(search.initial(), 0.3, population, seed)
+    best, history = (search.initial(), np.inf, 0.0), []
+    for _ in range(generations):
+        xs = es.ask()
+        scores = evaluate([search.servo(x) for x in xs])
+        losses = np.array([score[0] for score in scores])
+        es.tell(losses)
+        i = int(np.argmin(losses))
+        if losses[i] < best[1]:
+            best = (xs[i], float(losses[i]), scores[i][1])
+        history.append(best[1])
+        if progress:
+            progress(es.generation, best[1], es.sigma)
+        if es.sigma < 1e-3:
+            break
+    return (*best, history)
+
+
+def jacobian(search: Search, x: np.ndarray, latency_s: float, evaluate: Evaluator) -> tuple[np.ndarray, np.ndarray]:
+    """The tracker's readings at ``x`` (flattened) and their derivatives with respect to the search's
+    coordinates, (readings, figures), by central differences of ``STEP``."""
+    moves = [x] + [x + sign * STEP * np.eye(len(x))[i] for i in range(len(x)) for sign in (1, -1)]
+    readings = [r.ravel() for r in evaluate.readings([search.servo(m) for m in moves], latency_s)]
+    return readings[0], np.stack([(readings[1 + 2 * i] - readings[2 + 2 * i]) / (2 * STEP) for i in range(len(x))], 1)
+
+
+def polish(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> tuple:
+    """Gauss-Newton steps from the search's best, each tried whole, half and a quarter (the evolution
+    strategy closes in slowly where figures trade off): the best (vector, loss, latency)."""
+    for _ in range(POLISH_STEPS):
+        centre, slopes = jacobian(search, x, latency_s, evaluate)
+        step = np.linalg.lstsq(slopes, evaluate.log.angles.ravel() - centre, rcond=None)[0]
+        trials = [x + share * step for share in (1.0, 0.5, 0.25)]
+        scores = evaluate([search.servo(t) for t in trials])
+        k = int(np.argmin([score[0] for score in scores]))
+        if not scores[k][0] < loss:
+            break
+        x, (loss, latency_s) = trials[k], scores[k]
+    return x, loss, latency_s
 
 
 def bounds(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> dict[str, float]:
     """Each fitted figure's 95 % error bound relative to its value, from the Fisher information of the log
     at ``x`` (the residual's variance ``loss``): the others free, so a trade-off between two figures
     widens both bounds."""
-    moves = [x + sign * STEP * np.eye(len(x))[i] for i in range(len(x)) for sign in (1, -1)]
-    readings = evaluate.readings([search.servo(m) for m in moves], latency_s)
-    jacobian = np.stack([(readings[2 * i] - readings[2 * i + 1]).ravel() / (2 * STEP) for i in range(len(x))], 1)
-    covariance = np.linalg.pinv(jacobian.T @ jacobian / max(loss, 1e-12))
+    _, slopes = jacobian(search, x, latency_s, evaluate)
+    covariance = np.linalg.pinv(slopes.T @ slopes / max(loss, 1e-12))
     spread = 1.96 * np.sqrt(np.maximum(np.diag(covariance), 0.0))
     out = {}
     for i, name in enumerate(FITTED):  # log figures: relative already; the dead band: against its size
