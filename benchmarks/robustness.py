@@ -52,10 +52,16 @@ RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
 RESOLVING_EPISODES = report.RESOLVING_EPISODES
 
 
-def env_overrides(group: list[dict], dt: float, qacc_rule: bool) -> tuple[str, ...]:
+def env_overrides(
+    group: list[dict], dt: float, qacc_rule: bool, figures: list[tuple[float, ...]] | None = None
+) -> tuple[str, ...]:
     """``env.KEY=VALUE`` overrides: every randomisation off but the cells' span (so that a policy trained
-    with randomisation is scored on each cell's model alone), the group's noise, the qacc rule."""
+    with randomisation is scored on each cell's model alone), the group's noise, the qacc rule.
+    ``figures``: a DC-motor policy's servo figure scales per cell (``grids.dc_motor_cell``)."""
     ranges: dict[str, Any] = dataclasses.asdict(RandomizationConfig())
+    values = [v for row in figures or () for v in row]
+    if any(v != 1.0 for v in values):  # the env compiled with per-env servo figures
+        ranges["servo_figures"] = [min(values), max(values)]
     for name in grids.SCALES:
         values = [c[name] for c in group]
         if any(v != 1.0 for v in values):
@@ -86,8 +92,11 @@ def servo_classes(group: list[dict]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(c["servo"] for c in group if c["servo"] is not None))
 
 
-def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str, Any]:
-    """Each episode's physical scales, latency and pushes, (cells x episodes,) leading axis."""
+def cell_randomization(
+    group: list[dict], episodes: int, dt: float, figures: list[tuple[float, ...]] | None = None
+) -> dict[str, Any]:
+    """Each episode's physical scales, latency and pushes, (cells x episodes,) leading axis (``figures``:
+    a DC-motor policy's servo figure scales per cell)."""
 
     classes = servo_classes(group)
     group = [{**c, "robot": classes.index(c["servo"]) if c["servo"] else 0} for c in group]
@@ -106,7 +115,9 @@ def cell_randomization(group: list[dict], episodes: int, dt: float) -> dict[str,
         foot_friction=jnp.repeat(jnp.asarray([c["foot_friction"] for c in group], jnp.float32), episodes, axis=0),
         foot_anisotropy=jnp.repeat(jnp.asarray([c["foot_anisotropy"] for c in group], jnp.float32), episodes, axis=0),
         robot=per_episode("robot", jnp.int32),
-        servo_figures=jnp.ones((len(group) * episodes, len(SERVO_FIGURES)), jnp.float32),
+        servo_figures=jnp.repeat(
+            jnp.asarray(figures or [(1.0,) * len(SERVO_FIGURES)] * len(group), jnp.float32), episodes, axis=0
+        ),
     )
     latency = jnp.repeat(jnp.asarray([latency_steps(c["latency_ms"], dt) for c in group], jnp.int32), episodes)
     return {"physics": physics, "latency": latency, "pushes": per_episode("pushes", bool)}
@@ -121,16 +132,18 @@ def score(successes: int, episodes: int) -> dict[str, Any]:
 def run_group(directory: Path, group: list[dict], args: argparse.Namespace, backend: str) -> list[dict[str, Any]]:
     """The cells of one compiled env (one noise setting and servo model) in one rollout: a result row per
     cell (with its episodes' goals and outcomes)."""
-    dt = from_dict(policy_file.load_policy(directory).meta["config"]).env.dt
-    overrides = env_overrides(group, dt, args.qacc_rule == "on")
+    own = from_dict(policy_file.load_policy(directory).meta["config"]).env
+    dt, figures, played = own.dt, None, group
+    if own.servo.model != "spring":  # the gain and torque cells as the policy's own motors' figures
+        played, figures = map(list, zip(*(grids.dc_motor_cell(c, own.servo.stall_torque) for c in group)))
+    overrides = env_overrides(played, dt, args.qacc_rule == "on", figures)
     episodes = args.episodes
     config, env, policy, _ = load_shipped_policy(directory, backend, len(group) * episodes, overrides)
     steps = args.steps or config.env.termination.max_episode_steps
     keys = jnp.tile(jax.random.split(jax.random.PRNGKey(args.seed), episodes), (len(group), 1))  # same episodes
     goal_range = jnp.asarray(default_goal_range(config), jnp.float32)
-    traces = jax.device_get(
-        rollout(env, policy, keys, goal_range, steps, randomization=cell_randomization(group, episodes, env.dt))
-    )
+    randomization = cell_randomization(played, episodes, env.dt, figures)
+    traces = jax.device_get(rollout(env, policy, keys, goal_range, steps, randomization=randomization))
     rows = []
     for i, c in enumerate(group):
         part = {k: np.asarray(v)[i * episodes : (i + 1) * episodes] for k, v in traces.items()}

@@ -12,6 +12,9 @@ alone), so both grids run through one code path:
   their anisotropy, the servos of the three hardware robot profiles (``hsa_mjx.robots``) in place of the
   policy's own), and four corners where they combine: 24 cells. ``docs/robustness.md`` justifies each
   range from what varies on a real robot.
+
+A policy that drives DC-motor servos (a hardware profile's) is scored on the same cells, the servo gain
+and torque limit read as its motors' figures (:func:`dc_motor_cell`).
 """
 
 from __future__ import annotations
@@ -93,6 +96,18 @@ def check(c: dict[str, Any]) -> None:
     for name in ("pushes", "noise"):
         if not isinstance(c[name], bool):
             raise ValueError(f"{name} must be true or false, got {c[name]!r}")
+
+
+def dc_motor_cell(c: dict[str, Any], stall_torque: float) -> tuple[dict[str, Any], tuple[float, ...]]:
+    """Cell ``c`` for a policy whose own servos are DC motors of ``stall_torque`` N m: the gain and torque
+    limit, which act on the asset's springs, become the motor's figures: ``servo_gain`` scales the stall
+    torque and no-load speed together (the supply voltage off its rating), a torque limit caps the stall
+    torque. Returns the cell without them and the five ``servo_figures`` scales
+    (``hsa_mjx.task.randomization.SERVO_FIGURES``' order: stall torque, no-load speed, damping, friction,
+    rotor inertia)."""
+    gain, limit = c["servo_gain"], c["servo_torque_limit"]
+    stall = gain * stall_torque if limit is None else min(gain * stall_torque, limit)
+    return {**c, "servo_gain": 1.0, "servo_torque_limit": None}, (stall / stall_torque, gain, 1.0, 1.0, 1.0)
 
 
 def nominal_grid() -> list[dict[str, Any]]:

@@ -42,6 +42,9 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     from hsa_mjx.task.randomization import noise_scales
 
     policy, config, labels, (mj_model, index) = _loaded(directory, cell["servo"])
+    if cell["servo"] is None and config.servo.model != "spring":  # the gain and torque cells as motor figures
+        cell, figures = grids.dc_motor_cell(cell, config.servo.stall_torque)
+        config = dataclasses.replace(config, servo=scaled_motor(config.servo, *figures[:2]))
     noise, tracked = None, config.observation.velocity == "differenced"
     if cell["noise"]:  # on this tick's readings; a history repeats what the policy saw
         sensed = tuple(label for label in labels if not is_history(label))
@@ -54,6 +57,21 @@ def play_episode(directory: str, cell: dict[str, Any], goal: list[float], max_st
     robot = loop.SimulatedRobot(mj_model, index, config, perturbation=perturbation_of(cell))
     steps = max_steps or config.termination.max_episode_steps
     return bool(loop.run(controller, robot, np.asarray(goal), steps, config.goal.success_radius)["reached"])
+
+
+def scaled_motor(motor, stall: float, speed: float):
+    """A DC-motor ``ServoConfig`` with its stall torque and no-load speed scaled, its loop gains held at the
+    nominal motor's (as the MJX env scales its figures: ``hsa_mjx.task.randomization.servo_fields``)."""
+    from hsa_mjx.servo_config import resolve_servo
+
+    nominal = resolve_servo(motor)
+    return dataclasses.replace(
+        motor,
+        stall_torque=stall * motor.stall_torque,
+        no_load_speed=speed * motor.no_load_speed,
+        kp=nominal.kp,
+        speed_gain=nominal.speed_gain,
+    )
 
 
 @functools.lru_cache(maxsize=8)

@@ -3,8 +3,9 @@
     python -m benchmarks.sweep SWEEP.yaml [--out DIR] [--devices 0,1] [--time-limit S] [--report-only]
 
 A sweep file (``benchmarks/sweeps/*.yaml``) names a question, a training config, the env steps every run
-trains for, the seeds, the arms (each a list of ``--set`` overrides over the config) and the
-evaluation. Every (arm, seed) is one run of ``python -m train`` in ``OUT/runs/<arm>/seed<k>``, one run
+trains for, the seeds, the arms (each a list of ``--set`` overrides over the config, or a mapping
+``{config: PATH, set: [...]}`` for an arm trained from a config of its own) and the evaluation.
+Every (arm, seed) is one run of ``python -m train`` in ``OUT/runs/<arm>/seed<k>``, one run
 per GPU at a time on a host of several (``CUDA_VISIBLE_DEVICES`` per process; in sequence on one GPU
 or a CPU), then one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat
 ground over ``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed
@@ -45,6 +46,7 @@ from train import config as train_config
 KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
 EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain", "grid")
 GRID_KEYS = ("name", "episodes", "reference")
+ARM_KEYS = ("config", "set")  # an arm given as a mapping: its own training config, its overrides
 TERRAIN_KEYS = ("types", "levels", "tiles", "terrain_seed")
 GRID_TAG = "grid"  # robustness_grid.json in each run's sweep_grid/
 GRACE_S = 90  # --time-limit: SIGTERM this long before the limit (the epoch in flight ends, a checkpoint is written)
@@ -63,6 +65,11 @@ class Sweep:
     arms: dict[str, tuple[str, ...]]
     evaluate: dict[str, Any]
     target_success: float = 0.9
+    arm_configs: dict[str, str] = dataclasses.field(default_factory=dict)  # arms trained from another config
+
+    def config_of(self, arm: str) -> str:
+        """The training config of one arm: its own, or the sweep's."""
+        return self.arm_configs.get(arm, self.config)
 
     def overrides(self, arm: str, seed: int) -> list[str]:
         """The ``--set`` overrides of one run: the common ones, the arm's, its seed and length."""
@@ -90,6 +97,19 @@ def _check_grid(grid: Any, where: str) -> None:
         policy_file.locate(policy)
 
 
+def _arms(data: dict, path: Path) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
+    """Each arm's overrides, and the config of each arm given as ``{config: PATH, set: [...]}``."""
+    arms, configs = {}, {}
+    for name, value in data.items():
+        if isinstance(value, dict):
+            _unknown(value, ARM_KEYS, f"{path}: arm {name!r}")
+            if "config" in value:
+                configs[str(name)] = str(value["config"])
+            value = value.get("set")
+        arms[str(name)] = tuple(value or ())
+    return arms, configs
+
+
 def load(path: str | Path) -> Sweep:
     """Read and check a sweep file: every arm's config is built (and so validated) here, before any run."""
     path = Path(path)
@@ -104,7 +124,7 @@ def load(path: str | Path) -> Sweep:
     _unknown(evaluate, EVALUATE_KEYS, f"{path}: evaluate")
     _unknown(evaluate.get("terrain") or {}, TERRAIN_KEYS, f"{path}: evaluate.terrain")
     _check_grid(evaluate.get("grid"), f"{path}: evaluate.grid")
-    arms = {str(k): tuple(v or ()) for k, v in (data["arms"] or {}).items()}
+    arms, arm_configs = _arms(data["arms"] or {}, path)
     seeds = tuple(int(s) for s in data["seeds"])
     if len(arms) < 1 or len(seeds) < 1 or len(set(seeds)) != len(seeds):
         raise ValueError(f"{path}: need at least one arm and distinct seeds, got arms {list(arms)}, seeds {seeds}")
@@ -118,10 +138,11 @@ def load(path: str | Path) -> Sweep:
         arms=arms,
         evaluate=evaluate,
         target_success=float(data.get("target_success", 0.9)),
+        arm_configs=arm_configs,
     )
     for arm in arms:
         try:
-            train_config.load(sweep.config, sweep.overrides(arm, seeds[0]))
+            train_config.load(sweep.config_of(arm), sweep.overrides(arm, seeds[0]))
         except (ValueError, TypeError) as err:
             raise ValueError(f"{path}: arm {arm!r} does not build: {err}") from err
     return sweep
@@ -192,7 +213,7 @@ def plan(sweep: Sweep, out: Path) -> list[Job]:
     for seed in sweep.seeds:
         for arm in sweep.arms:
             run_dir = out / "runs" / arm / f"seed{seed}"
-            train = ["-m", "train", "--config", sweep.config, "--run-dir", str(run_dir), "--quiet"]
+            train = ["-m", "train", "--config", sweep.config_of(arm), "--run-dir", str(run_dir), "--quiet"]
             for item in sweep.overrides(arm, seed):
                 train += ["--set", item]
             evaluate = ["-m", "train.evaluate", *evaluation_args(sweep, run_dir)]

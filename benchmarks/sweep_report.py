@@ -229,6 +229,7 @@ def write(
         "name": sweep.name,
         "question": sweep.question,
         "config": sweep.config,
+        "arm_configs": sweep.arm_configs,
         "env_steps": sweep.env_steps,
         "seeds": list(sweep.seeds),
         "common_overrides": list(sweep.common),

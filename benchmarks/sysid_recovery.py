@@ -21,7 +21,7 @@ from hsa_mjx.sysid import fit as fitting
 from hsa_mjx.sysid.rig import synthesize
 from hsa_mjx.sysid.signals import SignalSpec, test_signal
 
-RESULTS = Path(__file__).resolve().parent / "results" / "sysid"
+RESULTS = Path(__file__).resolve().parent / "results" / "robots"
 ROBOTS = ("dfr05sr", "xl330_m288", "st3215")  # the hardware profiles: both DC-motor servo models
 TRUTH = {  # the true servo: each fitted figure times this (the dead band too, where the profile has one)
     "stall_torque": 1.15,
@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", type=float, default=0.005, help="tracker noise, rad")
     parser.add_argument("--latency-ms", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=RESULTS / "recovery.json")
+    parser.add_argument("--out", type=Path, default=RESULTS / "sysid_recovery.json")
     args = parser.parse_args(argv)
     rows, info = [], run_info()
     for robot in args.robots:  # the files written again after each profile: a long run keeps what it has

@@ -83,3 +83,24 @@ def test_unknown_profiles_and_older_servo_keys():
     moved = from_dict({"robot": "xl330_m288", "randomization": {"servo_presets": ["dfr05sr"]}})
     assert moved.randomization.robots == ("dfr05sr",)
     assert dataclasses.asdict(profile_servo("dfr05sr"))["encoder_resolution"] > 0
+
+
+def test_the_task_rule_and_each_profiles_config_follow_the_measured_speeds():
+    """benchmarks.robot_speed's rule, and configs/train_flat_<profile>.yaml set to the task it gave."""
+    import json
+    from pathlib import Path
+
+    from benchmarks.robot_speed import DEFAULT_OUT, scaled_task
+    from train import config as train_config
+    from train.policy_sources import default_goal_range
+
+    assert scaled_task(0.234, 0.234).farthest_m == 4.5  # the reference scales to itself
+    slow = scaled_task(0.01, 0.234)
+    assert (slow.nearest_m, slow.farthest_m) == (0.5, 0.5) and slow.min_episode_s == 150.0  # floored; 3 x 50 s
+    rows = {row["robot"]: row for row in json.loads((Path(__file__).parents[1] / DEFAULT_OUT).read_text())["rows"]}
+    for name in HARDWARE:
+        task = rows[name]["task"]
+        config = train_config.load(Path(__file__).parents[1] / "configs" / f"train_flat_{name}.yaml", [])
+        assert config.env.robot == name and config.env.randomization.servo_figures == (0.8, 1.2)
+        assert default_goal_range(config) == (task["nearest_m"], task["farthest_m"]), name
+        assert config.env.termination.max_episode_steps * config.env.dt >= task["min_episode_s"], name

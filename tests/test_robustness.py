@@ -71,6 +71,35 @@ def test_the_grids_cells():
         robustness_grids.grid("hard")
 
 
+def test_a_dc_motor_policy_meets_the_gain_and_torque_cells_as_its_motors_figures():
+    """The spring's gain and torque-limit cells, for a policy whose own servos are DC motors (st3215's):
+    stall torque and no-load speed scaled, the stall capped; on MJX as per-env servo figures, on C MuJoCo
+    as the motor's config, the loop gains held at the nominal motor's."""
+    from hsa_mjx.servo_config import resolve_servo
+    from train import config as train_config
+
+    own = profile_servo("st3215")
+    cells = [
+        robustness_grids.cell(servo_gain=0.6),
+        robustness_grids.cell(servo_torque_limit=0.5),
+        robustness_grids.cell(servo_gain=0.6, servo_torque_limit=0.5, latency_ms=60),
+    ]
+    played, figures = zip(*(robustness_grids.dc_motor_cell(c, own.stall_torque) for c in cells))
+    assert figures[0] == (0.6, 0.6, 1.0, 1.0, 1.0) and figures[1] == pytest.approx((0.5 / 1.9123, 1, 1, 1, 1))
+    assert figures[2] == pytest.approx((0.5 / 1.9123, 0.6, 1, 1, 1)) and played[2]["latency_ms"] == 60
+    assert all(c["servo_gain"] == 1.0 and c["servo_torque_limit"] is None for c in played)
+    overrides = robustness.env_overrides(list(played), 0.02, False, list(figures))
+    config = train_config.load(Path(__file__).parents[1] / "configs" / "train_flat_st3215.yaml", list(overrides))
+    assert config.env.randomization.servo_figures == pytest.approx((0.5 / 1.9123, 1.0))  # the DC env accepts them
+    rows = robustness.cell_randomization(list(played), 2, 0.02, list(figures))["physics"].servo_figures
+    assert rows.shape == (6, 5) and float(rows[2, 0]) == pytest.approx(0.5 / 1.9123)
+    scaled, nominal = resolve_servo(sim_to_sim.scaled_motor(own, *figures[2][:2])), resolve_servo(own)
+    assert scaled.stall_torque == pytest.approx(0.5) and scaled.no_load_speed == pytest.approx(
+        0.6 * nominal.no_load_speed
+    )
+    assert (scaled.kp, scaled.speed_gain) == (nominal.kp, nominal.speed_gain)
+
+
 @pytest.mark.parametrize(
     ("change", "message"),
     [

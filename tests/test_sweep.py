@@ -36,6 +36,7 @@ def _write(tmp_path: Path, **changes) -> Path:
         ({"evaluate": {"episodes": 4, "tiles": 8}}, "evaluate: unknown key"),
         ({"arms": {"a": ["ppo.value_targets=per_epoch"]}}, "arm 'a' does not build"),
         ({"seeds": [0, 0]}, "distinct seeds"),
+        ({"arms": {"a": {"config": "configs/train_flat.yaml", "sets": []}}}, "arm 'a': unknown key"),
     ],
 )
 def test_a_bad_sweep_file_is_refused_before_anything_runs(tmp_path, changes, match):
@@ -56,6 +57,12 @@ def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_pa
         ev = job.evaluate
         assert ev[ev.index("--terrain-seed") + 1] == "1000" and ev[ev.index("--tiles") + 1] == "8"
         assert str(job.run_dir) in ev and "--stochastic" not in ev  # the mean action
+    # an arm with a config of its own trains from it, with its overrides
+    own = {"config": "configs/train_flat_st3215.yaml", "set": ["ppo.value_targets=per_iteration"]}
+    spec = sweep.load(_write(tmp_path, arms={"a": [], "st3215": own}))
+    job = sweep.plan(spec, tmp_path / "out")[1]
+    assert job.train[job.train.index("--config") + 1] == own["config"] and spec.config_of("a") == SWEEP["config"]
+    assert train_config.load(own["config"], spec.overrides("st3215", 0)).env.robot == "st3215"
 
 
 def _fake_run(run_dir: Path, success: float, v_loss: float, episodes: int = 100) -> None:

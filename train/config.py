@@ -238,7 +238,8 @@ def _validate_curricula(config: TrainConfig) -> None:
     """The curricula's settings, and how they fit the env (radial goals, per-env terrain, randomisation)."""
     env = config.env
     randomization_curriculum.validate(config.randomization_curriculum, env.randomization.draws)
-    goal_curriculum.validate(config.goal_curriculum, tuple(env.goal.radial_range))
+    if config.goal_curriculum.enabled:  # off, goals come from env.goal.radial_range as it is
+        goal_curriculum.validate(config.goal_curriculum, tuple(env.goal.radial_range))
     per_env = env.scene == "terrain" and env.terrain.per_env
     terrain_curriculum.validate(config.terrain_curriculum, env.terrain, per_env, env.goal.mode)
     if config.goal_curriculum.enabled and env.goal.mode != "radial":
