@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -45,12 +46,18 @@ def truth_servo(start):
     return dataclasses.replace(servo, **moved)
 
 
-def recover(robot: str, args: argparse.Namespace) -> dict:
-    """One profile's row: the true and fitted figures, their errors and sensitivities."""
+def rig_log(robot: str, noise: float, latency_s: float, seed: int) -> tuple:
+    """(the profile's env config, the true env config, the true servo's log on the rig): the same for a seed."""
     config = with_overrides(get_preset("flat"), robot=robot)
     truth = dataclasses.replace(config, servo=truth_servo(config.servo))
     signal = test_signal(SignalSpec(), config.dt, config.control.servo_target_limit)
-    log, _ = synthesize(truth, signal, args.noise, args.latency_ms / 1000.0, args.seed)
+    log, _ = synthesize(truth, signal, noise, latency_s, seed)
+    return config, truth, log
+
+
+def recover(robot: str, args: argparse.Namespace) -> dict:
+    """One profile's row: the true and fitted figures, their errors and sensitivities."""
+    config, truth, log = rig_log(robot, args.noise, args.latency_ms / 1000.0, args.seed)
     start = time.perf_counter()
     result = fitting.fit(config, log, args.generations, args.population, args.seed, args.workers)
     rows = {}
@@ -69,7 +76,7 @@ def recover(robot: str, args: argparse.Namespace) -> dict:
         name: {"value": getattr(result.servo, name), "pull_of_50_percent": result.held[name]} for name in fitting.HELD
     }
     passed = all(r.get("rel_error", r.get("abs_error")) <= PASS for r in rows.values() if r["identifiable"])
-    return {
+    row = {
         "robot": robot,
         "model": config.servo.model,
         "log_seconds": log.seconds,
@@ -81,6 +88,39 @@ def recover(robot: str, args: argparse.Namespace) -> dict:
         "figures": rows,
         "held": held,
         "passed": passed,
+    }
+    return {**row, **diagnosis(row, config, log, truth.servo)}
+
+
+def motor_damping(figures: dict, which: str) -> float:
+    """The torque per unit of joint speed the log sees in any unsaturated motion: the motor's back-EMF
+    slope (stall torque / no-load speed) plus the viscous damping (N m s/rad)."""
+    return figures["stall_torque"][which] / figures["no_load_speed"][which] + figures["damping"][which]
+
+
+def fitted_servo(config, figures: dict):
+    """The profile's servo at its supply voltage with a row's fitted figures."""
+    start = fitting.at_supply(config.servo)
+    values = {(fitting.gain_key(start.model) if n == "gain" else n): r["fitted"] for n, r in figures.items()}
+    return dataclasses.replace(start, **values)
+
+
+def _diagnosis_inputs(row: dict, seed: int) -> tuple:
+    config, truth, log = rig_log(row["robot"], row["noise_rad"], row["latency_s"]["true"], seed)
+    return config, log, truth.servo
+
+
+def diagnosis(row: dict, config, log, truth) -> dict:
+    """What separates a failed figure from an unidentifiable one: the rms error at the true figures beside
+    the fit's (lower at the truth: the search stopped short), and the motor damping the two share."""
+    truth_loss, fit_loss = (
+        s[0] for s in fitting.Evaluator(config, log, 1)([truth, fitted_servo(config, row["figures"])])
+    )
+    true, fitted = motor_damping(row["figures"], "true"), motor_damping(row["figures"], "fitted")
+    return {
+        "rms_at_truth_rad": truth_loss**0.5,
+        "rms_at_fit_rad": fit_loss**0.5,
+        "motor_damping": {"true": true, "fitted": fitted, "rel_error": abs(fitted - true) / true},
     }
 
 
@@ -104,6 +144,14 @@ def markdown(rows: list[dict], info: dict) -> str:
                 f"| {name} | {r['true']:.4g} | {r['start']:.4g} | {r['fitted']:.4g} | {error} | "
                 f"{r['bound_95']:.1%} | {'yes' if r['identifiable'] else 'no'} |"
             )
+        if "motor_damping" in row:
+            damping = row["motor_damping"]
+            out += [
+                "",
+                f"rms error at the true figures {row['rms_at_truth_rad']:.5f} rad, at the fitted ones "
+                f"{row['rms_at_fit_rad']:.5f} rad; motor damping (stall torque / no-load speed + damping) "
+                f"{damping['true']:.4g} true, {damping['fitted']:.4g} fitted: {damping['rel_error']:.1%}",
+            ]
         out.append("")
     return "\n".join(out)
 
@@ -119,7 +167,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--latency-ms", type=float, default=20.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS / "sysid_recovery.json")
+    parser.add_argument(
+        "--diagnose",
+        type=Path,
+        default=None,
+        help="a finished run's JSON: add each row's diagnosis (its log made again from --seed) and write it again",
+    )
     args = parser.parse_args(argv)
+    if args.diagnose is not None:
+        data = json.loads(args.diagnose.read_text())
+        rows = [{**r, **diagnosis(r, *_diagnosis_inputs(r, args.seed))} for r in data["rows"]]
+        info = {k: v for k, v in data.items() if k != "rows"}
+        report(args.diagnose, {**info, "rows": rows}, markdown(rows, info))
+        return 0
     rows, info = [], run_info()
     for robot in args.robots:  # the files written again after each profile: a long run keeps what it has
         rows.append(recover(robot, args))
