@@ -58,11 +58,11 @@ def scaled_task(speed: float, reference_speed: float) -> ScaledTask:
 
 def gait_speed(robot: str, gait: str, seconds: float) -> float:
     """The gait's straight-line speed (m/s) on the profile's robot: C MuJoCo, flat floor, no noise."""
-    from hsa_mjx.config import from_dict, get_preset
+    from hsa_mjx.config import get_preset, with_overrides
     from hsa_mjx.deploy.loop import SimulatedRobot, load_model
     from hsa_mjx.task.control import next_targets
 
-    config = from_dict({"robot": robot}, base=get_preset("flat"))
+    config = with_overrides(get_preset("flat"), robot=robot)
     mj_model, index = load_model(config)
     sim = SimulatedRobot(mj_model, index, config)
     steps = int(round(seconds / config.dt))
