@@ -34,7 +34,7 @@ LAYERS = (
     # on top, the command-line tools nothing else imports
     tuple(T + m for m in ("checkpoint", "compat", "config", "distributed", "logger", "onnx_policy", "diagnostics")),
     (T + "rollout", T + "networks", T + "ppo_update", T + "plots", T + "run_dir"),
-    (T + "learner", T + "run_state", T + "terrain_eval"),
+    (T + "learner", T + "run_state", T + "terrain_eval", T + "host_workers"),
     (T + "replicas", T + "warm_start", T + "policy_sources"),
     (T + "thread_per_device",),
     (T + "strategies",),

@@ -406,6 +406,16 @@ def test_evaluation_summary_counts_spiral_checkpoints_per_episode():
     assert ended["time_out"] == pytest.approx(1 / 3) and ended["not_finished"] == pytest.approx(1 / 3)
 
 
+def test_evaluation_summary_gives_success_by_the_goals_bearing_from_the_robots_axis():
+    """Goals ahead, behind (either end of the axis counts), at 45 degrees and beside: the near-axis ones reached."""
+    goals = np.array([[1.0, 0.0], [-1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    traces = {"goal": goals[:, None, :], "start_xy": np.zeros((4, 2)), "start_heading": np.tile([1.0, 0.0], (4, 1))}
+    success = np.array([True, True, False, False])
+    assert rollout.by_goal_bearing(traces, success) == {"0-30": 1.0, "30-60": 0.0, "60-90": 0.0}
+    near = {name: value[:2] for name, value in traces.items()}
+    assert rollout.by_goal_bearing(near, success[:2])["60-90"] is None  # no episode there
+
+
 def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic():
     """--init-from flat (the CPU quickstart's start): the policy network and normaliser come from the
     policy file, so the run's first deterministic actions are the file's; a mismatch is named."""
@@ -537,3 +547,23 @@ def test_result_files_record_no_absolute_paths(tmp_path, monkeypatch):
     assert portable(Path("runs/flat")) == "runs/flat"
     assert portable(tmp_path.parent / "elsewhere" / "rough") == "rough"  # outside: its name
     assert portable(tmp_path / "r" / "checkpoints" / "step_1", tmp_path / "r") == "checkpoints/step_1"
+
+
+def test_host_workers_cut_episodes_into_ordered_shards_and_refuse_where_they_cannot_help():
+    """``--workers``: keys cut in order and the traces joined back in it; asked off C MuJoCo or per terrain,
+    a ValueError naming the fix (before anything loads)."""
+    from train import host_workers
+    from train.evaluation import EvalSpec, check_workers
+
+    keys = np.arange(10).reshape(5, 2)
+    parts = host_workers.shards(keys, 3)
+    assert [len(p) for p in parts] == [2, 2, 1] and len(host_workers.shards(keys[:2], 8)) == 2
+    traces = host_workers.joined([{"k": p[:, 0], "t": p[:, None, :]} for p in parts])
+    np.testing.assert_array_equal(traces["k"], keys[:, 0])
+    assert traces["t"].shape == (5, 1, 2)
+    with pytest.raises(ValueError, match="--backend c"):
+        check_workers(EvalSpec(policy="flat", workers=2, backend="jax"))
+    with pytest.raises(ValueError, match="terrain"):
+        check_workers(EvalSpec(policy="flat", workers=2, backend="c", levels="0,1"))
+    with pytest.raises(ValueError, match=">= 1"):
+        check_workers(EvalSpec(policy="flat", workers=0))

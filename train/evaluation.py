@@ -24,7 +24,7 @@ from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.env import HSAEnv
 
-from . import diagnostics, terrain_eval
+from . import diagnostics, host_workers, terrain_eval
 from .config import TrainConfig
 from .policy_sources import (
     default_goal_range,
@@ -61,6 +61,7 @@ class EvalSpec:
     levels: str | None = None
     terrain_seed: int | None = None
     tiles: int = 1
+    workers: int = 1
 
 
 def parse_args(argv: list[str] | None, description: str | None = None) -> argparse.Namespace:
@@ -120,6 +121,12 @@ def parse_args(argv: list[str] | None, description: str | None = None) -> argpar
         "auto (default): c on a CPU, MJX on a GPU (Warp when installed)",
     )
     parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="C MuJoCo only: play the episodes in this many processes at once (train/host_workers.py)",
+    )
+    parser.add_argument(
         "--terrain-types",
         default=None,
         metavar="all|T1,T2",
@@ -156,6 +163,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if not 1 <= args.tiles <= 256:
         raise ValueError(f"--tiles must be between 1 and 256, got {args.tiles}")
+    check_workers(args)
     if args.policy is not None:
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
@@ -184,6 +192,20 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         **({"env_overrides": args.overrides} if args.overrides else {}),
     }
     return config, env, policy, header, Path(args.out) if args.out else Path(args.run_dir) / "eval"
+
+
+def check_workers(args: EvalSpec) -> None:
+    """A ValueError when ``--workers`` is not a positive count or asks for processes where they cannot help
+    (MJX batches the episodes on its device; the per-terrain evaluation plays its cells in one batch)."""
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    if args.workers > 1 and for_one_env(args.backend) != "c":
+        raise ValueError(
+            f"--workers plays C MuJoCo episodes in processes; this evaluation runs on {args.backend!r} "
+            "(add --backend c, or leave --workers out)"
+        )
+    if args.workers > 1 and (args.terrain_types is not None or args.levels is not None):
+        raise ValueError("--workers applies to flat evaluations; leave it out with --terrain-types/--levels")
 
 
 def check_goal_range(goal_range: list[float] | None, config: TrainConfig) -> None:
@@ -223,8 +245,11 @@ def evaluate(spec: EvalSpec) -> dict:
     steps = spec.steps or (min(CPU_STEPS, limit) if shipped else limit)
     goal_range = spec.goal_range or default_goal_range(config)
     keys = jax.random.split(jax.random.PRNGKey(spec.seed), episodes)
-    traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
-    traces = {k: np.asarray(v) for k, v in traces.items()}
+    if spec.workers > 1:
+        traces = host_workers.play(load_subject, spec, np.asarray(keys), goal_range, steps, spec.workers)
+    else:
+        traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
+        traces = {k: np.asarray(v) for k, v in traces.items()}
     radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
     result = {
         **header,

@@ -77,6 +77,7 @@ def rollout(
         act_keys = jax.random.split(jax.random.fold_in(key, 1), steps)
         (_, _), traces = jax.lax.scan(step, (state, jnp.ones((), bool)), act_keys)
         traces["start_xy"] = observation.robot_xy(state.pipeline_state.physics, idx)
+        traces["start_heading"] = observation.heading(state.pipeline_state.physics, idx)
         traces["start_distance"] = state.metrics["distance_to_goal"]
         return traces
 
@@ -99,6 +100,25 @@ def episode_success(traces: dict[str, np.ndarray]) -> np.ndarray:
     """Whether each evaluated episode reached its goal (its success flag at its last live step), (episodes,)."""
     last = np.maximum(traces["alive"].astype(bool).sum(axis=1) - 1, 0)
     return traces["success"][np.arange(last.shape[0]), last] > 0.5
+
+
+BEARING_BINS = (0, 30, 60, 90)  # degrees between the robot's axis at the start and its goal, folded
+
+
+def by_goal_bearing(traces: dict[str, np.ndarray], success: np.ndarray) -> dict[str, float | None]:
+    """Success rate by the goal's bearing from the robot's axis at the start (block A to B), folded onto
+    0-90 degrees since the robot crawls either way along it: a policy that cannot turn reaches the goals
+    near its axis only. Keys ``"0-30"`` ...; None for a bin without episodes."""
+    to_goal = traces["goal"][:, 0] - traces["start_xy"]
+    along = np.abs(np.sum(to_goal * traces["start_heading"], axis=-1)) / np.maximum(
+        np.linalg.norm(to_goal, axis=-1), 1e-9
+    )
+    angle = np.degrees(np.arccos(np.clip(along, 0.0, 1.0)))
+    out = {}
+    for low, high in zip(BEARING_BINS[:-1], BEARING_BINS[1:]):
+        inside = (angle >= low) & ((angle < high) | (high == BEARING_BINS[-1]))
+        out[f"{low}-{high}"] = float(success[inside].mean()) if inside.any() else None
+    return out
 
 
 def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
@@ -128,6 +148,8 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
         if checkpoints
         else {"mean_progress_m": float(np.mean(traces["start_distance"] - final_distance))}
     )
+    if "start_heading" in traces and not checkpoints:
+        progress["success_by_goal_bearing"] = by_goal_bearing(traces, success)
     return {
         "episodes": int(alive.shape[0]),
         "success_rate": float(success.mean()),
