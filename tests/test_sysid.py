@@ -58,7 +58,9 @@ def test_the_rig_holds_the_blocks_and_reads_late_as_a_tracker_does():
     assert np.abs(held - start).max() < 3e-3  # held where they were, within the welds' give
 
 
-def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_figures_pull(tmp_path):
+def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_figures_pull(tmp_path, monkeypatch):
+    monkeypatch.setattr(fit, "POLISH_STEPS", 1)  # one derivative and no scans: the search's parts, not its length
+    monkeypatch.setattr(fit, "SCANS", 0)
     truth = dataclasses.replace(
         CONFIG, servo=dataclasses.replace(CONFIG.servo, stall_torque=0.7, no_load_speed=8.0, damping=0.02)
     )
@@ -88,3 +90,20 @@ def test_the_recovery_reports_the_motor_damping_the_log_sees_in_unsaturated_moti
     figures = {"stall_torque": {"true": 1.0, "fitted": 0.5}, "no_load_speed": {"true": 2.0, "fitted": 2.0}}
     figures["damping"] = {"true": 0.5, "fitted": 0.75}
     assert motor_damping(figures, "true") == 1.0 == motor_damping(figures, "fitted")
+
+
+def test_the_polish_searches_along_the_valley_of_equal_motor_damping():
+    """In the valley's coordinates a move of the damping alone keeps stall torque / no-load speed + damping;
+    a vector and its servo map onto each other in both coordinate systems."""
+    servo = fit.at_supply(CONFIG.servo)
+    for valley in (False, True):
+        search = fit.Search(servo, valley=valley)
+        back = search.servo(search.vector(servo))
+        for name in fit.FITTED:
+            assert fit.figure(back, name) == pytest.approx(fit.figure(servo, name), rel=1e-9, abs=1e-12)
+    search = fit.Search(servo, valley=True)
+    moved = search.servo(search.vector(servo) + 0.5 * np.eye(len(fit.FITTED))[fit.FITTED.index("damping")])
+    assert moved.damping == pytest.approx(servo.damping * np.exp(0.5))
+    assert moved.stall_torque / moved.no_load_speed + moved.damping == pytest.approx(
+        servo.stall_torque / servo.no_load_speed + servo.damping
+    )

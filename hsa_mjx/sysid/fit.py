@@ -4,7 +4,7 @@ Each candidate set of figures is rolled out on the lifted rig in C MuJoCo with t
 (``hsa_mjx.sysid.rig``: the env's own servo law, one process per core), its angles read at each tick
 after the best latency (searched on a grid of substeps for every candidate), and scored by the mean
 squared angle error. CMA-ES (``hsa_mjx.sysid.cmaes``) searches the figures in log scale around the
-profile's (the data sheet's) values; a few Gauss-Newton steps on the angles' derivatives finish the
+profile's (the data sheet's) values; Levenberg-Marquardt steps on the angles' derivatives finish the
 search where figures trade off and the strategy closes in slowly. After the fit, the log's information
 on each figure is measured: the angles' derivatives with respect to the figures (central differences)
 and the residual noise give the Fisher information, whose inverse bounds each figure's error with the
@@ -34,8 +34,14 @@ FITTED = ("stall_torque", "no_load_speed", "gain", "deadband", "damping", "frict
 HELD = ("backlash", "encoder_resolution")  # kept at the profile's values, their pull on the error reported
 IDENTIFIABLE = 0.05  # a figure's 95 % bound (relative) must be this narrow for the log to identify it
 STEP = 0.05  # the central differences' step in the search's coordinates (5 % of a figure)
-POLISH_STEPS = 4  # Gauss-Newton steps after the evolution strategy
+POLISH_STEPS = 12  # Levenberg-Marquardt derivatives after the evolution strategy, at most
+POLISH_STEP = 0.05  # their central differences' step: wide enough to see past the small-scale roughness friction gives
+POLISH_TOLERANCE = 1e-5  # a step must lower the mean squared error by this share, or the polish stops
+SCANS = 4  # scans along the least determined directions, at most, each followed by more Levenberg-Marquardt
+SCAN_MOVES = (-1.2, -0.6, -0.3, 0.3, 0.6, 1.2)  # a scan's moves, in the search's coordinates
+SCAN_DIRECTIONS = 2  # the weakest directions each scan moves along
 MAX_LATENCY_S = 0.1
+LATENCY_UNIT = 1e-3  # s: the latency's unit beside the figures' log scale in the derivatives
 # where the profile gives 0 for a figure, the search starts from this (per N m of stall torque for friction)
 STARTS = {"damping": 0.01, "friction": 0.02, "armature": 1e-3}
 DEADBAND_SCALE = {"position": 0.02, "continuous": 0.05}  # rad / share of full command, one unit of search
@@ -86,15 +92,20 @@ def at_supply(servo: ServoConfig) -> ServoConfig:
 
 
 class Search:
-    """The map between CMA-ES's vector and servo figures: log scale around ``start`` (the deadband linear)."""
+    """The map between a search vector and servo figures: log scale around ``start`` (the dead band linear).
 
-    def __init__(self, start: ServoConfig):
-        self.start = at_supply(start)
+    With ``valley``, the no-load speed's coordinate holds the motor damping instead (stall torque / no-load
+    speed + viscous damping, log scale): the log fixes that sum in any unsaturated motion much better than
+    its split, and in these coordinates the valley of equal sums is straight (curved in the figures' own)."""
+
+    def __init__(self, start: ServoConfig, valley: bool = False):
+        self.start, self.valley = at_supply(start), valley
         self.scale = DEADBAND_SCALE[start.model]
         self.origin = {name: figure(self.start, name) for name in FITTED}
         for name, value in STARTS.items():
             if self.origin[name] <= 0:
                 self.origin[name] = value * (self.start.stall_torque if name == "friction" else 1.0)
+        self.motor_origin = self.origin["stall_torque"] / self.origin["no_load_speed"] + self.origin["damping"]
 
     def initial(self) -> np.ndarray:
         """The search's start: the profile's figures."""
@@ -105,10 +116,26 @@ class Search:
         values = {}
         for name, v in zip(FITTED, x):
             values[name] = max(v, 0.0) * self.scale if name == "deadband" else self.origin[name] * np.exp(v)
+        if self.valley:
+            motor = self.motor_origin * np.exp(x[FITTED.index("no_load_speed")])
+            values["no_load_speed"] = values["stall_torque"] / max(motor - values["damping"], 1e-6 * motor)
         if self.start.model == "continuous":
             values["deadband"] = min(values["deadband"], 0.9)
         values[gain_key(self.start.model)] = values.pop("gain")
         return dataclasses.replace(self.start, **{k: float(v) for k, v in values.items()})
+
+    def vector(self, servo: ServoConfig) -> np.ndarray:
+        """The vector of ``servo``'s figures (``servo(vector(s))`` gives ``s`` back)."""
+        x = np.array(
+            [
+                figure(servo, n) / self.scale if n == "deadband" else np.log(figure(servo, n) / self.origin[n])
+                for n in FITTED
+            ]
+        )
+        if self.valley:
+            motor = servo.stall_torque / servo.no_load_speed + servo.damping
+            x[FITTED.index("no_load_speed")] = np.log(motor / self.motor_origin)
+        return x
 
 
 def best_latency(angles: np.ndarray, log: ServoLog, frame_skip: int) -> tuple[float, float]:
@@ -138,6 +165,12 @@ def _score(servo: ServoConfig, log: ServoLog) -> tuple[float, float]:
     return best_latency(angles, log, _WORK["config"].control.frame_skip)
 
 
+def _score_at(servo: ServoConfig, log: ServoLog, latency_s: float) -> tuple[float, float]:
+    if not np.all(np.isfinite(readings := _read(servo, log, latency_s))):
+        return np.inf, latency_s
+    return float(np.mean((readings - log.angles) ** 2)), latency_s
+
+
 def _read(servo: ServoConfig, log: ServoLog, latency_s: float) -> np.ndarray:
     frame_skip = _WORK["config"].control.frame_skip
     return measured(_angles(servo), latency_s, log.dt, len(log.targets), frame_skip)
@@ -156,13 +189,16 @@ class Evaluator:
             context = multiprocessing.get_context("spawn")  # clean interpreters: no JAX state inherited
             self.pool = ProcessPoolExecutor(self.workers, context, initializer=_setup, initargs=(config, schedule))
 
-    def __call__(self, servos: list[ServoConfig]) -> list[tuple[float, float]]:
-        """Each servo's (mean squared error, latency) at its best latency."""
-        return self._map(_score, servos, [self.log] * len(servos))
+    def __call__(self, servos: list[ServoConfig], latencies: list[float] | None = None) -> list[tuple[float, float]]:
+        """Each servo's (mean squared error, latency): at its best latency on the substep grid, or at
+        its own of ``latencies``."""
+        if latencies is None:
+            return self._map(_score, servos, [self.log] * len(servos))
+        return self._map(_score_at, servos, [self.log] * len(servos), latencies)
 
-    def readings(self, servos: list[ServoConfig], latency_s: float) -> list[np.ndarray]:
-        """Each servo's angles as the log's tracker reads them, ``latency_s`` late."""
-        return self._map(_read, servos, [self.log] * len(servos), [latency_s] * len(servos))
+    def readings(self, servos: list[ServoConfig], latencies: list[float]) -> list[np.ndarray]:
+        """Each servo's angles as the log's tracker reads them, its own of ``latencies`` late."""
+        return self._map(_read, servos, [self.log] * len(servos), latencies)
 
     def _map(self, function, *columns) -> list:
         return list(map(function, *columns)) if self.pool is None else list(self.pool.map(function, *columns))
@@ -224,34 +260,86 @@ def _search(search: Search, evaluate: Evaluator, generations: int, population: i
     return (*best, history)
 
 
-def jacobian(search: Search, x: np.ndarray, latency_s: float, evaluate: Evaluator) -> tuple[np.ndarray, np.ndarray]:
-    """The tracker's readings at ``x`` (flattened) and their derivatives with respect to the search's
-    coordinates, (readings, figures), by central differences of ``STEP``."""
-    moves = [x] + [x + sign * STEP * np.eye(len(x))[i] for i in range(len(x)) for sign in (1, -1)]
-    readings = [r.ravel() for r in evaluate.readings([search.servo(m) for m in moves], latency_s)]
-    return readings[0], np.stack([(readings[1 + 2 * i] - readings[2 + 2 * i]) / (2 * STEP) for i in range(len(x))], 1)
+def jacobian(
+    search: Search, x: np.ndarray, latency_s: float, evaluate: Evaluator, step: float = STEP
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tracker's readings at ``x`` (flattened) and their derivatives, (readings, figures + 1), with
+    respect to the search's coordinates and, last, the latency in ``LATENCY_UNIT``: central differences
+    of ``step``."""
+    n = len(x) + 1
+    moves = [np.append(x, latency_s / LATENCY_UNIT)]
+    moves += [moves[0] + sign * step * np.eye(n)[i] for i in range(n) for sign in (1, -1)]
+    servos, latencies = [search.servo(m[:-1]) for m in moves], [m[-1] * LATENCY_UNIT for m in moves]
+    readings = [r.ravel() for r in evaluate.readings(servos, latencies)]
+    return readings[0], np.stack([(readings[1 + 2 * i] - readings[2 + 2 * i]) / (2 * step) for i in range(n)], 1)
 
 
 def polish(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> tuple:
-    """Gauss-Newton steps from the search's best, each tried whole, half and a quarter (the evolution
-    strategy closes in slowly where figures trade off): the best (vector, loss, latency)."""
-    for _ in range(POLISH_STEPS):
-        centre, slopes = jacobian(search, x, latency_s, evaluate)
-        step = np.linalg.lstsq(slopes, evaluate.log.angles.ravel() - centre, rcond=None)[0]
-        trials = [x + share * step for share in (1.0, 0.5, 0.25)]
-        scores = evaluate([search.servo(t) for t in trials])
-        k = int(np.argmin([score[0] for score in scores]))
-        if not scores[k][0] < loss:
+    """Finish the search from its best: Levenberg-Marquardt steps (:func:`levenberg_marquardt`), then
+    scans along the log's least determined directions (:func:`sloppy_scan`), each that finds a lower
+    error followed by more steps (at most ``SCANS`` scans). The search runs in the valley's coordinates
+    (``Search(valley=True)``) with the latency moved beside the figures, off its grid (a latency a substep
+    off holds the evolution strategy where other figures make up for it). Returns the best (vector in
+    ``search``'s coordinates, loss, latency)."""
+    figures, search = search, Search(search.start, valley=True)
+    z = np.append(search.vector(figures.servo(x)), latency_s / LATENCY_UNIT)
+    z, loss, normal = levenberg_marquardt(search, z, loss, evaluate)
+    for _ in range(SCANS):
+        z, loss, moved = sloppy_scan(search, z, loss, normal, evaluate)
+        if not moved:
             break
-        x, (loss, latency_s) = trials[k], scores[k]
-    return x, loss, latency_s
+        z, loss, normal = levenberg_marquardt(search, z, loss, evaluate)
+    return figures.vector(search.servo(z[:-1])), float(loss), float(z[-1] * LATENCY_UNIT)
+
+
+def _scores(search: Search, points: list[np.ndarray], evaluate: Evaluator) -> list[tuple[float, float]]:
+    """(loss, latency) of each point (figures' coordinates, then the latency in ``LATENCY_UNIT``)."""
+    latencies = [float(np.clip(p[-1] * LATENCY_UNIT, 0.0, MAX_LATENCY_S)) for p in points]
+    return evaluate([search.servo(p[:-1]) for p in points], latencies)
+
+
+def levenberg_marquardt(search: Search, z: np.ndarray, loss: float, evaluate: Evaluator) -> tuple:
+    """Levenberg-Marquardt steps on the readings' residuals from ``z`` (figures' coordinates, latency):
+    each tried at three dampings at once around the last that worked (a hundred times more, same
+    derivatives, when none lowers the error by ``POLISH_TOLERANCE``), at most ``POLISH_STEPS``
+    derivatives. The best (point, loss) and the last derivatives' normal matrix."""
+    damping = 1e-3
+    for _ in range(POLISH_STEPS):
+        centre, slopes = jacobian(search, z[:-1], z[-1] * LATENCY_UNIT, evaluate, POLISH_STEP)
+        normal, gradient = slopes.T @ slopes, slopes.T @ (evaluate.log.angles.ravel() - centre)
+        while damping < 1e3:
+            dampings = [damping * f for f in (0.1, 1.0, 10.0)]
+            trials = [z + np.linalg.solve(normal + d * np.diag(np.diag(normal) + 1e-12), gradient) for d in dampings]
+            scores = _scores(search, trials, evaluate)
+            k = int(np.argmin([score[0] for score in scores]))
+            if scores[k][0] < loss * (1.0 - POLISH_TOLERANCE):
+                z, loss, damping = np.append(trials[k][:-1], scores[k][1] / LATENCY_UNIT), scores[k][0], dampings[k]
+                break
+            damping *= 100.0
+        else:
+            break
+    return z, loss, normal
+
+
+def sloppy_scan(search: Search, z: np.ndarray, loss: float, normal: np.ndarray, evaluate: Evaluator) -> tuple:
+    """Moves of ``SCAN_MOVES`` along each of the normal matrix's ``SCAN_DIRECTIONS`` weakest directions from
+    ``z`` (where the error is flat to the derivatives but not in the large: friction makes it rough at
+    small scale; the weakest can be a figure at its bound, such as a dead band of 0), the best of them if
+    it lowers the error. (point, loss, whether it moved)."""
+    weakest = np.linalg.eigh(normal)[1][:, :SCAN_DIRECTIONS].T
+    trials = [z + move * direction for direction in weakest for move in SCAN_MOVES]
+    scores = _scores(search, trials, evaluate)
+    k = int(np.argmin([score[0] for score in scores]))
+    if not scores[k][0] < loss * (1.0 - POLISH_TOLERANCE):
+        return z, loss, False
+    return np.append(trials[k][:-1], scores[k][1] / LATENCY_UNIT), scores[k][0], True
 
 
 def bounds(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> dict[str, float]:
     """Each fitted figure's 95 % error bound relative to its value, from the Fisher information of the log
     at ``x`` (the residual's variance ``loss``): the others free, so a trade-off between two figures
     widens both bounds."""
-    _, slopes = jacobian(search, x, latency_s, evaluate)
+    _, slopes = jacobian(search, x, latency_s, evaluate)  # the latency free too: its column last
     covariance = np.linalg.pinv(slopes.T @ slopes / max(loss, 1e-12))
     spread = 1.96 * np.sqrt(np.maximum(np.diag(covariance), 0.0))
     out = {}
