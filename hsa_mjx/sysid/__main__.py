@@ -5,8 +5,8 @@
             servo driving its HSA) and log each tick's measured angles beside the targets
     synth   the log the simulator makes of that signal with a profile's servo, read by a tracker with
             noise and latency (what a real log looks like, with known figures to recover)
-    fit     fit the profile's servo figures to a log (CMA-ES over C MuJoCo rollouts of the rig), and
-            write a profile file with them: use it as ``env.robot: PATH``
+    fit     fit the profile's servo figures to a log (CMA-ES over C MuJoCo rollouts of the rig, then
+            Levenberg-Marquardt steps), and write a profile file with them: use it as ``env.robot: PATH``
 
 The CSV format: ``hsa_mjx.sysid.logs``; an example log: ``robots/example_log.csv``.
 """
