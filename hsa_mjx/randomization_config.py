@@ -35,6 +35,9 @@ class RandomizationConfig:
     # robot profiles (hsa_mjx.robots) whose servos each env drives as one of them, drawn per episode (their
     # DC-motor servo figures and model; the control, sensors and latency stay the env's own robot's)
     robots: tuple[str, ...] = ()
+    # how often each of ``robots`` is drawn, relative to the others (one weight each); []: all alike.
+    # [0, 1, 0] plays the second profile alone with the observation a policy over all three trained on
+    robot_weights: tuple[float, ...] = ()
     # DC-motor servos: scales of the stall torque, no-load speed, damping, friction and rotor inertia,
     # each drawn on its own (the same for the eight servos of an env)
     servo_figures: tuple[float, float] = NOMINAL
@@ -115,6 +118,19 @@ def validate(config: RandomizationConfig, noise: ObservationNoiseConfig) -> None
             "config key 'randomization.push_interval_s' must be > 0 s when push_speed > 0, "
             f"got {list(config.push_interval_s)}"
         )
+    _check_robot_weights(config)
     for name in NOISE_GROUPS:
         if getattr(noise, name) < 0:
             raise ValueError(f"config key 'observation.noise.{name}' must be >= 0, got {getattr(noise, name)!r}")
+
+
+def _check_robot_weights(config: RandomizationConfig) -> None:
+    """``randomization.robot_weights``: none, or one weight >= 0 per drawn robot, not all 0."""
+    weights = config.robot_weights
+    if not weights:
+        return
+    if len(weights) != len(config.robots) or min(weights) < 0 or sum(weights) <= 0:
+        raise ValueError(
+            "config key 'randomization.robot_weights' must give one weight >= 0 per profile of "
+            f"randomization.robots {list(config.robots)}, not all 0 (or [] for all alike), got {list(weights)}"
+        )

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import shutil
 
 import jax
 import numpy as np
@@ -98,6 +100,13 @@ def test_latency_holds_the_servo_targets_for_the_set_ticks():
 def test_deploy_reaches_goals_and_refuses_what_it_cannot_run(capsys, tmp_path):
     assert main(["--policy", "flat", "--goal", "1.5", "0.5"]) == 0
     assert "1 of 1 goals reached" in capsys.readouterr().out
+    late = tmp_path / "late"  # a policy trained with one tick of latency (dfr05sr's PWM frame) plays with it
+    shutil.copytree(policy_file.shipped()["flat_st3215"], late)
+    meta = json.loads((late / "policy.json").read_text())
+    meta["config"]["env"]["randomization"]["latency_steps"] = [1, 1]
+    (late / "policy.json").write_text(json.dumps(meta))
+    assert main(["--policy", str(late), "--goal", "0.5", "0", "--max-steps", "2"]) == 0
+    assert "latency 1 ticks" in capsys.readouterr().out
     assert main(["--policy", "rough"]) == 2
     assert "height scan" in capsys.readouterr().err
     assert main(["--policy", "flat", "--latency-ms", "30"]) == 2

@@ -134,3 +134,22 @@ def test_c_backend_steps_a_batch_in_c_mujoco_like_step_with():
     via = jax.jit(jax.vmap(functools.partial(env_jax.step_with, host)))(jax.jit(jax.vmap(env_jax.reset))(keys), actions)
     np.testing.assert_array_equal(np.asarray(own.obs), np.asarray(via.obs))
     np.testing.assert_array_equal(np.asarray(own.reward), np.asarray(via.reward))
+
+
+def test_ended_episodes_run_no_c_substeps_and_play_the_same():
+    """In a rollout on C MuJoCo, an episode that has ended runs no substeps (its state is frozen): the
+    traces are the ones of a rollout that steps every episode to the end."""
+    from train import rollout
+
+    env = hsa_mjx.make_env("flat", physics__backend="c", max_episode_steps=3)
+    host, played = env.host_physics, []
+    run = host._run
+    host._run = lambda shapes, names, idle, *arrays: played.append(not idle) or run(shapes, names, idle, *arrays)
+    every = HostPhysics(env.robot.mj_model, env.index)
+    keys, goals = jax.random.split(jax.random.PRNGKey(2), 2), jnp.array([1.5, 1.8])
+    policy = lambda obs, key: (jnp.full(8, 0.5), {})  # noqa: E731
+    skipped = rollout.rollout(env, policy, keys, goals, 5)
+    stepped = rollout.rollout(env, policy, keys, goals, 5, simulate=lambda d, t, f: every(d, t, f))
+    assert sum(played) == 2 * 3 and len(played) == 2 * 5  # two episodes of three steps, in five
+    for name in ("xy", "qpos", "done", "alive", "distance"):
+        np.testing.assert_array_equal(np.asarray(skipped[name]), np.asarray(stepped[name]), err_msg=name)

@@ -54,7 +54,7 @@ def test_shipped_policy_beats_a_zero_policy(name):
     params = jax.tree.map(lambda a, b: jnp.stack([a] * EPISODES + [b] * EPISODES), trained, zero)
     keys = jax.random.split(jax.random.PRNGKey(0), EPISODES)
     goal_range = jnp.asarray(policy_sources.default_goal_range(config), jnp.float32)
-    c_mujoco = HostPhysics(env.robot.mj_model, env.index)  # the substeps in C MuJoCo: fast on a CPU
+    c_mujoco = HostPhysics(env.robot.mj_model, env.index, env.motors)  # the substeps in C MuJoCo: fast on a CPU
     traces = jax.device_get(
         rollout.rollout(
             env,

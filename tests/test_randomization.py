@@ -51,6 +51,15 @@ def test_draws_lie_in_their_ranges_differ_per_env_and_repeat_from_the_key():
     assert float(fixed.friction) == 0.5 and float(fixed.servo_force_limit) == np.inf
 
 
+def test_robots_are_drawn_alike_or_by_their_weights():
+    keys = jax.random.split(jax.random.PRNGKey(5), 64)
+    robots = ("a", "b", "c")
+    alike = jax.vmap(lambda k: randomization.draw(k, RandomizationConfig(robots=robots)).robot)(keys)
+    weighted = RandomizationConfig(robots=robots, robot_weights=(0.0, 1.0, 0.0))
+    only_b = jax.vmap(lambda k: randomization.draw(k, weighted).robot)(keys)
+    assert set(np.asarray(alike).tolist()) == {0, 1, 2} and set(np.asarray(only_b).tolist()) == {1}
+
+
 def test_the_same_key_draws_the_same_episode_on_every_backend():
     keys = jax.random.split(jax.random.PRNGKey(0), 3)
     overrides = {f"randomization__{k}": list(v) for k, v in RANGES.items()}
@@ -246,6 +255,7 @@ def test_observation_noise_touches_only_its_groups():
         ("randomization__push_speed", 0.2, "push_interval_s' must be > 0 s when push_speed > 0"),
         ("observation__noise__goal", -0.1, "observation.noise.goal' must be >= 0"),
         ("randomization__mass", [1, 1], "valid keys: \\['block_mass'"),
+        ("randomization__robot_weights", [1.0], "robot_weights' must give one weight >= 0 per profile"),
     ],
 )
 def test_bad_randomization_values_are_refused(key, value, message):

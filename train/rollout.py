@@ -8,6 +8,7 @@ reasons that ``eval.json`` reports.
 from __future__ import annotations
 
 import functools
+import inspect
 from typing import Any
 
 import jax
@@ -19,6 +20,14 @@ from hsa_mjx.task import observation, termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import FREE_CELL, EnvParams
 from hsa_mjx.task.randomization import NEVER
+
+
+def _while(simulate: Any, alive: jax.Array) -> Any:
+    """``simulate`` for one episode: where it takes ``idle`` (``HostPhysics``), an ended episode runs no
+    substeps (its frozen state is kept, so whatever they would return is discarded)."""
+    if "idle" not in inspect.signature(simulate).parameters:
+        return simulate
+    return lambda data, targets, fields: simulate(data, targets, fields, idle=~alive)
 
 
 def rollout(
@@ -44,7 +53,7 @@ def rollout(
     axis (the env must randomise the scales it sets, allow the latency and, for pushes, push).
     """
     idx = env.index
-    env_step = env.step if simulate is None else functools.partial(env.step_with, simulate)
+    simulate = env.host_physics if simulate is None else simulate  # C MuJoCo: ended episodes run no substeps
 
     def one(key, p, cell, fixed):
         act = policy if params is None else functools.partial(policy, p)
@@ -55,7 +64,7 @@ def rollout(
         def step(carry, k_act):
             s, alive = carry
             action, _ = act(s.obs, k_act)
-            ns = env_step(s, action)
+            ns = env.step(s, action) if simulate is None else env.step_with(_while(simulate, alive), s, action)
             ns = backend.where(alive, ns, s)
             data = ns.pipeline_state.physics
             trace = {
@@ -107,8 +116,9 @@ BEARING_BINS = (0, 30, 60, 90)  # degrees between the robot's axis at the start 
 
 def by_goal_bearing(traces: dict[str, np.ndarray], success: np.ndarray) -> dict[str, float | None]:
     """Success rate by the goal's bearing from the robot's axis at the start (block A to B), folded onto
-    0-90 degrees since the robot crawls either way along it: a policy that cannot turn reaches the goals
-    near its axis only. Keys ``"0-30"`` ...; None for a bin without episodes."""
+    0-90 degrees (either end of the axis): the hardware profiles' policies crawl across the axis, so a
+    policy that cannot turn reaches the goals at 60-90 degrees only. Keys ``"0-30"`` ...; None for a bin
+    without episodes."""
     to_goal = traces["goal"][:, 0] - traces["start_xy"]
     along = np.abs(np.sum(to_goal * traces["start_heading"], axis=-1)) / np.maximum(
         np.linalg.norm(to_goal, axis=-1), 1e-9

@@ -1,12 +1,12 @@
 """``python -m hsa_mjx.deploy --policy NAME_OR_DIR``: run an exported policy in the deployment loop.
 
-The policy (numpy ``policy.npz``, or ``--onnx`` for the folder's ``policy.onnx`` through onnxruntime)
-drives the C MuJoCo model of its env at the control rate, seeing only what the robot's sensors give
-(``hsa_mjx.deploy.loop``), with ``--latency-ms`` of action delay, on the training model or on a robot
-unlike it (``--friction``, ``--block-mass``, ``--hsa-stiffness``, ``--hsa-damping``, ``--servo-gain``:
-scales of the model's values; ``--foot-friction``, ``--foot-anisotropy``: four scales, one per foot;
-``--servo-torque-limit`` in N m; values outside the valid ranges are refused). Goals: ``--goal X Y``,
-or ``--episodes`` goals drawn from the policy's training goal range. Prints each episode and a summary.
+The policy (numpy ``policy.npz``, or ``--onnx`` for the folder's ``policy.onnx`` through onnxruntime) drives the
+C MuJoCo model of its env at the control rate, seeing only what the robot's sensors give
+(``hsa_mjx.deploy.loop``), with ``--latency-ms`` of action delay (default: the least it trained with), on the
+training model or on a robot unlike it (``--friction``, ``--block-mass``, ``--hsa-stiffness``, ``--hsa-damping``,
+``--servo-gain``: scales of the model's values; ``--foot-friction``, ``--foot-anisotropy``: four scales, one per foot;
+``--servo-torque-limit`` in N m; values outside the valid ranges are refused). Goals: ``--goal X Y``, or
+``--episodes`` goals drawn from the policy's training goal range. Prints each episode and a summary.
 """
 
 from __future__ import annotations
@@ -34,7 +34,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--goal", type=float, nargs=2, default=None, metavar=("X", "Y"), help="one goal (m)")
     parser.add_argument("--episodes", type=int, default=4, help="goals drawn from the training range (default 4)")
     parser.add_argument("--max-steps", type=int, default=None, help="control ticks per goal (default: the env's)")
-    parser.add_argument("--latency-ms", type=float, default=0.0, help="action delay, a whole number of ticks")
+    parser.add_argument(
+        "--latency-ms",
+        type=float,
+        default=None,
+        help="action delay, a whole number of ticks (default: the least the policy trained with, its robot's own)",
+    )
     parser.add_argument("--realtime", action="store_true", help="tick at the control rate in wall time")
     for name, (lo, hi) in LIMITS.items():
         what = "N m, the servos' torque limit" if name == "servo_torque_limit" else "scale of the model's value"
@@ -95,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
         meta = policy_file.read_meta(directory)
         network = load_network(directory, args.onnx)
         config, labels, goal_range = loop.policy_env(meta)
-        latency = loop.latency_steps(args.latency_ms, config.dt)
+        own = config.randomization.latency_steps[0]  # a robot profile's latency (dfr05sr: one PWM frame)
+        latency = own if args.latency_ms is None else loop.latency_steps(args.latency_ms, config.dt)
         targets = goals(args, goal_range)
         perturbation = ModelPerturbation(**{k: getattr(args, k) for k in LIMITS if getattr(args, k) is not None})
     except (ValueError, FileNotFoundError) as err:

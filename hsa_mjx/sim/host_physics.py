@@ -62,14 +62,22 @@ class HostPhysics:
         self.data = mujoco.MjData(self.model)
 
     def __call__(
-        self, data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array] | None = None
+        self,
+        data: mjx.Data,
+        targets: jax.Array,
+        fields: dict[str, jax.Array] | None = None,
+        idle: jax.Array | None = None,
     ) -> tuple[mjx.Data, SubstepStats]:
         """Run one substep per row of ``targets`` (frame_skip, 8) from ``data``; the new data and stats.
 
         ``fields``: model fields of this env (``hsa_mjx.task.randomization.model_fields``), written into
-        the C model before its substeps."""
+        the C model before its substeps. ``idle`` (a bool scalar, traced): True runs no substep and
+        returns a state to be discarded, for an episode that has ended while others play on
+        (``train.rollout``): a batch of C MuJoCo episodes then costs the steps they play, not the
+        longest one's."""
         fields = fields or {}
-        inputs = [getattr(data, name) for name in STATE_IN] + [targets] + list(fields.values())
+        idle = jnp.zeros((), bool) if idle is None else jnp.asarray(idle, bool)
+        inputs = [idle] + [getattr(data, name) for name in STATE_IN] + [targets] + list(fields.values())
         shapes = tuple(
             jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype) for name in STATE_OUT
         ) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
@@ -83,8 +91,9 @@ class HostPhysics:
         )
 
     def _run(self, shapes: tuple, names: tuple[str, ...], *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Host side: load the model fields and state, step, return the fields (the env's shapes and
-        dtypes) and the stats."""
+        """Host side: load the model fields and state, step (unless idle), return the fields (the env's
+        shapes and dtypes) and the stats."""
+        idle, arrays = bool(arrays[0]), arrays[1:]
         state, targets, values = arrays[: len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1 :]
         for name, value in zip(names, values):
             np.copyto(getattr(self.model, name), np.asarray(value, np.float64))
@@ -95,8 +104,9 @@ class HostPhysics:
             else:
                 np.copyto(getattr(d, name), np.asarray(value, np.float64).reshape(getattr(d, name).shape))
         counts = [d.warning[w].number for w in _BAD]
-        qvel, qacc = np.empty(len(targets)), np.empty(len(targets))
-        for i, target in enumerate(np.asarray(targets, np.float64)):
+        steps = 0 if idle else len(targets)
+        qvel, qacc = np.zeros(max(steps, 1)), np.zeros(max(steps, 1))
+        for i, target in enumerate(np.asarray(targets, np.float64)[:steps]):
             servo.write_controls(self.model, d, self.index, self.motors, target)
             mujoco.mj_step(self.model, d)
             qvel[i], qacc[i] = np.abs(d.qvel).max(), np.abs(d.qacc).max()  # a NaN stays a NaN

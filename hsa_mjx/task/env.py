@@ -148,6 +148,12 @@ class HSAEnv(BraxEnv):
         return "mjx"
 
     @property
+    def host_physics(self) -> HostPhysics | None:
+        """The C MuJoCo substeps a ``physics.backend: c`` env steps with (``step`` is ``step_with`` them),
+        else None."""
+        return self._host
+
+    @property
     def physics_backend(self) -> str:
         """The physics this env steps with: ``"jax"`` or ``"warp"`` (MJX) or ``"c"`` (C MuJoCo substeps)."""
         return self.robot.backend

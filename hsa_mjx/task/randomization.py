@@ -114,6 +114,13 @@ def _uniform(key: jax.Array, bounds: tuple[float, float], shape: tuple = ()) -> 
     return lo + (hi - lo) * jax.random.uniform(key, shape, jnp.float32)
 
 
+def _robot(key: jax.Array, robots: int, weights: tuple[float, ...]) -> jax.Array:
+    """The index of the drawn robot profile: uniform, or in proportion to ``weights``."""
+    if not weights:
+        return jax.random.randint(key, (), 0, robots, jnp.int32)
+    return jax.random.choice(key, robots, p=jnp.asarray(weights, jnp.float32) / sum(weights)).astype(jnp.int32)
+
+
 def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
     """One env's scales, uniform in the config's ranges (the same for the same key on every backend)."""
     keys = jax.random.split(key, 6)
@@ -129,7 +136,7 @@ def draw(key: jax.Array, config: RandomizationConfig) -> PhysicsScales:
         servo_force_limit=limit.astype(jnp.float32),
         foot_friction=_uniform(feet[0], config.foot_friction, (4,)),
         foot_anisotropy=_uniform(feet[1], config.foot_anisotropy, (4,)),
-        robot=jax.random.randint(jax.random.fold_in(key, 7), (), 0, robots, jnp.int32),
+        robot=_robot(jax.random.fold_in(key, 7), robots, config.robot_weights),
         servo_figures=_uniform(jax.random.fold_in(key, 8), config.servo_figures, (len(SERVO_FIGURES),)),
     )
 
