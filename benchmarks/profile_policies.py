@@ -7,7 +7,8 @@ The runs are a sweep's (``benchmarks.sweep``): its arms named after a robot prof
 are that profile's own policies, an arm whose config draws robots per env (``randomization.robots``) is a
 family policy over them. Each evaluation plays the run's final checkpoint with its mean action on the
 sweep's goals (``evaluate.episodes`` from ``evaluate.seed``) in the profile's task (its own config's goal
-range), and lands in ``RUN/profile_eval/<profile>_<backend>/eval.json`` (skipped when there):
+range), and lands in ``RUN/profile_eval/<profile>_<backend>/eval.json`` (skipped when it played the run's
+final checkpoint):
 
 - a family run on each profile alone: ``randomization.robot_weights`` one-hot (the observation it trained
   on stays), the profile's latency;
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import sweep as sweeps
+from benchmarks import sweep_report
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
 from benchmarks.sweep_grid import read_json
@@ -95,7 +97,7 @@ def commands(sweep: sweeps.Sweep, out: Path, backend: str, workers: int) -> list
         owned = [job.arm] if job.arm in profiles else profiles if job.arm in families else []
         for profile in owned:
             folder = eval_dir(job.run_dir, profile, backend, own=job.arm == profile)
-            if (folder / "eval.json").is_file() or not sweeps.trained(job, sweep.env_steps):
+            if sweep_report.is_current(folder, job.run_dir) or not sweeps.trained(job, sweep.env_steps):
                 continue
             args = [str(job.run_dir), "--out", str(folder), "--seed", str(ev.get("seed", 1000)), "--backend", backend]
             args += ["--episodes", str(ev.get("episodes", 128))]
@@ -147,7 +149,8 @@ def report(sweep: sweeps.Sweep, out: Path, profile: str, families: list[str]) ->
 
     def figures(arm: str, backend: str, seeds: list[int] | None = None) -> dict | None:
         runs = [j for j in jobs if j.arm == arm and (seeds is None or j.seed in seeds)]
-        return pooled([(j.seed, eval_dir(j.run_dir, profile, backend, own=arm == profile)) for j in runs])
+        folders = [(j.seed, eval_dir(j.run_dir, profile, backend, own=arm == profile)) for j in runs]
+        return pooled([(seed, f) for (seed, f), j in zip(folders, runs) if sweep_report.is_current(f, j.run_dir)])
 
     own = {"mjx": figures(profile, "auto"), "c_mujoco": figures(profile, "c")}
     family = {arm: {"mjx": figures(arm, "auto"), "c_mujoco": figures(arm, "c")} for arm in families}

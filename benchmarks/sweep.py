@@ -14,7 +14,8 @@ the run never trained on. With ``evaluate.grid`` each run's policy is also expor
 folder): per cell, each arm pooled over its seeds and its difference to each reference, with intervals
 (``benchmarks.sweep_grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
 nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
-is done. The report (``benchmarks.sweep_report``): ``sweep.json``, ``sweep.md`` and one plot per arm
+is done. Raising ``env_steps`` continues every run from its checkpoint and evaluates it again (an
+evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweep_report``): ``sweep.json``, ``sweep.md`` and one plot per arm
 plus ``sweep.png`` in ``OUT``; every figure with its 95 % interval, the arms against the first.
 
 The sweep file is checked before anything runs: unknown keys, an arm whose config does not build,
@@ -258,7 +259,9 @@ class Runner:
             print(f"[{device}] train {job.arm} seed {job.seed}", flush=True)
             if self._call(job.train + resume, device, log) != 0 or not trained(job, env_steps):
                 return
-        if job.evaluate and not (job.run_dir / "sweep_eval").is_dir():
+            for stale in ("sweep_eval", "sweep_grid", "export_npz"):  # of an earlier checkpoint, if any
+                shutil.rmtree(job.run_dir / stale, ignore_errors=True)
+        if job.evaluate and not sweep_report.is_current(job.run_dir / "sweep_eval", job.run_dir):
             print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
             if self._call(job.evaluate, device, log) != 0:
                 shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)

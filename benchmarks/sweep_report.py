@@ -27,8 +27,20 @@ from train.logger import read_jsonl
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
 
 
+def is_current(folder: Path, run_dir: Path) -> bool:
+    """Whether ``folder`` holds an evaluation of the run's final checkpoint: its ``step`` is the run's env
+    steps. A run trained further since (a sweep's ``env_steps`` raised) is evaluated again; an evaluation
+    that names no step is taken as it is."""
+    result = read_json(folder / "eval.json") or read_json(folder / "terrain_eval.json")
+    steps = read_json(run_dir / "summary.json").get("env_steps")
+    return bool(result) and (result.get("step") is None or steps is None or int(result["step"]) == int(steps))
+
+
 def evaluation(run_dir: Path) -> dict[str, Any] | None:
-    """A run's evaluation: successes, episodes, rate, interval (and per type on terrain); None before one."""
+    """A run's evaluation: successes, episodes, rate, interval (and per type on terrain); None before one
+    (or when it evaluated an earlier checkpoint than the run's final one)."""
+    if not is_current(run_dir / "sweep_eval", run_dir):
+        return None
     flat, terrain = (
         read_json(run_dir / "sweep_eval" / "eval.json"),
         read_json(run_dir / "sweep_eval" / "terrain_eval.json"),

@@ -132,6 +132,26 @@ def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path
     assert (jobs[0].run_dir / "sweep_eval").is_dir()
 
 
+def test_a_run_trained_further_is_evaluated_again(tmp_path):
+    """Raising a sweep's env steps continues its runs; their evaluations of the earlier checkpoint are dropped."""
+    spec = sweep.load(_write(tmp_path))
+    job = sweep.plan(spec, tmp_path / "out")[0]
+    _fake_run(job.run_dir, 0.5, v_loss=1.0)
+    evaluation = job.run_dir / "sweep_eval" / "eval.json"
+    evaluation.write_text(json.dumps({"episodes": 100, "success_rate": 0.5, "step": 1_966_080}))
+    assert sweep_report.evaluation(job.run_dir)["successes"] == 50
+    more = 2 * spec.env_steps
+    done = json.dumps({"env_steps": more, "interrupted": False})
+    job.train = ["-c", f"import pathlib; pathlib.Path({str(job.run_dir / 'summary.json')!r}).write_text({done!r})"]
+    assert sweep_report.evaluation(job.run_dir) is not None  # not trained further yet
+    job.evaluate = ["-c", "import sys; sys.exit(3)"]  # the evaluation fails: nothing stale stays behind
+    sweep.Runner([None], deadline=None).run([job], more)
+    assert sweep.trained(job, more) and not (job.run_dir / "sweep_eval").exists()
+    evaluation.parent.mkdir()
+    evaluation.write_text(json.dumps({"episodes": 100, "success_rate": 0.5, "step": 1_966_080}))
+    assert sweep_report.evaluation(job.run_dir) is None  # an earlier checkpoint's figure is not reported
+
+
 GRID = {"name": "stress", "episodes": 50, "reference": ["flat"]}
 
 
