@@ -30,9 +30,9 @@ import jax.numpy as jnp
 from benchmarks import network_cost
 from benchmarks.run_info import report, run_info
 from train import config as train_config
-from train import distributed
-from train.learner import AXIS
-from train.replicas import replicate
+from train.devices import distributed
+from train.devices.replicas import replicate
+from train.learners.ppo.learner import AXIS
 
 NCCL_VARS = ("NCCL_P2P_DISABLE", "NCCL_SHM_DISABLE", "NCCL_IB_DISABLE", "NCCL_NET", "NCCL_SOCKET_IFNAME")
 

@@ -9,7 +9,7 @@ underside sits (a wall lower than that meets only the blocks).
 
 **Simulation.** One feature on the terrain heightfield straight ahead of the spawn, the goal straight
 beyond it, a trained policy (its mean action) for ``--episodes`` episodes per value, each through
-``train.evaluation.evaluate``'s per-terrain evaluation (what ``python -m train.evaluate --terrain-types`` runs):
+``train.episodes.play.evaluate``'s per-terrain evaluation (what ``python -m train.evaluate --terrain-types`` runs):
 
 - **step**: ``flat_with_ramp`` across the whole field, turned to face the robot with its high edge: a
   rise of h over one heightfield cell (0.2 m) at 1.2 m from the spawn, then a gentle slope down; goal
@@ -135,22 +135,25 @@ def geometry() -> dict[str, float]:
     }
 
 
-def _evaluate(args: argparse.Namespace, probe: Probe, levels: str, extra: Sequence[str], out: Path) -> list[dict]:
-    """Rows of one terrain evaluation (``train.evaluation.evaluate`` per type and difficulty) of ``probe``."""
-    from train.evaluation import EvalSpec, evaluate
+def _evaluate(
+    args: argparse.Namespace, probe: Probe, levels: tuple[float, ...], extra: Sequence[str], out: Path
+) -> list[dict]:
+    """Rows of one terrain evaluation (``train.episodes.play.evaluate`` per type and difficulty) of ``probe``."""
+    from train.config import parse_assignment
+    from train.episodes.play import EvalSpec, evaluate
 
-    overrides = [f"env.terrain.{o}" for o in (*probe.fixed, *extra)]
+    overrides = dict(parse_assignment(f"env.terrain.{o}") for o in (*probe.fixed, *extra))
     spec = EvalSpec(
         policy=args.policy or probe.policy,
         backend=args.backend,
         episodes=args.episodes,
         steps=args.steps,
         seed=args.seed,
-        terrain_types=probe.terrain,
+        terrain_types=(probe.terrain,),
         levels=levels,
         goal_range=(probe.goal_m, probe.goal_m),
         out=str(out),
-        overrides=("env.goal.radial_bearing_deg=[0,0]", *overrides),
+        overrides={"env.goal.radial_bearing_deg": [0, 0], **overrides},
     )
     return evaluate(spec)["rows"]
 
@@ -160,12 +163,12 @@ def sweep(args: argparse.Namespace, name: str, work: Path) -> list[dict[str, Any
     probe = PROBES[name]
     if probe.terrain == "corridor":  # the width is no difficulty parameter: one evaluation per width
         rows = [
-            _evaluate(args, probe, "1", [f"corridor.{probe.parameter}={v}"], work / f"{name}_{v}")[0]
+            _evaluate(args, probe, (1.0,), [f"corridor.{probe.parameter}={v}"], work / f"{name}_{v}")[0]
             for v in probe.values
         ]
     else:  # the parameter at its top value, the values as the difficulties of one atlas
         top = f"{probe.terrain}.{probe.parameter}={max(probe.values)}"
-        rows = _evaluate(args, probe, ",".join(f"{d:g}" for d in SWEEP), [top], work / name)
+        rows = _evaluate(args, probe, tuple(SWEEP), [top], work / name)
     return [
         {
             probe.parameter: round(value, 4),

@@ -28,9 +28,9 @@ from jax.extend.core import ClosedJaxpr, Jaxpr
 from benchmarks.run_info import report
 from hsa_mjx.curricula import goal_curriculum
 from train import config as train_config
-from train import strategies
-from train.learner import AXIS
-from train.networks import init_training_state
+from train.devices import strategies
+from train.learners.ppo.learner import AXIS
+from train.learners.ppo.networks import init_training_state
 
 ALL_REDUCE = {"psum", "psum2", "psum_invariant", "pmax", "pmin"}
 ALL_GATHER = {"all_gather", "all_gather_invariant"}

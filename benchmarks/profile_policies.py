@@ -38,7 +38,7 @@ from benchmarks.stats import difference_interval, wilson_interval
 from benchmarks.sweep_grid import read_json
 from hsa_mjx.robots import profile_names
 from train import config as train_config
-from train.policy_sources import default_goal_range
+from train.episodes.policy_sources import default_goal_range
 
 SWEEP = "benchmarks/sweeps/hardware_profiles.yaml"
 OUT = Path("benchmarks/results/robots")

@@ -44,9 +44,9 @@ from hsa_mjx.robots import profile_servo
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.randomization import SERVO_FIGURES, PhysicsScales
 from train.config import from_dict
-from train.policy_sources import default_goal_range, load_shipped_policy
-from train.rollout import episode_success, rollout, summarize
-from train.run_dir import portable
+from train.episodes.policy_sources import default_goal_range, load_shipped_policy
+from train.episodes.rollout import episode_success, rollout, summarize
+from train.run.folder import portable
 
 RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
 RESOLVING_EPISODES = report.RESOLVING_EPISODES

@@ -6,7 +6,7 @@ them, so every device does the same work at every k), in one process:
 
 The devices share the work as the trainer's collection strategy does (``run.collection``, default
 ``auto``: ``one_device`` on one device, ``thread_per_device`` on 2+ GPUs, ``pmap`` on several CPUs;
-``train.strategies``; ``--set run.collection=thread_per_device`` measures that path at k = 1
+``train.devices.strategies``; ``--set run.collection=thread_per_device`` measures that path at k = 1
 too). Each row names it (``collection``).
 
 - **ppo** (first: the training figure): the learner's epoch (collection, observation statistics,
@@ -51,10 +51,10 @@ from benchmarks.run_info import run_info
 from benchmarks.throughput_report import slug
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.curricula import goal_curriculum
-from train import distributed, strategies
 from train.config import TrainConfig, default_config, load, validate_devices
-from train.learner import AXIS
-from train.networks import init_training_state
+from train.devices import distributed, strategies
+from train.learners.ppo.learner import AXIS
+from train.learners.ppo.networks import init_training_state
 
 GPU_DEFAULTS = {"envs_per_device": 8192, "steps": 16, "repeats": 3, "epochs": 2}
 CPU_DEFAULTS = {"envs_per_device": 4, "steps": 2, "repeats": 1, "epochs": 1}  # a pipeline check, not a result

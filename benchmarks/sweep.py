@@ -15,8 +15,9 @@ folder): per cell, each arm pooled over its seeds and its difference to each ref
 (``benchmarks.sweep_grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
 nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
 is done. Raising ``env_steps`` continues every run from its checkpoint and evaluates it again (an
-evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweep_report``): ``sweep.json``, ``sweep.md`` and one plot per arm
-plus ``sweep.png`` in ``OUT``; every figure with its 95 % interval, the arms against the first.
+evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweep_report``):
+``sweep.json``, ``sweep.md`` and one plot per arm plus ``sweep.png`` in ``OUT``; every figure with its
+95 % interval, the arms against the first.
 
 The sweep file is checked before anything runs: unknown keys, an arm whose config does not build,
 a missing config file are refused with a ValueError naming them.

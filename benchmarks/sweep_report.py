@@ -22,7 +22,7 @@ from benchmarks import sweep_grid, time_to_target
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
 from benchmarks.sweep_grid import read_json
-from train.logger import read_jsonl
+from train.run.logger import read_jsonl
 
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
 

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 
 import hsa_mjx.migrations
-from train.logger import read_jsonl
+from train.run.logger import read_jsonl
 
 SUCCESS = "episode/success_rate"
 GOAL = "curriculum/max_distance"

@@ -88,8 +88,8 @@ def _fresh_traces() -> None:
 
 
 def _record_saves() -> list[int]:
-    """Steps of every checkpoint written from now on (train.checkpoint.save wrapped)."""
-    from train import checkpoint
+    """Steps of every checkpoint written from now on (train.run.checkpoint.save wrapped)."""
+    from train.run import checkpoint
 
     saved, save = [], checkpoint.save
     checkpoint.save = lambda run_dir, step, *a, **k: saved.append(step) or save(run_dir, step, *a, **k)
@@ -142,7 +142,7 @@ def _checkpoint_gap(run_a: str, run_b: str, step: int) -> dict:
     terrain levels) is equal."""
     from flax import serialization
 
-    from train import checkpoint
+    from train.run import checkpoint
 
     def load(run: str) -> dict:
         path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}" / checkpoint.STATE_FILE
@@ -206,8 +206,8 @@ def _curriculum_facts() -> dict:
     from hsa_mjx.curricula import goal_curriculum
     from hsa_mjx.curricula.state import CurriculumRules
     from train import config as train_config
-    from train.learner import AXIS
-    from train.replicas import replicate
+    from train.devices.replicas import replicate
+    from train.learners.ppo.learner import AXIS
 
     config = goal_curriculum.GoalCurriculumConfig(
         window_size=8, min_episodes=8, success_threshold=0.5, failure_threshold=0.2
@@ -252,8 +252,8 @@ def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) 
         phases[name], clock = round(time.perf_counter() - clock, 1), time.perf_counter()
 
     from train.cli import main
-    from train.strategies import Pmap
-    from train.thread_per_device import ThreadPerDevice
+    from train.devices.strategies import Pmap
+    from train.devices.thread_per_device import ThreadPerDevice
 
     pmap_seen = _probe(Pmap, compiles)
     args = ["--config", config_path, "--run-dir", run_dir, "--quiet"]

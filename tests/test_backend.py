@@ -102,7 +102,7 @@ def test_importing_the_package_and_its_entry_points_without_warp_prints_nothing(
     (with warp-lang installed: tests/test_quiet_import.py)."""
     modules = (
         "hsa_mjx.task.types, hsa_mjx.task.env, hsa_mjx.batch.auto_reset, hsa_mjx.adapters.gymnasium, "
-        "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.evaluation, "
+        "hsa_mjx.adapters.gymnasium_vector, train.cli, train.trainer, train.episodes.play, "
         "train.export"
     )
     script = f"import sys; sys.modules['warp'] = None\nimport {modules}"

@@ -36,7 +36,7 @@ def old_run(tmp_path_factory) -> Path:
 
 def _terrain_levels(run: Path, step: int) -> dict:
     """The terrain levels a checkpoint holds, (envs,) arrays."""
-    from train import checkpoint
+    from train.run import checkpoint
 
     path = checkpoint.checkpoint_dir(run) / f"step_{step:012d}"
     envs = checkpoint.read_meta(path)["terrain_envs"]
@@ -56,7 +56,7 @@ def test_old_checkpoint_evaluates_the_same(old_run):
 
 def test_old_checkpoint_resumes_both_curricula(old_run):
     from train import config as train_config
-    from train.logger import read_jsonl
+    from train.run.logger import read_jsonl
     from train.trainer import train
 
     saved = read_jsonl(old_run / "metrics.jsonl")[-1]
@@ -107,8 +107,9 @@ def test_shipped_policy_evaluates_as_recorded(name, tmp_path):
 
 def test_the_evaluation_api_takes_a_spec_and_the_command_is_its_wrapper(tmp_path):
     """``evaluate(EvalSpec(...))`` gives the command's ``eval.json``; a bad spec is a ValueError before any compile."""
+    from train.episodes.play import EvalSpec, evaluate
     from train.evaluate import main as command
-    from train.evaluation import EvalSpec, evaluate
+    from train.evaluate import parse_args, spec_from_args
 
     spec = EvalSpec(policy="flat", episodes=2, steps=20, goal_range=(1.5, 1.6), out=str(tmp_path / "api"))
     result = evaluate(spec)
@@ -122,3 +123,14 @@ def test_the_evaluation_api_takes_a_spec_and_the_command_is_its_wrapper(tmp_path
         evaluate(EvalSpec())
     with pytest.raises(FileNotFoundError):
         evaluate(EvalSpec(policy=str(tmp_path / "nothing_here")))
+    # the spec is typed: the command turns its flags into a mapping and tuples; CLI strings are refused
+    flags = ["--policy", "flat", "--set", "env.goal.radial_range=[4.0,4.5]", "--levels", "0,1"]
+    flags += ["--terrain-types", "a, b"]
+    typed = spec_from_args(parse_args(flags))
+    assert typed.overrides == {"env.goal.radial_range": [4.0, 4.5]} and typed.override_items() == (
+        "env.goal.radial_range=[4.0, 4.5]",
+    )
+    assert (typed.levels, typed.terrain_types) == ((0.0, 1.0), ("a", "b"))
+    for bad, match in (({"overrides": "env.seed=1"}, "overrides must map"), ({"levels": "0,1"}, "levels must be")):
+        with pytest.raises(ValueError, match=match):
+            evaluate(EvalSpec(policy="flat", **bad))

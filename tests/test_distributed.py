@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from train import distributed
+from train.devices import distributed
 
 
 def test_cluster_spec_from_flags_or_environment():

@@ -24,7 +24,7 @@ def random_training_state(config: train_config.TrainConfig, seed: int = 0):
     import jax
     import jax.numpy as jnp
 
-    from train.networks import init_training_state, make_networks
+    from train.learners.ppo.networks import init_training_state, make_networks
 
     networks = make_networks(config, N_OBS, N_ACT)
     ts = init_training_state(config, networks, jax.random.PRNGKey(seed), N_OBS)
@@ -114,8 +114,8 @@ def test_export_without_observation_normalisation(tmp_path):
 
 
 def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
-    from train import checkpoint
-    from train.run_state import load_training_state
+    from train.run import checkpoint
+    from train.run.saved import load_training_state
 
     for fmt in export.FORMATS:
         assert export.main([str(tiny_run_dir), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
@@ -142,7 +142,7 @@ def test_export_cli_on_a_trained_run(tiny_run_dir, tmp_path, capsys):
 
 def corrupt_copies(run_dir, root):
     """Copies of a run's latest checkpoint, each broken in one way, with the expected error text."""
-    from train import checkpoint
+    from train.run import checkpoint
 
     latest = checkpoint.latest(run_dir)
     meta = json.loads((latest / checkpoint.META_FILE).read_text())

@@ -12,8 +12,8 @@ from hsa_mjx.task import observation, privileged
 from hsa_mjx.terrain import height_scan
 from hsa_mjx.terrain.height_scan import HeightScanConfig
 from train import config as train_config
-from train.networks import init_training_state, make_networks
-from train.run_state import policy_arrays
+from train.learners.ppo.networks import init_training_state, make_networks
+from train.learners.ppo.policy import policy_arrays
 
 DEFAULT = HeightScanConfig(enabled=True)
 POSITION = np.array([1.0, 2.0], np.float32)

@@ -139,7 +139,7 @@ def test_c_backend_steps_a_batch_in_c_mujoco_like_step_with():
 def test_ended_episodes_run_no_c_substeps_and_play_the_same():
     """In a rollout on C MuJoCo, an episode that has ended runs no substeps (its state is frozen): the
     traces are the ones of a rollout that steps every episode to the end."""
-    from train import rollout
+    from train.episodes import rollout
 
     env = hsa_mjx.make_env("flat", physics__backend="c", max_episode_steps=3)
     host, played = env.host_physics, []

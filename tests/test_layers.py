@@ -29,20 +29,17 @@ LAYERS = (
     ("hsa_mjx.batch",),
     ("hsa_mjx.adapters", "hsa_mjx.deploy", "hsa_mjx.sysid"),
     ("hsa_mjx",),  # the package's own __init__: make_env and the public names
-    # the trainer, floor by floor: file formats and host tools; networks; the run state and the PPO
-    # learner; what builds on them; the collection strategies; the training loop and the evaluation;
-    # on top, the command-line tools nothing else imports
-    tuple(T + m for m in ("checkpoint", "compat", "config", "distributed", "logger", "onnx_policy", "diagnostics")),
-    (T + "rollout", T + "networks", T + "ppo_update", T + "plots", T + "run_dir"),
-    (T + "learner", T + "run_state", T + "terrain_eval", T + "host_workers"),
-    (T + "replicas", T + "warm_start", T + "policy_sources"),
-    (T + "thread_per_device",),
-    (T + "strategies",),
-    (T + "trainer", T + "evaluation"),
+    # the trainer, its folders floor by floor (TRAIN_FLOORS); on top, the command-line tools nothing imports
+    *((T + floor,) for floor in ("config", "learners", "devices", "run", "episodes", "trainer")),
     (T + "cli", T + "evaluate", T + "export", T + "__main__", "train"),
     ("benchmarks",),
 )
 TOOLS = (T + "cli", T + "evaluate", T + "export", T + "__main__")  # imported by no other module
+# train/'s floors are folders: the learners' code; the devices (collection strategies, replicas, several
+# processes); the run (checkpoints, what they hold, the run folder, warm start, logs, plots); playing
+# episodes (evaluation); beside them at the top level only the config, the training loop and the tools
+TRAIN_FLOORS = ("learners", "devices", "run", "episodes")
+TRAIN_TOP = ("__init__", "__main__", "cli", "config", "evaluate", "export", "trainer")
 
 
 def layer_of(module: str) -> int:
@@ -130,20 +127,47 @@ def test_the_trainer_has_no_chain_through_its_tools():
     }
     assert importers == set()
     assert layer_of(T + "evaluate") == layer_of(T + "export") == max(layer_of(m) for m in TOOLS)
-    assert all(layer_of(T + m) < layer_of(T + "evaluate") for m in ("trainer", "warm_start", "run_state"))
+    assert all(layer_of(T + m) < layer_of(T + "evaluate") for m in ("trainer", "run.warm_start", "run.saved"))
+
+
+def test_the_trainers_floors_are_folders():
+    """Every trainer module lies in one of its floor folders, or is one of the few top-level modules."""
+    stray = []
+    for path in (ROOT / "train").rglob("*.py"):
+        parts = path.relative_to(ROOT / "train").with_suffix("").parts
+        if not (parts[0] in TRAIN_FLOORS and len(parts) > 1 or len(parts) == 1 and parts[0] in TRAIN_TOP):
+            stray.append(path.relative_to(ROOT).as_posix())
+    assert stray == [] and all((ROOT / "train" / floor / "__init__.py").is_file() for floor in TRAIN_FLOORS)
+
+
+def test_the_run_evaluation_and_export_reach_a_learner_only_through_the_registry():
+    """Checkpoints, warm starts, evaluation and export are learner-agnostic: no import of PPO's own modules."""
+    reaching = {
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in sources()
+        if module_name(path).startswith((T + "run", T + "episodes", T + "export"))
+        for line, name in imported(path)
+        if name.startswith(T + "learners.ppo")
+    }
+    assert reaching == set()
 
 
 def test_the_check_sees_an_upward_import(tmp_path):
     """The walk finds a deferred import of a higher layer (what the tests above would fail on)."""
     source = tmp_path / "probe.py"
     source.write_text(
-        "def f():\n    from hsa_mjx.batch import auto_reset\n    import train.learner\n"
-        "    from . import strategies\n    from .trainer import train\n"
+        "def f():\n    from hsa_mjx.batch import auto_reset\n    import train.learners.ppo.learner\n"
+        "    from .devices import strategies\n    from .trainer import train\n"
     )
     names = [name for _, name in imported(source, package="train.probe")]
-    assert names == ["hsa_mjx.batch.auto_reset", "train.learner", "train.strategies", "train.trainer"]
+    assert names == [
+        "hsa_mjx.batch.auto_reset",
+        "train.learners.ppo.learner",
+        "train.devices.strategies",
+        "train.trainer",
+    ]
     assert layer_of("hsa_mjx.batch.auto_reset") > layer_of("hsa_mjx.sim.model")
-    assert layer_of("train.learner") > layer_of("train.config")
+    assert layer_of("train.learners.ppo.learner") > layer_of("train.config")
     assert module_name(ROOT / "train" / "trainer.py") == "train.trainer"
 
 

@@ -176,13 +176,13 @@ def _steps(run_dir: Path) -> list[int]:
 
 def _records(run_dir: Path) -> list[dict]:
     """The run's metrics records."""
-    from train.logger import read_jsonl
+    from train.run.logger import read_jsonl
 
     return read_jsonl(run_dir / "metrics.jsonl")
 
 
 def test_two_devices_train_resume_and_write_each_checkpoint_once(two_devices):
-    from train import checkpoint
+    from train.run import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_train"] == 0 and facts["rc_resume"] == 0
@@ -220,7 +220,7 @@ def test_curriculum_update_gathers_outcomes_of_all_devices(two_devices):
 
 def _saved_levels(run_dir: Path, step: int) -> np.ndarray:
     """The per-env terrain levels a checkpoint of the run holds."""
-    from train import checkpoint
+    from train.run import checkpoint
 
     path = checkpoint.checkpoint_dir(run_dir) / f"step_{step:012d}"
     count = checkpoint.read_meta(path)["terrain_envs"]
@@ -268,7 +268,7 @@ def test_per_device_learner_trains_exactly_like_pmap(two_devices):
 
 
 def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
-    from train import checkpoint
+    from train.run import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_per_device"] == 0
@@ -287,7 +287,7 @@ def test_trainer_with_per_device_learner_logs_what_pmap_logged(two_devices):
 def test_thread_per_device_trains_on_the_warp_backend(two_devices):
     """The multi-GPU path on MuJoCo Warp, over the two fake CPU devices (last in the scenario: by then
     tests/test_backend.py's rollouts, on the other worker, have compiled Warp's CPU kernels into its cache)."""
-    from train.logger import read_jsonl
+    from train.run.logger import read_jsonl
 
     assert two_devices.facts["rc_warp"] == 0
     run_dir = two_devices.run_dir.parent / "run_warp"
@@ -336,7 +336,7 @@ def test_a_killed_process_takes_the_other_down_and_leaves_its_checkpoint(two_dev
 def test_every_process_resumes_after_a_kill_and_a_sigterm_stops_both(two_devices):
     """The killed run resumed on both processes; process 1 gets SIGTERM at its second epoch: both stop
     there, process 0 alone writes, and the log holds each epoch once."""
-    from train import checkpoint
+    from train.run import checkpoint
 
     facts, run_dir = two_devices.launches["resume"], two_devices.process_run_dir
     assert [f["rc"] for f in facts] == [0, 0]
@@ -356,8 +356,8 @@ def test_every_process_resumes_after_a_kill_and_a_sigterm_stops_both(two_devices
 
 
 def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
-    from train import checkpoint
     from train.evaluate import main as evaluate
+    from train.run import checkpoint
 
     facts, run_dir = two_devices
     assert facts["rc_one_device"] == 0 and facts["saved_one_device"] == [280]

@@ -10,7 +10,8 @@ import pytest
 from hsa_mjx import resources
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.host_physics import HostPhysics
-from train import evaluate, policy_sources, rollout
+from train import evaluate
+from train.episodes import policy_sources, rollout
 
 SHIPPED = list(policy_file.shipped())
 EPISODES, STEPS = 4, 250  # per policy: the corridor policy, slowest between its walls, closes the least
@@ -142,7 +143,8 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
     assert result["episodes"] == 2 and result["max_steps"] == 12 and result["step"] >= 80
     assert result["physics"] == "c_mujoco"  # the substeps ran in C MuJoCo
     assert result["source"]["run"] == tiny_run_dir.name and result["mean_final_distance"] > 0
-    assert result["env_overrides"] == goal[1::2] and abs(result["mean_start_distance"] - 2.5) < 0.1
+    overrides = {"env.goal.mode": "fixed", "env.goal.position": [2.5, 0.0]}
+    assert result["env_overrides"] == overrides and abs(result["mean_start_distance"] - 2.5) < 0.1
     for name in ("actions.png", "joints.png", "constraint.png", "trajectories.png"):
         assert (out / name).stat().st_size > 5_000
 
@@ -150,7 +152,7 @@ def test_evaluate_policy_runs_an_exported_policy(tiny_run_dir, tmp_path, capsys)
 def test_gif_frames_are_capped(env, tmp_path):
     from PIL import Image
 
-    from train import diagnostics
+    from train.episodes import diagnostics
 
     steps = 12
     qpos = np.tile(env.robot.mj_model.qpos0, (1, steps, 1))

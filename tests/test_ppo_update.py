@@ -14,9 +14,9 @@ from brax.training import types
 import hsa_mjx
 from hsa_mjx.curricula import goal_curriculum
 from train import config as train_config
-from train.learner import PPOLearner
-from train.networks import init_training_state
-from train.ppo_update import LR_BOUNDS, adapted_learning_rate, explained_variance
+from train.learners.ppo.learner import PPOLearner
+from train.learners.ppo.networks import init_training_state
+from train.learners.ppo.update import LR_BOUNDS, adapted_learning_rate, explained_variance
 
 ENVS, T, OBS = 512, 20, 28  # the flat task's minibatch layout (32 minibatches x 4 passes), a smaller batch
 

@@ -340,9 +340,9 @@ def test_the_privileged_critic_sees_the_episodes_true_model():
 def test_randomization_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores; a checkpoint without them starts afresh."""
     from hsa_mjx.curricula.state import CurriculumRules, host_levels
-    from train import checkpoint
     from train import config as train_config
-    from train.run_state import payload, restore_levels
+    from train.run import checkpoint
+    from train.run.saved import payload, restore_levels
 
     config = train_config.load("configs/train_flat_dr.yaml")
     rules = CurriculumRules(config.env, randomization=config.randomization_curriculum)

@@ -13,9 +13,9 @@ import numpy as np
 
 from hsa_mjx.curricula import goal_curriculum
 from train import config as train_config
-from train import strategies
-from train.learner import AXIS
-from train.replicas import PmapWithoutEmpty
+from train.devices import strategies
+from train.devices.replicas import PmapWithoutEmpty
+from train.learners.ppo.learner import AXIS
 
 ARGUMENT = re.compile(r"%arg\d+: tensor<([^>]*)>")
 

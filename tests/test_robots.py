@@ -92,7 +92,7 @@ def test_the_task_rule_and_each_profiles_config_follow_the_measured_speeds():
 
     from benchmarks.robot_speed import DEFAULT_OUT, scaled_task
     from train import config as train_config
-    from train.policy_sources import default_goal_range
+    from train.episodes.policy_sources import default_goal_range
 
     assert scaled_task(0.234, 0.234).farthest_m == 4.5  # the reference scales to itself
     slow = scaled_task(0.01, 0.234)

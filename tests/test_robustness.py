@@ -251,7 +251,7 @@ def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
     from hsa_mjx.deploy import policy_file
     from hsa_mjx.randomization_config import RandomizationConfig
     from train import config as train_config
-    from train import policy_sources
+    from train.episodes import policy_sources
 
     trained = policy_file.load_policy(policy_file.locate("flat_dr")).meta["config"]
     assert trained["env"]["randomization"]["push_speed"] > 0  # it trained with pushes and noise
@@ -275,7 +275,7 @@ def test_overrides_score_a_randomised_policy_on_the_cells_model_alone():
 def test_a_cell_without_pushes_is_never_pushed():
     import hsa_mjx
     from hsa_mjx.task.randomization import NEVER
-    from train.rollout import with_randomization
+    from train.episodes.rollout import with_randomization
 
     env = hsa_mjx.make_env("flat", randomization__push_speed=0.3, randomization__push_interval_s=[2.0, 4.0])
     state = env.reset(jax.random.PRNGKey(0))

@@ -14,8 +14,8 @@ from hsa_mjx.curricula import terrain_curriculum
 from hsa_mjx.terrain import TERRAIN_TYPES, Grid, TerrainConfig, generate
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, GENERATORS
-from train import checkpoint
 from train import config as train_config
+from train.run import checkpoint
 
 GRID = Grid()
 HARD_TYPES = tuple(t for t in TERRAIN_TYPES if t != "flat")
@@ -197,7 +197,7 @@ def test_level_logs_per_type_and_top_share():
 
 def test_levels_round_trip_through_a_checkpoint(tmp_path):
     """What the trainer saves is what a resume restores (the same batch), or the same mix (another batch)."""
-    from train.run_state import payload, restore_terrain
+    from train.run.saved import payload, restore_terrain
 
     config = train_config.load("configs/train_rough.yaml")
     levels = terrain_curriculum.init(
@@ -228,18 +228,17 @@ def test_levels_round_trip_through_a_checkpoint(tmp_path):
 
 
 def test_terrain_evaluation_arguments():
-    from train import terrain_eval
+    from train.episodes import terrain_eval
 
     rough = train_config.load("configs/train_rough.yaml").env
-    assert terrain_eval.parse_types("all", rough) == tuple(rough.terrain.types)
-    assert terrain_eval.parse_types("stairs, poles", rough) == ("stairs", "poles")
-    assert terrain_eval.parse_levels("0,0.5,1") == (0.0, 0.5, 1.0)
-    for bad, match in (("lava", "lava"), ("spiral", "goal.mode spiral"), ("", "unknown")):
+    assert terrain_eval.resolve_types("all", rough) == tuple(rough.terrain.types)
+    assert terrain_eval.resolve_types(("stairs", "poles"), rough) == ("stairs", "poles")
+    assert terrain_eval.check_levels((0, 0.5, 1)) == (0.0, 0.5, 1.0)
+    for bad, match in ((("lava",), "lava"), (("spiral",), "goal.mode spiral"), ((), "unknown"), ("stairs", "unknown")):
         with pytest.raises(ValueError, match=match):
-            terrain_eval.parse_types(bad, rough)
-    for bad in ("0,1.5", "easy"):
-        with pytest.raises(ValueError, match="--levels"):
-            terrain_eval.parse_levels(bad)
+            terrain_eval.resolve_types(bad, rough)
+    with pytest.raises(ValueError, match="--levels"):
+        terrain_eval.check_levels((0.0, 1.5))
     assert terrain_eval.level_groups((1.0, 0.0, 0.5)) == [(0.0, 0.5, 1.0)]  # one atlas, one rollout
     assert terrain_eval.level_groups((0.2, 0.9)) == [(0.2,), (0.9,)]
     config = terrain_eval.cell_config(rough, ("stairs", "poles"), (0.0, 0.5, 1.0))
@@ -248,7 +247,7 @@ def test_terrain_evaluation_arguments():
 
 
 def test_terrain_table_rows_and_means():
-    from train import terrain_eval
+    from train.episodes import terrain_eval
 
     rows = [
         {"type": t, "difficulty": d, "success_rate": s, "mean_progress_m": p}
@@ -265,7 +264,7 @@ def test_terrain_table_rows_and_means():
 
 
 def test_the_speed_of_reached_goals_counts_only_the_episodes_that_reached_them():
-    from train import terrain_eval
+    from train.episodes import terrain_eval
 
     steps = 6
     alive = np.zeros((3, steps))

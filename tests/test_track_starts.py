@@ -11,7 +11,7 @@ import hsa_mjx.config
 from hsa_mjx import pose
 from hsa_mjx.config import GoalConfig
 from hsa_mjx.task import goals
-from train.policy_sources import evaluation_env_config
+from train.episodes.policy_sources import evaluation_env_config
 
 
 def _rotation(quat) -> np.ndarray:

@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 
 from hsa_mjx.task.observation import observation_size
-from train import checkpoint, compat, policy_sources, rollout
 from train import config as train_config
+from train.devices import compat
+from train.episodes import policy_sources, rollout
+from train.learners.ppo.policy import NETWORK_KEYS
+from train.run import checkpoint
 
 
 def test_default_and_shipped_configs_validate():
@@ -62,7 +65,7 @@ def test_default_and_shipped_configs_validate():
     assert spiral["env"]["control"]["servo_target_limit"] == flat["env"]["control"]["servo_target_limit"] == 3141.5
     assert spiral["env"]["observation"] == {**flat["env"]["observation"], "hinge_angles": "wrapped"}
     assert observation_size(train_config.load("configs/train_spiral.yaml").env.observation) == 28
-    assert all(spiral["ppo"][k] == flat["ppo"][k] for k in checkpoint.COMPATIBLE_PPO_KEYS)
+    assert all(spiral["ppo"][k] == flat["ppo"][k] for k in NETWORK_KEYS)
     assert (spiral["env"]["goal"]["num_checkpoints"], spiral["env"]["goal"]["track_starts"]) == (20, 19)
     assert all(spiral["ppo"][k] == corridor["ppo"][k] for k in spiral["ppo"])  # the track tasks' PPO settings
     # evaluation defaults to the goals each was trained on
@@ -259,7 +262,7 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
     """distribution_type normal + noise_std_type log: SB3-like exploration (the env clips to [-1, 1])."""
     from brax.training.agents.ppo import networks as ppo_networks
 
-    from train.networks import init_training_state, make_networks
+    from train.learners.ppo.networks import init_training_state, make_networks
 
     config = train_config.from_dict(
         {
@@ -289,7 +292,7 @@ def test_unsquashed_policy_with_log_std_samples_beyond_one():
 
 def test_observation_clip_bounds_what_the_networks_see():
     """ppo.observation_clip: a feature far outside its statistics reaches the networks clipped (0: unclipped)."""
-    from train.networks import init_training_state, make_networks
+    from train.learners.ppo.networks import init_training_state, make_networks
 
     def values(clip: float) -> np.ndarray:
         config = train_config.from_dict(
@@ -310,7 +313,7 @@ def test_observation_clip_bounds_what_the_networks_see():
 def test_collection_option_is_checked_resolved_and_its_old_name_mapped():
     import jax
 
-    from train.strategies import resolve_collection
+    from train.devices.strategies import resolve_collection
 
     with pytest.raises(ValueError, match=r"run.collection.*'one_device', 'pmap', 'thread_per_device'"):
         train_config.from_dict({"run": {"collection": "shard_map"}})
@@ -338,7 +341,7 @@ def test_collection_option_is_checked_resolved_and_its_old_name_mapped():
 def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
     from brax.training.acme import running_statistics as rs
 
-    from train.warm_start import restart_count
+    from train.learners.ppo.policy import restart_count
 
     old = rs.init_state(jnp.zeros(3))
     old = rs.update(old, jax.random.normal(jax.random.PRNGKey(0), (100_000, 3)) * jnp.array([1.0, 0.1, 2.0]))
@@ -356,7 +359,7 @@ def test_restart_count_keeps_mean_and_std_and_lets_new_data_move_them():
 
 def test_terrain_evaluation_counts_how_episodes_ended():
     from hsa_mjx.task import termination
-    from train import terrain_eval
+    from train.episodes import terrain_eval
 
     reasons = np.zeros((4, len(termination.REASONS)), bool)
     reasons[0, termination.REASONS.index("goal_reached")] = reasons[1, termination.REASONS.index("goal_reached")] = True
@@ -422,15 +425,15 @@ def test_init_from_a_shipped_policy_starts_with_its_actions_and_a_fresh_critic()
     from brax.training.agents.ppo import networks as ppo_networks
 
     from hsa_mjx.deploy import policy_file
-    from train.networks import init_training_state, make_networks
-    from train.warm_start import read_init_from, warm_start
+    from train.learners.ppo.networks import init_training_state, make_networks
+    from train.run.warm_start import read_init_from, warm_start
 
     config = train_config.load("configs/train_quickstart_cpu.yaml")
     init = read_init_from(config)
     assert init["path"].name == "flat" and init["step"] > 60_000_000 and "policy" in init
     networks = make_networks(config, 28, 8)
     fresh = init_training_state(config, networks, jax.random.PRNGKey(0), 28)
-    ts = warm_start(fresh, init)
+    ts = warm_start(config, fresh, init)
     shipped = policy_file.load_policy("policies/flat")
     obs = (
         shipped.params["obs_mean"] + shipped.params["obs_std"] * np.random.default_rng(0).normal(size=(16, 28))
@@ -451,14 +454,14 @@ def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
     from brax.training.agents.ppo import networks as ppo_networks
 
     from hsa_mjx.deploy import policy_file
-    from train.networks import init_training_state, make_networks
-    from train.warm_start import read_init_from, warm_start
+    from train.learners.ppo.networks import init_training_state, make_networks
+    from train.run.warm_start import read_init_from, warm_start
 
     config = train_config.load("configs/train_quickstart_cpu.yaml", ["env.observation.history_steps=2"])
     size = observation_size(config.env.observation)
     assert size == 28 + 2 * (28 + 8)
     networks = make_networks(config, size, 8)
-    ts = warm_start(init_training_state(config, networks, jax.random.PRNGKey(0), size), read_init_from(config))
+    ts = warm_start(config, init_training_state(config, networks, jax.random.PRNGKey(0), size), read_init_from(config))
     shipped = policy_file.load_policy("policies/flat")
     rng = np.random.default_rng(0)
     now = (shipped.params["obs_mean"] + shipped.params["obs_std"] * rng.normal(size=(16, 28))).astype(np.float32)
@@ -473,8 +476,8 @@ def test_a_policy_file_starts_a_run_with_a_history_as_the_file_acts():
 def test_learner_refuses_an_env_built_for_another_batch():
     """The env is sized for the batch a device steps in one place (strategies.build); another size is refused."""
     from hsa_mjx.task.env import HSAEnv
-    from train import strategies
-    from train.learner import PPOLearner
+    from train.devices import strategies
+    from train.learners.ppo.learner import PPOLearner
 
     config = train_config.from_dict({"run": {"num_envs": 8}, "ppo": {"batch_size": 8, "num_minibatches": 1}})
     devices = jax.local_devices()[:1]
@@ -511,7 +514,7 @@ def test_goal_curriculum_starts_from_the_env_goal_range():
 def test_progress_counts_to_the_last_whole_epoch():
     import io
 
-    from train.logger import ProgressBar
+    from train.run.logger import ProgressBar
     from train.trainer import final_step
 
     assert final_step(0, 1600, 640) == 1920  # whole epochs: 3 of 640 steps pass 1,600
@@ -540,7 +543,7 @@ def test_health_and_task_failures_are_grouped_apart():
 def test_result_files_record_no_absolute_paths(tmp_path, monkeypatch):
     from pathlib import Path
 
-    from train.run_dir import portable
+    from train.run.folder import portable
 
     monkeypatch.chdir(tmp_path)
     assert portable(tmp_path / "runs" / "flat" / "checkpoints") == "runs/flat/checkpoints"
@@ -552,8 +555,8 @@ def test_result_files_record_no_absolute_paths(tmp_path, monkeypatch):
 def test_host_workers_cut_episodes_into_ordered_shards_and_refuse_where_they_cannot_help():
     """``--workers``: keys cut in order and the traces joined back in it; asked off C MuJoCo or per terrain,
     a ValueError naming the fix (before anything loads)."""
-    from train import host_workers
-    from train.evaluation import EvalSpec, check_workers
+    from train.episodes import host_workers
+    from train.episodes.play import EvalSpec, check_workers
 
     keys = np.arange(10).reshape(5, 2)
     parts = host_workers.shards(keys, 3)
@@ -564,6 +567,6 @@ def test_host_workers_cut_episodes_into_ordered_shards_and_refuse_where_they_can
     with pytest.raises(ValueError, match="--backend c"):
         check_workers(EvalSpec(policy="flat", workers=2, backend="jax"))
     with pytest.raises(ValueError, match="terrain"):
-        check_workers(EvalSpec(policy="flat", workers=2, backend="c", levels="0,1"))
+        check_workers(EvalSpec(policy="flat", workers=2, backend="c", levels=(0.0, 1.0)))
     with pytest.raises(ValueError, match=">= 1"):
         check_workers(EvalSpec(policy="flat", workers=0))

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from conftest import TINY_RUN as TINY
 
-from train import checkpoint
 from train import config as train_config
+from train.run import checkpoint
 
 
 def tiny(**run) -> train_config.TrainConfig:
@@ -27,7 +27,7 @@ def run_dir(tiny_run_dir):
 
 
 def records(path):
-    from train.logger import read_jsonl
+    from train.run.logger import read_jsonl
 
     return read_jsonl(path / "metrics.jsonl")
 
@@ -85,13 +85,14 @@ def test_a_restored_learner_state_has_the_types_of_a_fresh_one(run_dir):
     persistent compilation cache serves it; a weakly typed leaf would make it another program)."""
     import jax
 
-    from train import run_state, strategies
-    from train.networks import init_training_state
+    from train.devices import strategies
+    from train.learners.ppo.networks import init_training_state
+    from train.run import saved
 
     config = tiny()
     learner = strategies.build(config, jax.devices()[:1]).learner
     fresh = init_training_state(config, learner.networks, jax.random.PRNGKey(0), learner.network_input_size)
-    restored = run_state.restore_training_state(checkpoint.latest(run_dir), fresh, config)
+    restored = saved.restore_training_state(checkpoint.latest(run_dir), fresh, config)
     assert jax.tree.map(jax.typeof, restored) == jax.tree.map(jax.typeof, fresh)
     assert not [x for x in jax.tree.leaves(fresh) if jax.typeof(x).weak_type]
 
@@ -153,7 +154,7 @@ def test_resume_falls_back_to_the_newest_readable_checkpoint(run_dir, tmp_path, 
 
 
 def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
-    from train.run_dir import prepare_run_dir
+    from train.run.folder import prepare_run_dir
 
     early = tmp_path / "early"  # killed before its first checkpoint: logs only
     early.mkdir()
@@ -169,7 +170,8 @@ def test_a_run_dir_without_checkpoints_is_refused_or_overwritten(tmp_path):
 
 
 def test_only_process_zero_judges_a_fresh_run_dir_and_a_refusal_stops_every_process(tmp_path, monkeypatch):
-    from train import distributed, trainer
+    from train import trainer
+    from train.devices import distributed
 
     started = tmp_path / "started"  # process 0 has already written its config.yaml when process 1 looks
     started.mkdir()
@@ -289,7 +291,7 @@ def load_payload(path):
 
 def test_init_from_refuses_other_networks_before_compile(run_dir, tmp_path, capsys):
     from train.cli import main
-    from train.warm_start import read_init_from
+    from train.run.warm_start import read_init_from
 
     heading = train_config.from_dict(
         train_config.apply_overrides(

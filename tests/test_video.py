@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from train import diagnostics
+from train.episodes import diagnostics
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -17,8 +17,9 @@ import sys
 import time
 from pathlib import Path
 
-from . import checkpoint, distributed
 from .config import CPU_CONFIG, GPU_CONFIG, TrainConfig, default_config, load
+from .devices import distributed
+from .run import checkpoint
 from .trainer import train
 
 DEFAULT_CONFIG = "auto"

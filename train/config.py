@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -38,12 +39,12 @@ CPU_CONFIG = "configs/train_quickstart_cpu.yaml"  # python -m train on a CPU: th
 GPU_CONFIG = "configs/train_flat.yaml"  # and on a GPU: the flat task from scratch
 
 DISTRIBUTIONS = ("tanh_normal", "normal")
-VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (train.ppo_update)
+VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (train.learners.ppo.update)
 LR_SCHEDULES = ("fixed", "adaptive_kl")  # ppo.learning_rate_schedule
 NOISE_STD_TYPES = ("scalar", "log")
 SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "randomization_curriculum", "ppo", "run")
 DEFAULT_ENV_PRESET = "flat_radial"
-COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (train.strategies)
+COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (train.devices.strategies)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +75,7 @@ class PPOConfig:
     normalize_advantage: bool = True
     max_grad_norm: float = 1.0
     vf_loss_coefficient: float = 0.5
-    # when the value targets and advantages are computed (train.ppo_update): "per_minibatch" at every
+    # when the value targets and advantages are computed (train.learners.ppo.update): "per_minibatch" at every
     # minibatch from the critic being trained (Brax's PPO, the default: its values chase their own bootstrap,
     # the first value losses of 1e8-1e10), or "per_iteration" once per collection from the critic that
     # collected it (rsl_rl, CleanRL, SB3: first value loss 0.2-0.4). On the flat task the held targets did
@@ -118,7 +119,7 @@ class RunConfig:
     checkpoint_every: int = 1_000_000  # env steps between checkpoints
     keep_checkpoints: int = 3
     num_devices: int = 0  # local devices to use; 0 = all
-    # how the devices share an epoch (train.strategies): "one_device", "pmap" (one pmapped
+    # how the devices share an epoch (train.devices.strategies): "one_device", "pmap" (one pmapped
     # epoch), "thread_per_device" (one env collection per GPU, pmapped update), "auto" (one_device on
     # one device, thread_per_device on 2+ GPUs, pmap otherwise)
     collection: str = "auto"
@@ -326,10 +327,8 @@ def apply_overrides(data: dict, assignments: list[str]) -> dict:
     mapped first, so that an override and the file's key meet under one name); ``data`` is left as it is."""
     data = copy.deepcopy(dict(migrations.training_keys(data)))
     for item in assignments:
-        if "=" not in item:
-            raise ValueError(f"--set expects section.key=value, got {item!r}")
-        dotted, raw = item.split("=", 1)
-        parts = dotted.strip().split(".")
+        dotted, value = parse_assignment(item)
+        parts = dotted.split(".")
         parts[0] = migrations.SECTION_NAMES.get(parts[0], parts[0])
         if len(parts) < 2 or parts[0] not in SECTIONS:
             raise ValueError(
@@ -338,8 +337,21 @@ def apply_overrides(data: dict, assignments: list[str]) -> dict:
         node = data.setdefault(parts[0], {})
         for part in parts[1:-1]:
             node = node.setdefault(part, {})
-        node[parts[-1]] = _parse_value(raw)
+        node[parts[-1]] = value
     return data
+
+
+def parse_assignment(item: str) -> tuple[str, Any]:
+    """(dotted key, value) of one ``section.key=value`` string, the value parsed as YAML."""
+    if "=" not in item:
+        raise ValueError(f"--set expects section.key=value, got {item!r}")
+    dotted, raw = item.split("=", 1)
+    return dotted.strip(), _parse_value(raw)
+
+
+def assignments(values: Mapping[str, Any]) -> list[str]:
+    """``section.key=value`` strings of a mapping of dotted keys to values (:func:`apply_overrides`'s input)."""
+    return [f"{key}={json.dumps(value)}" for key, value in values.items()]
 
 
 def _parse_value(raw: str) -> Any:

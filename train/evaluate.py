@@ -18,14 +18,140 @@ writes eval.json, the diagnostic plots (and with ``--video`` a GIF) into ``--out
 
 ``--terrain-types all|T1,T2 --levels 0,0.5,1``: instead, ``--episodes`` episodes per terrain type
 and difficulty, printed as a table of success rate and net progress and written to
-terrain_eval.json and terrain_eval.png (``train/terrain_eval.py``).
+terrain_eval.json and terrain_eval.png (``train/episodes/terrain_eval.py``).
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
+from pathlib import Path
+from typing import Any
 
 from hsa_mjx.sim import gl
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line's arguments (after ``main`` chose the GL platform: the backends' list imports MuJoCo)."""
+    from hsa_mjx.config import BACKENDS
+
+    parser = argparse.ArgumentParser(
+        prog="python -m train.evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("run_dir", nargs="?", help="a run directory written by python -m train")
+    parser.add_argument(
+        "--policy",
+        default=None,
+        metavar="NAME_OR_DIR",
+        help="evaluate a policy directory instead: a folder name under policies/ or a path",
+    )
+    parser.add_argument("--episodes", type=int, default=None, help="episodes (default 16 for a run, 4 for --policy)")
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="max steps per episode (default: the env's max_episode_steps for a run, at most 1,000 for --policy)",
+    )
+    parser.add_argument(
+        "--goal-range",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("MIN", "MAX"),
+        help="radial goal distance range (default: the curriculum's target range, or "
+        "the env's goal.radial_range when the curriculum is off)",
+    )
+    parser.add_argument(
+        "--stochastic",
+        action="store_true",
+        help="sample actions from the policy as in training (default: its mean action; run directories only)",
+    )
+    parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
+    parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="env.KEY=VALUE",
+        help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
+        "not env.observation.*)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="auto",
+        help="physics to evaluate on (env.physics.backend): c, the substeps in C MuJoCo "
+        "(hsa_mjx.sim.host_physics), several times faster on a CPU; jax or warp, MJX's; "
+        "auto (default): c on a CPU, MJX on a GPU (Warp when installed)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="C MuJoCo only: play the episodes in this many processes at once (train/episodes/host_workers.py)",
+    )
+    parser.add_argument(
+        "--terrain-types",
+        default=None,
+        metavar="all|T1,T2",
+        help="evaluate per terrain type: 'all' (the run's types) or a list (with --levels)",
+    )
+    parser.add_argument(
+        "--levels",
+        default=None,
+        metavar="D1,D2",
+        help="terrain difficulties in [0, 1] to evaluate each type at (default: the run's top)",
+    )
+    parser.add_argument(
+        "--terrain-seed",
+        type=int,
+        default=None,
+        help="seed of the evaluation's terrain tiles (default: the run's env.terrain.seed + 1000, tiles training "
+        "never drew its pool from); terrain_eval.json records it beside the training's",
+    )
+    parser.add_argument(
+        "--tiles",
+        type=int,
+        default=1,
+        help="tiles of each random terrain type per difficulty, drawn from --terrain-seed (default 1); each "
+        "episode plays one of them, so a cell's episodes spread over this many tiles",
+    )
+    return parser.parse_args(argv)
+
+
+def spec_from_args(args: argparse.Namespace) -> Any:
+    """The flags as a typed :class:`EvalSpec`: ``--set`` items as a mapping, ``--levels`` and
+    ``--terrain-types`` as tuples (ValueError naming a bad one)."""
+    from .config import parse_assignment
+    from .episodes.play import EvalSpec
+
+    fields = dict(vars(args))
+    fields["goal_range"] = tuple(args.goal_range) if args.goal_range else None
+    fields["overrides"] = dict(parse_assignment(item) for item in args.overrides)
+    if args.levels is not None:
+        try:
+            fields["levels"] = tuple(float(v) for v in args.levels.split(","))
+        except ValueError as err:
+            raise ValueError(f"--levels must be comma-separated numbers in [0, 1], got {args.levels!r}") from err
+    if args.terrain_types not in (None, "all"):
+        fields["terrain_types"] = tuple(t.strip() for t in args.terrain_types.split(",") if t.strip())
+    return EvalSpec(**fields)
+
+
+def report(result: dict) -> None:
+    """Print an evaluation's figures (a table per terrain type and difficulty) and where its files went."""
+    from .episodes import terrain_eval
+
+    if "rows" in result:
+        print(terrain_eval.table(result["rows"]))
+    else:
+        for key, value in result.items():
+            if key not in ("files", "source"):
+                print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
+    files = result["files"]
+    print(f"wrote {len(files)} files" + (f" to {Path(files[0]).parent}" if files else ""))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,9 +161,16 @@ def main(argv: list[str] | None = None) -> int:
     ``--video`` is chosen here, before the evaluation (which imports MuJoCo) is.
     """
     gl.choose_platform()
-    from .evaluation import run
+    args = parse_args(argv)
+    from .episodes.play import evaluate
 
-    return run(argv, description=__doc__)
+    try:
+        result = evaluate(spec_from_args(args))
+    except (ValueError, FileNotFoundError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    report(result)
+    return 0
 
 
 if __name__ == "__main__":

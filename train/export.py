@@ -19,28 +19,31 @@ import datetime
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.model import SERVOS
 from hsa_mjx.task import observation
 
-from . import checkpoint, onnx_policy, run_state
 from .config import TrainConfig, to_dict
-from .run_dir import portable
+from .learners.registry import learner_of
+from .run import checkpoint, onnx_policy, saved
+from .run.folder import portable
 
 FORMATS = ("npz", "onnx")
 ONNX_FILE = "policy.onnx"
 
 
-def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyPolicy:
+def to_numpy_policy(config: TrainConfig, ts: Any, source: dict) -> policy_file.NumpyPolicy:
     """The checked :class:`NumpyPolicy` (arrays and policy.json content) of a training state."""
-    ppo = config.ppo
-    params = run_state.policy_arrays(config, ts, len(SERVOS))
+    learner = learner_of(config)
+    params = learner.policy_arrays(config, ts, len(SERVOS))
+    network = learner.network_description(config)
     meta = policy_file.describe(
         params,
-        ppo.activation,
-        ppo.distribution_type,
-        ppo.applied_observation_clip,
+        network["activation"],
+        network["distribution_type"],
+        network["observation_clip"],
         list(observation.observation_labels(config.env.observation)),
     )
     # the policy runs wherever it is loaded: the physics backend is picked there (the training's is in source)
@@ -53,10 +56,8 @@ def to_numpy_policy(config: TrainConfig, ts, source: dict) -> policy_file.NumpyP
 
 def load_numpy_policy(run_dir: Path, checkpoint_path: Path | None = None) -> policy_file.NumpyPolicy:
     """The deterministic policy of a run's latest (or given) checkpoint, with its provenance."""
-    config, path, step = run_state.open_run(run_dir, checkpoint_path)
-    _, ts = run_state.load_training_state(
-        config, path, observation.observation_size(config.env.observation), len(SERVOS)
-    )
+    config, path, step = saved.open_run(run_dir, checkpoint_path)
+    _, ts = saved.load_training_state(config, path, observation.observation_size(config.env.observation), len(SERVOS))
     trained_on = checkpoint.read_meta(path).get("physics_backend", config.env.physics.backend)
     source = {
         "run": portable(run_dir),

@@ -1,9 +1,9 @@
 """The training run: set-up, resume, the host loop over jitted epochs, logging and checkpoints.
 
-``train(config, run_dir)`` builds the learner and its collection strategy (``train.strategies``),
+``train(config, run_dir)`` builds the learner and its collection strategy (``train.devices.strategies``),
 starts from scratch, a checkpoint (``--resume``) or another run's networks (``run.init_from``), and
 runs epochs until ``run.num_timesteps``, logging and checkpointing between them (the run state a
-checkpoint holds: ``train.run_state``). Several processes (``train.distributed``):
+checkpoint holds: ``train.run.saved``). Several processes (``train.devices.distributed``):
 every process runs the same loop on its local devices; only process 0 writes the run dir.
 """
 
@@ -22,12 +22,14 @@ import numpy as np
 from hsa_mjx.batch.auto_reset import summarize
 from hsa_mjx.curricula import goal_curriculum
 
-from . import checkpoint, distributed, plots, run_state, strategies
 from .config import TrainConfig, to_dict, validate_devices
-from .logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
-from .networks import init_training_state
-from .run_dir import portable, prepare_run_dir
-from .warm_start import describe, read_init_from, warm_start
+from .devices import distributed, strategies
+from .devices.base import envs_per_process
+from .learners.ppo.networks import init_training_state
+from .run import checkpoint, plots, saved
+from .run.folder import portable, prepare_run_dir
+from .run.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
+from .run.warm_start import describe, read_init_from, warm_start
 
 
 class StopFlag:
@@ -134,12 +136,12 @@ def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:
     ts = init_training_state(config, learner.networks, k_init, learner.network_input_size)
     goal = goal_curriculum.init(config.goal_curriculum, tuple(config.env.goal.radial_range))
     if meta is not None:
-        ts, goal, key = run_state.restore(meta["path"], ts, goal, key)
-        levels = run_state.restore_levels(config, meta, config.run.num_envs // jax.process_count())
+        ts, goal, key = saved.restore(meta["path"], ts, goal, key)
+        levels = saved.restore_levels(config, meta, envs_per_process(config))
         print(f"resumed from {meta['path']} at step {int(meta['step']):,}", flush=True)
         return ts, goal, key, int(meta["step"]), levels
     if init is not None:
-        ts = warm_start(ts, init)
+        ts = warm_start(config, ts, init)
         print(describe(init), flush=True)
     return ts, goal, key, 0, None
 
@@ -236,5 +238,5 @@ def _save(run: Run, step: int, ts: Any, state: Any, key: jax.Array) -> None:
         extra = {**extra, "terrain_envs": int(terrain["level"].shape[0])}
     if randomization is not None:
         extra = {**extra, "randomization_envs": int(randomization.shape[0])}
-    payload = run_state.payload(strategy.first(ts), strategy.goal_curriculum(state), key, terrain, randomization)
+    payload = saved.payload(strategy.first(ts), strategy.goal_curriculum(state), key, terrain, randomization)
     checkpoint.save(run.run_dir, step, payload, to_dict(config), keep=config.run.keep_checkpoints, extra=extra)

@@ -73,7 +73,7 @@ class HostPhysics:
         ``fields``: model fields of this env (``hsa_mjx.task.randomization.model_fields``), written into
         the C model before its substeps. ``idle`` (a bool scalar, traced): True runs no substep and
         returns a state to be discarded, for an episode that has ended while others play on
-        (``train.rollout``): a batch of C MuJoCo episodes then costs the steps they play, not the
+        (``train.episodes.rollout``): a batch of C MuJoCo episodes then costs the steps they play, not the
         longest one's."""
         fields = fields or {}
         idle = jnp.zeros((), bool) if idle is None else jnp.asarray(idle, bool)

@@ -15,8 +15,9 @@ from pathlib import Path
 
 import yaml
 
-from . import checkpoint, distributed
-from .config import TrainConfig, from_dict, to_dict
+from ..config import TrainConfig, from_dict, to_dict
+from ..devices import distributed
+from . import checkpoint
 
 
 def portable(path: Path, base: Path | None = None) -> str:

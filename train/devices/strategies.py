@@ -1,12 +1,12 @@
 """How the devices share a training epoch: the collection strategies of ``run.collection``.
 
-One learner (``train.learner.PPOLearner``: collect, learn, drain as pure functions) and one
+One learner (``train.learners.ppo.learner.PPOLearner``: collect, learn, drain as pure functions) and one
 of these strategies, which place its state and call its functions:
 
 - ``one_device``: the epoch jitted for the one device, no collective at all;
 - ``pmap``: the epoch ``pmap``-ed over this process's devices (and every process's, with several
   hosts): gradients, observation statistics and curriculum outcomes are reduced over all of them;
-- ``thread_per_device`` (``train.thread_per_device``): each GPU its own env copy and jitted
+- ``thread_per_device`` (``train.devices.thread_per_device``): each GPU its own env copy and jitted
   collection, called from one host thread per GPU, and the learning step ``pmap``-ed;
 - ``auto`` (the default): ``one_device`` for one device, ``thread_per_device`` for several local GPUs,
   ``pmap`` otherwise (several CPU devices, or several hosts of one GPU each).
@@ -27,26 +27,25 @@ from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
 
+from ..config import TrainConfig
+from ..learners.ppo.learner import AXIS, LoopState, PPOLearner
+from ..learners.ppo.networks import TrainingState
 from . import compat
-from .config import TrainConfig
-from .learner import AXIS, LoopState, PPOLearner
-from .networks import TrainingState
-from .replicas import PmapWithoutEmpty, check_env_size, first_copy, replicate
+from .base import DeviceStrategy, Replicated, envs_per_device
+from .replicas import PmapWithoutEmpty, first_copy
 from .thread_per_device import ThreadPerDevice
 
 
-class OneDevice:
+class OneDevice(DeviceStrategy):
     """The epoch jitted for one device; the learner runs without a device axis."""
 
     name = "one_device"
+    axis = None
 
     def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
         if len(devices) != 1 or jax.process_count() != 1:
             raise ValueError(f"run.collection one_device needs one device, got {len(devices) * jax.process_count()}")
-        if learner.axis is not None:
-            raise ValueError("run.collection one_device needs a learner without a device axis (axis=None)")
-        check_env_size(learner, devices)
-        self.learner, self.devices = learner, list(devices)
+        super().__init__(learner, devices)
         donate = (0, 1) if devices[0].platform != "cpu" else ()  # the CPU client cannot reuse donated buffers
         self._reset = jax.jit(learner.reset)
         self._epoch = jax.jit(self._epoch_with_device_axis, donate_argnums=donate)
@@ -96,28 +95,16 @@ class OneDevice:
         return state.curricula.goal
 
 
-class Pmap:
+class Pmap(Replicated):
     """The epoch ``pmap``-ed over the devices; the learner reduces over its device axis."""
 
     name = "pmap"
 
     def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
-        if learner.axis != AXIS:
-            raise ValueError(f"run.collection pmap needs a learner with the device axis {AXIS!r}")
-        check_env_size(learner, devices)
-        self.learner, self.devices = learner, list(devices)
+        super().__init__(learner, devices)
         self._reset = PmapWithoutEmpty(learner.reset, axis_name=AXIS)
         self._epoch = PmapWithoutEmpty(learner.epoch, axis_name=AXIS, donate_argnums=(0, 1))
         self._collect_epoch = PmapWithoutEmpty(learner.collect_epoch, axis_name=AXIS)
-
-    def place(self, ts: TrainingState) -> TrainingState:
-        """One copy of the learner state per device."""
-        return replicate(ts, self.devices)
-
-    @staticmethod
-    def first(ts: TrainingState) -> TrainingState:
-        """The first device's copy of the learner state (all are equal)."""
-        return first_copy(ts)
 
     def reset(
         self,
@@ -172,7 +159,6 @@ def build(config: TrainConfig, devices: Sequence[jax.Device]) -> Strategy:
     the env built for the batch each device steps (``run.num_envs`` over every process's devices): the
     one place that sizes it (Warp's shared contact buffer)."""
     kind = resolve_collection(config, devices)
-    count = len(devices) * jax.process_count()
-    env = HSAEnv(config.env, num_envs=config.run.num_envs // count, privileged=config.ppo.privileged_critic)
+    env = HSAEnv(config.env, num_envs=envs_per_device(config, devices), privileged=config.ppo.privileged_critic)
     learner = PPOLearner(config, env, axis=None if kind == "one_device" else AXIS)
     return STRATEGIES[kind](learner, devices)

@@ -1,7 +1,7 @@
 """The PPO networks and the learner's state: Brax's actor and critic MLPs, Adam, observation statistics.
 
 ``TrainingState`` is everything the learner owns (parameters, optimiser state, running observation
-statistics); ``train.run_state`` saves and restores it, the learner updates it.
+statistics); ``train.run.saved`` saves and restores it, the learner updates it.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from hsa_mjx.deploy.policy_file import ACTIVATIONS as POLICY_ACTIVATIONS
 from hsa_mjx.task import privileged
 from hsa_mjx.task.types import EnvState
 
-from .config import TrainConfig
-from .ppo_update import make_optimizer
+from ...config import TrainConfig
+from .update import make_optimizer
 
 # the activations the exported numpy policy can run, as flax functions of the same names
 ACTIVATIONS: dict[str, Callable] = {name: getattr(linen, name) for name in POLICY_ACTIVATIONS}

@@ -2,7 +2,7 @@
 
 One process per host, each driving its own local devices with ``pmap``; the ``pmap`` axis spans
 the devices of every process, so the gradient, observation-statistics and curriculum reductions
-of :mod:`train.learner` already run over all of them (Brax's multi-host scheme). What differs from
+of :mod:`train.learners.ppo.learner` already run over all of them (Brax's multi-host scheme). What differs from
 one host: ``jax.distributed.initialize`` must run before any other JAX call, the envs are split
 over the global device count, every process takes its own slice of the env and epoch keys, only
 process 0 writes the run dir, and a stop request on any process stops all of them together.

@@ -17,14 +17,14 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from brax.training.agents.ppo import networks as ppo_networks
 
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.task.env import HSAEnv
 
-from . import run_state
-from .config import TrainConfig, apply_overrides, from_dict, to_dict
+from ..config import TrainConfig, apply_overrides, from_dict, to_dict
+from ..learners.registry import learner_of
+from ..run import saved
 
 
 def evaluation_env_config(config: EnvConfig, backend: str | None = None) -> EnvConfig:
@@ -45,10 +45,10 @@ def load_policy(
     """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training;
     ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer,
     ``overrides`` (``env.KEY=VALUE``, ``env_overrides``) change the env it is evaluated on."""
-    config, path, step = run_state.open_run(run_dir, checkpoint_path, lambda data: env_overrides(data, overrides))
+    config, path, step = saved.open_run(run_dir, checkpoint_path, lambda data: env_overrides(data, overrides))
     env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
-    networks, ts = run_state.load_training_state(config, path, env.observation_size, env.action_size)
-    policy = ppo_networks.make_inference_fn(networks)((ts.normalizer, ts.params.policy), deterministic=deterministic)
+    networks, ts = saved.load_training_state(config, path, env.observation_size, env.action_size)
+    policy = learner_of(config).inference_fn(networks, ts, deterministic)
     return config, env, policy, path, step
 
 

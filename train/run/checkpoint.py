@@ -26,14 +26,6 @@ STATE_FILE, META_FILE = "state.msgpack", "meta.json"
 _NAME = re.compile(r"^step_(\d{12})$")
 # Config keys that must match for a resume (the rest, e.g. run length or learning rate, may change).
 COMPATIBLE_SECTIONS = ("env", "curriculum")
-COMPATIBLE_PPO_KEYS = (
-    "policy_hidden_sizes",
-    "value_hidden_sizes",
-    "activation",
-    "normalize_observations",
-    "distribution_type",
-    "noise_std_type",
-)
 # Keys of those sections that may change on resume: which MJX implementation runs the same physics.
 FREE_KEYS = ("env.physics.backend", "env.physics.contacts_per_env", "env.physics.constraints_per_env")
 
@@ -181,8 +173,11 @@ def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) 
             for k in _diff(saved.get(section, {}), current.get(section, {}), defaults.get(section, {}))
             if f"{section}.{k}" not in FREE_KEYS
         ]
-    ppo_saved, ppo_now, ppo_default = saved.get("ppo", {}), current.get("ppo", {}), defaults.get("ppo", {})
-    problems += [f"ppo.{k}" for k in COMPATIBLE_PPO_KEYS if ppo_saved.get(k, ppo_default.get(k)) != ppo_now.get(k)]
+    from ..learners.registry import LEARNERS  # deferred: reading a checkpoint's files needs no learner
+
+    for learner in LEARNERS.values():  # the keys each learner's networks are built from
+        was, now, default = (c.get(learner.NAME, {}) for c in (saved, current, defaults))
+        problems += [f"{learner.NAME}.{k}" for k in learner.NETWORK_KEYS if was.get(k, default.get(k)) != now.get(k)]
     return problems
 
 

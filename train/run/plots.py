@@ -23,7 +23,7 @@ PANELS = (
     ("terrain/mean_level", "terrain level (mean over envs)"),
     ("terrain/top_share", "share of envs at the top terrain level"),
 )
-# what a PPO engineer reads first (train.ppo_update), in a figure of their own
+# what a PPO engineer reads first (train.learners.ppo.update), in a figure of their own
 PPO_PANELS = (
     ("loss/v_loss", "value loss (symlog)"),
     ("loss/explained_variance", "explained variance of the returns"),

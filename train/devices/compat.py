@@ -1,7 +1,7 @@
 """``device_put_replicated`` for current JAX: copies of a pytree stacked one per device.
 
 JAX 0.10 removed ``jax.device_put_replicated``. The trainer's own replication
-(``train.replicas.replicate``) uses :func:`device_put_replicated` here. Brax 0.14.2's trainers
+(``train.devices.replicas.replicate``) uses :func:`device_put_replicated` here. Brax 0.14.2's trainers
 (``ppo``, ``sac``, ``apg``, ``training/pmap.py``) still call the JAX function and fail with
 ``AttributeError`` right after the first reset; :func:`install` defines it for them (a no-op
 where JAX still has it), so Brax's own trainers also run on our env (``tests/test_train_pieces.py``).

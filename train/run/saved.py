@@ -1,8 +1,8 @@
 """The run state a checkpoint holds, and every way of reading it back into a training state.
 
-A checkpoint's payload (``train.checkpoint`` writes and reads the files) is one pytree:
+A checkpoint's payload (``train.run.checkpoint`` writes and reads the files) is one pytree:
 
-- ``training_state``: the learner's :class:`TrainingState` (parameters, optimiser, observation statistics);
+- ``training_state``: the learner's state (PPO's: parameters, optimiser, observation statistics);
 - ``curriculum``: the goal curriculum's state (its on-disk name since format 1);
 - ``rng``: the training loop's PRNG key;
 - ``terrain_levels`` (with the terrain curriculum): every env's terrain cell, ``row`` (its terrain
@@ -10,8 +10,8 @@ A checkpoint's payload (``train.checkpoint`` writes and reads the files) is one 
 - ``randomization_levels`` (with the randomisation curriculum): every env's level, (envs,) float32.
 
 The trainer (save, resume), warm starts (another run's networks or a policy file's) and the tools
-(evaluation, export) all read it through this module, which also knows where each dense layer of a
-Brax policy sits in its parameters.
+(evaluation, export) all read it through this module; what the learner state holds is the learner's
+(``train.learners.registry``).
 """
 
 from __future__ import annotations
@@ -26,20 +26,19 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from brax.training.agents.ppo import networks as ppo_networks
 
 from hsa_mjx.curricula import goal_curriculum, terrain_curriculum
 from hsa_mjx.curricula.state import EnvLevels
 
+from ..config import TrainConfig, from_dict
+from ..learners.registry import learner_of
 from . import checkpoint
-from .config import TrainConfig, from_dict
-from .networks import TrainingState, init_training_state, make_networks, privileged_size
 
 ON_DISK_TERRAIN = {"terrain_type": "row", "level": "level"}  # TerrainLevels field -> payload key
 
 
 def payload(
-    ts: TrainingState,
+    ts: Any,
     goal: goal_curriculum.GoalCurriculumState,
     key: jax.Array,
     terrain: dict | None = None,
@@ -56,8 +55,8 @@ def payload(
 
 
 def restore(
-    path: str | Path, ts: TrainingState, goal: goal_curriculum.GoalCurriculumState, key: jax.Array
-) -> tuple[TrainingState, goal_curriculum.GoalCurriculumState, jax.Array]:
+    path: str | Path, ts: Any, goal: goal_curriculum.GoalCurriculumState, key: jax.Array
+) -> tuple[Any, goal_curriculum.GoalCurriculumState, jax.Array]:
     """(learner state, goal curriculum, PRNG key) of the checkpoint at ``path``, restored into the
     structure of the given ones (a checkpoint of another shape is refused with a ValueError)."""
     restored = checkpoint.load(path, payload(ts, goal, key))
@@ -65,20 +64,16 @@ def restore(
     return ts, goal, jnp.asarray(restored["rng"], jnp.uint32)
 
 
-def restore_training_state(path: str | Path, ts: TrainingState, source: TrainConfig) -> TrainingState:
+def restore_training_state(path: str | Path, ts: Any, source: TrainConfig) -> Any:
     """The learner state of the checkpoint at ``path`` (written with ``source``), in the structure of ``ts``."""
     start = tuple(source.env.goal.radial_range)
     template_goal = goal_curriculum.init(source.goal_curriculum, start)
     return restore(path, ts, template_goal, jax.random.PRNGKey(0))[0]
 
 
-def load_training_state(
-    config: TrainConfig, path: str | Path, observation_size: int, action_size: int
-) -> tuple[ppo_networks.PPONetworks, TrainingState]:
-    """(PPO networks, learner state) of the checkpoint at ``path`` written with ``config``."""
-    extra = privileged_size(config)  # a privileged critic's inputs: in the checkpoint, never in the policy's input
-    networks = make_networks(config, observation_size, action_size, extra)
-    template = init_training_state(config, networks, jax.random.PRNGKey(0), observation_size + extra)
+def load_training_state(config: TrainConfig, path: str | Path, observation_size: int, action_size: int) -> tuple:
+    """(networks, learner state) of the checkpoint at ``path`` written with ``config``."""
+    networks, template = learner_of(config).fresh_state(config, observation_size, action_size)
     return networks, restore_training_state(path, template, config)
 
 
@@ -120,67 +115,6 @@ def restore_terrain(config: TrainConfig, meta: dict, batch: int) -> terrain_curr
         start = jax.process_index() * batch
         restored = {k: v[start : start + batch] for k, v in restored.items()}
     return terrain_curriculum.from_host(restored, batch, config.run.seed)
-
-
-# ----- the policy network's dense layers ----------------------------------------------------
-def layer_paths(tree: dict) -> list[tuple[str, ...]]:
-    """Where each dense layer of a Brax policy's parameters sits, input first: one MLP for a
-    ``tanh_normal`` policy (its last layer outputs mean and scale), or for a ``normal`` one a hidden
-    MLP, then the mean layer (its std is a separate parameter)."""
-    if "MLP_0" in tree:
-        return [("MLP_0", f"hidden_{i}") for i in range(len(tree["MLP_0"]))] + [("Dense_0",)]
-    return [(f"hidden_{i}",) for i in range(len(tree))]
-
-
-def layer_at(tree: dict, path: tuple[str, ...]) -> dict:
-    """The layer dict (``kernel``, ``bias``) at ``path``."""
-    for part in path:
-        tree = tree[part]
-    return tree
-
-
-def policy_arrays(config: TrainConfig, ts: TrainingState, action_size: int) -> dict:
-    """The deterministic policy's float32 arrays (normaliser as applied, dense layers) of a training state,
-    as a policy file holds them (``hsa_mjx.deploy.policy_file``)."""
-    tree = ts.params.policy["params"]
-    dense = [dict(layer_at(tree, path)) for path in layer_paths(tree)]
-    # a tanh_normal policy's last layer also outputs the noise scale: the mean is its first action_size
-    dense[-1] = {
-        "kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
-        "bias": np.asarray(dense[-1]["bias"])[:action_size],
-    }
-    n_obs = np.asarray(dense[0]["kernel"]).shape[0]
-    if config.ppo.normalize_observations:
-        # the policy's own inputs only: a privileged critic's follow them in the statistics
-        mean, std = ts.normalizer.mean[:n_obs], ts.normalizer.std[:n_obs]
-    else:
-        mean, std = np.zeros(n_obs), np.ones(n_obs)
-
-    def f32(x: Any) -> np.ndarray:
-        return np.asarray(x, np.float32)
-
-    return {
-        "obs_mean": f32(mean),
-        "obs_std": f32(std),
-        "kernels": tuple(f32(d["kernel"]) for d in dense),
-        "biases": tuple(f32(d["bias"]) for d in dense),
-    }
-
-
-def with_policy_layers(ts: TrainingState, kernels: tuple, biases: tuple) -> TrainingState:
-    """``ts`` with a policy file's dense layers in its policy network (the last layer's noise-scale
-    outputs of a ``tanh_normal`` policy, which the file does not hold, stay as they are). Inputs the
-    file's first layer lacks (a history added after its observation) get zero weights: the policy
-    starts as the file's and learns to use them."""
-    new = jax.tree.map(lambda x: x, ts.params.policy["params"])  # fresh containers to write into
-    for path, kernel, bias in zip(layer_paths(new), kernels, biases):
-        layer = layer_at(new, path)
-        rows, out = kernel.shape
-        weights = jnp.asarray(layer["kernel"])
-        weights = weights.at[rows:, :].set(0.0) if rows < weights.shape[0] else weights
-        layer["kernel"] = weights.at[:rows, :out].set(kernel)
-        layer["bias"] = jnp.asarray(layer["bias"]).at[:out].set(bias)
-    return ts.replace(params=ts.params.replace(policy={**ts.params.policy, "params": new}))
 
 
 def open_run(

@@ -3,11 +3,11 @@
 Brax's ``ppo.train`` owns its training state and env state inside one function, so a checkpoint
 there holds neither the optimiser state nor the step count, and the env state (where the curricula
 live) never reaches a callback. This learner keeps Brax's PPO networks, GAE and running observation
-statistics, with the loss and gradient step of ``train.ppo_update``, as pure functions of
+statistics, with the loss and gradient step of ``train.learners.ppo.update``, as pure functions of
 pytrees the caller owns: :meth:`PPOLearner.collect` (policy and env steps, with the terrain
 curriculum) and :meth:`PPOLearner.learn` (observation statistics, goal curriculum, SGD), and the
 epoch built from them. How devices share the work is not its business: a collection strategy
-(``train.strategies``) places and calls these functions on one device, under ``pmap``, or
+(``train.devices.strategies``) places and calls these functions on one device, under ``pmap``, or
 one thread per GPU. Every reduction over devices names the learner's ``axis``; with ``axis=None``
 (one device) there is none.
 """
@@ -32,9 +32,9 @@ from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import Curricula, CurriculumRules, EnvLevels
 from hsa_mjx.task.env import HSAEnv
 
-from .config import TrainConfig
+from ...config import TrainConfig
 from .networks import TrainingState, make_networks, network_obs
-from .ppo_update import PPOUpdate, explained_variance, with_targets
+from .update import PPOUpdate, explained_variance, with_targets
 
 REGENERATION_SALT = 0x7E77  # folded into an iteration's collection key for its terrain re-draw
 PHASE_SALT = 0x9A5E  # folded into an env's key for its first episode's random phase (run.random_initial_phase)

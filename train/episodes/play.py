@@ -1,31 +1,31 @@
 """What ``python -m train.evaluate`` does, as a function: ``evaluate(EvalSpec(policy="flat", ...))`` plays the
-episodes of the run or policy it names and writes their files; the command parses its flags into the spec.
+episodes of the run or policy it names and writes their files; the command (``train.evaluate``) parses
+its flags into the spec.
 
 The command itself is ``train.evaluate`` (it sets up offscreen rendering before this module,
-which imports MuJoCo, is imported). The episodes are played by ``train.rollout``, per terrain
-type and difficulty by ``train.terrain_eval``.
+which imports MuJoCo, is imported). The episodes are played by ``train.episodes.rollout``, per terrain
+type and difficulty by ``train.episodes.terrain_eval``.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import sys
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hsa_mjx.config import BACKENDS
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.env import HSAEnv
 
+from ..config import TrainConfig, assignments
+from ..run.folder import portable
 from . import diagnostics, host_workers, terrain_eval
-from .config import TrainConfig
 from .policy_sources import (
     default_goal_range,
     evaluation_env_config,
@@ -33,7 +33,6 @@ from .policy_sources import (
     load_shipped_policy,
 )
 from .rollout import rollout, summarize
-from .run_dir import portable
 
 CPU_EPISODES, CPU_STEPS = 4, 1000  # --policy defaults: a CPU evaluates them in about a minute
 
@@ -43,8 +42,12 @@ TERRAIN_SEED_OFFSET = 1000  # --terrain-seed's default: the run's terrain seed +
 
 @dataclasses.dataclass(frozen=True)
 class EvalSpec:
-    """What to evaluate and how: ``python -m train.evaluate``'s arguments as a value (the flags'
-    names, ``--set`` as ``overrides``). Give ``run_dir`` or ``policy``; the rest have the CLI's defaults."""
+    """What to evaluate and how: ``python -m train.evaluate``'s arguments as a value. Give ``run_dir`` or
+    ``policy``; the rest have the command's defaults.
+
+    ``overrides`` maps dotted env keys to values (``{"env.goal.radial_range": [4.0, 4.5]}``: the
+    command's ``--set``); ``terrain_types`` (``"all"``: the run's own, or a tuple of names) and
+    ``levels`` (a tuple of difficulties in [0, 1]) evaluate per terrain type and difficulty instead."""
 
     run_dir: str | None = None
     policy: str | None = None
@@ -55,108 +58,37 @@ class EvalSpec:
     video: bool = False
     out: str | None = None
     seed: int = 1
-    overrides: tuple[str, ...] = ()
+    overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     backend: str = "auto"
-    terrain_types: str | None = None
-    levels: str | None = None
+    terrain_types: tuple[str, ...] | Literal["all"] | None = None
+    levels: tuple[float, ...] | None = None
     terrain_seed: int | None = None
     tiles: int = 1
     workers: int = 1
 
+    def override_items(self) -> tuple[str, ...]:
+        """``overrides`` as ``env.KEY=VALUE`` strings (what the env loaders apply)."""
+        return tuple(assignments(self.overrides))
 
-def parse_args(argv: list[str] | None, description: str | None = None) -> argparse.Namespace:
-    """The command line's arguments."""
-    parser = argparse.ArgumentParser(
-        prog="python -m train.evaluate", description=description, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("run_dir", nargs="?", help="a run directory written by python -m train")
-    parser.add_argument(
-        "--policy",
-        default=None,
-        metavar="NAME_OR_DIR",
-        help="evaluate a policy directory instead: a folder name under policies/ or a path",
-    )
-    parser.add_argument(
-        "--episodes", type=int, default=None, help=f"episodes (default 16 for a run, {CPU_EPISODES} for --policy)"
-    )
-    parser.add_argument(
-        "--steps",
-        type=int,
-        default=None,
-        help="max steps per episode (default: the env's "
-        f"max_episode_steps for a run, at most {CPU_STEPS} for --policy)",
-    )
-    parser.add_argument(
-        "--goal-range",
-        type=float,
-        nargs=2,
-        default=None,
-        metavar=("MIN", "MAX"),
-        help="radial goal distance range (default: the curriculum's target range, or "
-        "the env's goal.radial_range when the curriculum is off)",
-    )
-    parser.add_argument(
-        "--stochastic",
-        action="store_true",
-        help="sample actions from the policy as in training (default: its mean action; run directories only)",
-    )
-    parser.add_argument("--video", action="store_true", help="render the first episode to episode.gif")
-    parser.add_argument("--out", default=None, help="output folder (default: RUN_DIR/eval or runs/eval_<NAME>)")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="env.KEY=VALUE",
-        help="evaluate on a changed env, e.g. --set env.goal.radial_range=[4.0,4.5] (repeatable; "
-        "not env.observation.*)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=BACKENDS,
-        default="auto",
-        help="physics to evaluate on (env.physics.backend): c, the substeps in C MuJoCo "
-        "(hsa_mjx.sim.host_physics), several times faster on a CPU; jax or warp, MJX's; "
-        "auto (default): c on a CPU, MJX on a GPU (Warp when installed)",
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        help="C MuJoCo only: play the episodes in this many processes at once (train/host_workers.py)",
-    )
-    parser.add_argument(
-        "--terrain-types",
-        default=None,
-        metavar="all|T1,T2",
-        help="evaluate per terrain type: 'all' (the run's types) or a list (with --levels)",
-    )
-    parser.add_argument(
-        "--levels",
-        default=None,
-        metavar="D1,D2",
-        help="terrain difficulties in [0, 1] to evaluate each type at (default: the run's top)",
-    )
-    parser.add_argument(
-        "--terrain-seed",
-        type=int,
-        default=None,
-        help="seed of the evaluation's terrain tiles (default: the run's env.terrain.seed + 1000, tiles training "
-        "never drew its pool from); terrain_eval.json records it beside the training's",
-    )
-    parser.add_argument(
-        "--tiles",
-        type=int,
-        default=1,
-        help="tiles of each random terrain type per difficulty, drawn from --terrain-seed (default 1); each "
-        "episode plays one of them, so a cell's episodes spread over this many tiles",
-    )
-    return parser.parse_args(argv)
+
+def check_spec(spec: EvalSpec) -> None:
+    """A ValueError naming a field of the wrong type (before anything loads)."""
+    if not isinstance(spec.overrides, Mapping):
+        raise ValueError(
+            f"EvalSpec.overrides must map env keys to values, e.g. {{'env.goal.radial_range': [4.0, 4.5]}}; "
+            f"got {spec.overrides!r}"
+        )
+    levels, types = spec.levels, spec.terrain_types
+    if levels is not None and (not isinstance(levels, tuple) or not all(isinstance(v, (int, float)) for v in levels)):
+        raise ValueError(f"EvalSpec.levels must be a tuple of difficulties in [0, 1], e.g. (0.0, 1.0); got {levels!r}")
+    names = isinstance(types, tuple) and all(isinstance(t, str) for t in types)
+    if types is not None and types != "all" and not names:
+        raise ValueError(f"EvalSpec.terrain_types must be 'all' or a tuple of terrain type names; got {types!r}")
 
 
 def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
     """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
+    check_spec(args)
     if (args.run_dir is None) == (args.policy is None):
         raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
     if args.episodes is not None and args.episodes < 1:
@@ -169,14 +101,14 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = policy_file.locate(args.policy)
         config, env, policy, shipped = load_shipped_policy(
-            directory, args.backend, _episodes(args, True), tuple(args.overrides)
+            directory, args.backend, _episodes(args, True), args.override_items()
         )
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {
             "policy_dir": portable(directory),
             "source": shipped.meta.get("source", {}),
             "step": shipped.meta.get("source", {}).get("env_steps"),
-            **({"env_overrides": args.overrides} if args.overrides else {}),
+            **({"env_overrides": dict(args.overrides)} if args.overrides else {}),
         }
         return config, env, policy, header, out
     config, env, policy, path, step = load_policy(
@@ -184,12 +116,12 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         deterministic=not args.stochastic,
         backend=args.backend,
         num_envs=_episodes(args, False),
-        overrides=tuple(args.overrides),
+        overrides=args.override_items(),
     )
     header = {
         "checkpoint": portable(path),
         "step": step,
-        **({"env_overrides": args.overrides} if args.overrides else {}),
+        **({"env_overrides": dict(args.overrides)} if args.overrides else {}),
     }
     return config, env, policy, header, Path(args.out) if args.out else Path(args.run_dir) / "eval"
 
@@ -266,33 +198,11 @@ def evaluate(spec: EvalSpec) -> dict:
     return result
 
 
-def run(argv: list[str] | None = None, description: str | None = None) -> int:
-    """``python -m train.evaluate``'s work, once the process is set up for rendering (``train.evaluate``):
-    the arguments parsed into an :class:`EvalSpec`, :func:`evaluate`, the result printed."""
-    args = vars(parse_args(argv, description))
-    args["goal_range"] = tuple(args["goal_range"]) if args["goal_range"] else None
-    args["overrides"] = tuple(args["overrides"])
-    try:
-        result = evaluate(EvalSpec(**args))
-    except (ValueError, FileNotFoundError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-    if "rows" in result:
-        print(terrain_eval.table(result["rows"]))
-    else:
-        for key, value in result.items():
-            if key not in ("files", "source"):
-                print(f"{key}: {value:.4g}" if isinstance(value, float) else f"{key}: {value}")
-    files = result["files"]
-    print(f"wrote {len(files)} files" + (f" to {Path(files[0]).parent}" if files else ""))
-    return 0
-
-
 def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: Path) -> dict:
     """``terrain_types`` / ``levels``: success and progress per terrain type and difficulty
     (``terrain_eval.json``'s content, with the files written)."""
-    types = terrain_eval.parse_types(args.terrain_types or "all", config.env)
-    levels = terrain_eval.parse_levels(args.levels or str(config.env.terrain.difficulty))
+    types = terrain_eval.resolve_types(args.terrain_types or "all", config.env)
+    levels = terrain_eval.check_levels(args.levels or (config.env.terrain.difficulty,))
     episodes = _episodes(args, args.policy is not None)
     steps = args.steps or config.env.termination.max_episode_steps
     goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)

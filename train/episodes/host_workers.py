@@ -46,8 +46,8 @@ def _play(keys: np.ndarray, goal_range: tuple[float, float], steps: int) -> dict
 
 def play(load: Callable[[Any], tuple], spec: Any, keys: np.ndarray, goal_range: tuple, steps: int, workers: int):
     """Each key's episode of ``spec``'s run or policy (an ``EvalSpec`` on the C backend, loaded in each
-    process by ``load``: ``train.evaluation.load_subject``), ``workers`` processes at once; the traces as
-    ``train.rollout.rollout`` returns them, in the keys' order."""
+    process by ``load``: ``train.episodes.play.load_subject``), ``workers`` processes at once; the traces as
+    ``train.episodes.rollout.rollout`` returns them, in the keys' order."""
     parts = shards(keys, workers)
     context = multiprocessing.get_context("spawn")
     one = dataclasses.replace(spec, workers=1)

@@ -32,9 +32,10 @@ from hsa_mjx.curricula import goal_curriculum
 from hsa_mjx.curricula.state import EnvLevels, host_levels
 from hsa_mjx.task.env import HSAEnv
 
-from .learner import AXIS, LoopState, PPOLearner
-from .networks import TrainingState
-from .replicas import PmapWithoutEmpty, check_env_size, first_copy, replicate
+from ..learners.ppo.learner import AXIS, LoopState, PPOLearner
+from ..learners.ppo.networks import TrainingState
+from .base import Replicated
+from .replicas import PmapWithoutEmpty, first_copy
 
 
 @struct.dataclass
@@ -77,7 +78,7 @@ def _lead(tree: Any) -> Any:
     return jax.tree.map(lambda x: x[None], tree)
 
 
-class ThreadPerDevice:
+class ThreadPerDevice(Replicated):
     """One env copy and one jitted collection per GPU, called from one thread each; learning ``pmap``-ed.
 
     Args:
@@ -88,10 +89,7 @@ class ThreadPerDevice:
     name = "thread_per_device"
 
     def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
-        if learner.axis != AXIS:
-            raise ValueError(f"run.collection thread_per_device needs a learner with the device axis {AXIS!r}")
-        check_env_size(learner, devices)
-        self.learner, self.devices = learner, list(devices)
+        super().__init__(learner, devices)
         config = learner.config
         self.batch_envs = []
         for device in self.devices:
@@ -147,15 +145,6 @@ class ThreadPerDevice:
         """One GPU's drained state and its totals with a leading device axis of 1."""
         state, totals = self.learner.drain(state, batch_env)
         return state, _lead(totals)
-
-    def place(self, ts: TrainingState) -> TrainingState:
-        """One copy of the learner state per device (``pmap`` layout: the learning step's)."""
-        return replicate(ts, self.devices)
-
-    @staticmethod
-    def first(ts: TrainingState) -> TrainingState:
-        """The first device's copy of the learner state (all are equal)."""
-        return first_copy(ts)
 
     def reset(
         self,

@@ -1,7 +1,7 @@
 """Where the learner's state lives on several devices: copies along a leading device axis, and the
 ``pmap`` that compiles across processes (no zero-size array in or baked into its program).
 
-Shared by the collection strategies (``train.strategies``, ``train.thread_per_device``).
+Shared by the collection strategies (``train.devices.strategies``, ``train.devices.thread_per_device``).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.extend.core import ClosedJaxpr, jaxpr_as_fun
 
+from ..learners.ppo.learner import AXIS
 from . import compat
-from .learner import AXIS, PPOLearner
 
 
 def _dtype(leaf: Any) -> np.dtype:
@@ -111,14 +111,3 @@ def replicate(tree: Any, devices: Sequence[jax.Device]) -> Any:
 def first_copy(tree: Any) -> Any:
     """The first device's copy of a pytree with a leading device axis."""
     return jax.tree.map(lambda x: x[0], tree)
-
-
-def check_env_size(learner: PPOLearner, devices: Sequence[jax.Device]) -> None:
-    """The learner's env must be built for the batch each device steps (Warp's shared contact buffer)."""
-    per_device = learner.config.run.num_envs // (len(devices) * jax.process_count())
-    if learner.env.num_envs != per_device:
-        raise ValueError(
-            f"the env is built for batches of {learner.env.num_envs}, but each of the {len(devices)} devices "
-            f"steps {per_device} envs (run.num_envs {learner.config.run.num_envs}): build it with "
-            f"HSAEnv(config.env, num_envs={per_device}) (train.strategies.build does)"
-        )

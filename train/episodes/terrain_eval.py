@@ -26,40 +26,34 @@ from hsa_mjx.task import termination
 from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
-from .plots import terrain_grid
+from ..run.plots import terrain_grid
 
 TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral
 
 
-def parse_types(text: str, config: EnvConfig) -> tuple[str, ...]:
-    """``all`` (the run's own terrain types) or a comma-separated list of terrain types (ValueError)."""
-    if text == "all":
+def resolve_types(types: tuple[str, ...] | str, config: EnvConfig) -> tuple[str, ...]:
+    """``"all"`` (the run's own terrain types) or a tuple of terrain types, checked (ValueError)."""
+    if types == "all":
         types = tuple(config.terrain.types) if config.scene == "terrain" else ("flat",)
-    else:
-        types = tuple(t.strip() for t in text.split(",") if t.strip())
     unknown = [t for t in types if t not in TERRAIN_TYPES]
-    if not types or unknown:
+    if not types or unknown or isinstance(types, str):
         raise ValueError(
-            f"--terrain-types: unknown type(s) {unknown or [text]}; give 'all' or a comma-separated "
+            f"--terrain-types: unknown type(s) {unknown or [types]}; give 'all' or a comma-separated "
             f"list of {list(TERRAIN_TYPES)}"
         )
     if config.goal.mode != "spiral" and any(t in TRACK_TYPES for t in types):
         raise ValueError(
             f"--terrain-types: {list(TRACK_TYPES)} need goal.mode spiral; this run's goals are {config.goal.mode!r}"
         )
-    return types
+    return tuple(types)
 
 
-def parse_levels(text: str) -> tuple[float, ...]:
-    """Comma-separated difficulties in [0, 1] (ValueError naming the bad one)."""
-    try:
-        levels = tuple(float(v) for v in text.split(","))
-    except ValueError as err:
-        raise ValueError(f"--levels must be comma-separated numbers in [0, 1], got {text!r}") from err
+def check_levels(levels: tuple[float, ...]) -> tuple[float, ...]:
+    """Difficulties in [0, 1] (ValueError naming the bad ones)."""
     bad = [v for v in levels if not 0.0 <= v <= 1.0]
-    if bad:
-        raise ValueError(f"--levels: difficulties must be in [0, 1], got {bad}")
-    return levels
+    if bad or not levels:
+        raise ValueError(f"--levels: difficulties must be in [0, 1], got {bad or list(levels)}")
+    return tuple(float(v) for v in levels)
 
 
 def cell_config(config: EnvConfig, types: tuple[str, ...], levels: tuple[float, ...], tiles: int = 1) -> EnvConfig:
@@ -103,7 +97,7 @@ def evaluate(
     episode's time, the mean over those episodes; ``None`` where none was; ``benchmarks.ladders`` reads it).
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
-    (``train.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
+    (``train.episodes.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
     difficulty, the episodes of a cell spread over them by their keys.
     """
     rows = []
