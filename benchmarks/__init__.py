@@ -1,1 +1,2 @@
-"""Benchmarks and evidence scripts (run as python -m benchmarks.<name>)."""
+"""Benchmarks and evidence scripts, grouped by the question each answers (run as
+``python -m benchmarks.<question>.<name>``; ``benchmarks/README.md`` lists them)."""

@@ -82,7 +82,7 @@ def run_info() -> dict[str, Any]:
 
 
 def _module_name() -> str:
-    """Dotted module name of the running script (``benchmarks.fidelity``), or its path."""
+    """Dotted module name of the running script (``benchmarks.fidelity.guard``), or its path."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     return spec.name if spec is not None else (sys.argv[0] if sys.argv else "python")

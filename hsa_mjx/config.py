@@ -132,7 +132,7 @@ class TerminationConfig:
     qacc_every_substep: bool = False
     # false: no joint-acceleration rule (the original's, a simulator-health check that stiffer springs
     # trip on a sound gait); episodes then end on non-finite states, block heights, qvel_limit, leaving
-    # the arena and the goal. benchmarks.robustness scores that way by default (docs/robustness.md).
+    # the arena and the goal. benchmarks.robustness.score scores that way by default (docs/robustness.md).
     qacc_termination: bool = True
 
 

@@ -1,6 +1,6 @@
 """Fidelity guard, small: the shipped fast physics setting against C MuJoCo at the original settings.
 
-The full comparison (10 s, three gaits, every candidate setting) is ``python -m benchmarks.fidelity``;
+The full comparison (10 s, three gaits, every candidate setting) is ``python -m benchmarks.fidelity.guard``;
 its CPU results are in ``benchmarks/results/fidelity/`` and ``docs/speed.md``.
 """
 
@@ -8,7 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks import fidelity, gaits
+from benchmarks.fidelity import gaits
+from benchmarks.fidelity import guard as fidelity
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.model import load_mj_model
 

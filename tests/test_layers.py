@@ -40,6 +40,9 @@ TOOLS = (T + "cli", T + "evaluate", T + "export", T + "__main__")  # imported by
 # episodes (evaluation); beside them at the top level only the config, the training loop and the tools
 TRAIN_FLOORS = ("learners", "devices", "run", "episodes")
 TRAIN_TOP = ("__init__", "__main__", "cli", "config", "evaluate", "export", "trainer")
+# benchmarks/ is one folder per question, beside two shared modules (benchmarks/README.md)
+BENCHMARK_FOLDERS = ("speed", "fidelity", "scaling", "robustness", "sweeps", "terrain", "robots")
+BENCHMARK_TOP = ("__init__", "stats", "run_info")
 
 
 def layer_of(module: str) -> int:
@@ -130,14 +133,22 @@ def test_the_trainer_has_no_chain_through_its_tools():
     assert all(layer_of(T + m) < layer_of(T + "evaluate") for m in ("trainer", "run.warm_start", "run.saved"))
 
 
-def test_the_trainers_floors_are_folders():
-    """Every trainer module lies in one of its floor folders, or is one of the few top-level modules."""
+def _stray(package: str, folders: tuple[str, ...], top: tuple[str, ...]) -> list[str]:
+    """The modules of ``package`` outside its ``folders`` that are not one of its ``top`` modules."""
     stray = []
-    for path in (ROOT / "train").rglob("*.py"):
-        parts = path.relative_to(ROOT / "train").with_suffix("").parts
-        if not (parts[0] in TRAIN_FLOORS and len(parts) > 1 or len(parts) == 1 and parts[0] in TRAIN_TOP):
+    for path in (ROOT / package).rglob("*.py"):
+        parts = path.relative_to(ROOT / package).with_suffix("").parts
+        if not (parts[0] in folders and len(parts) > 1 or len(parts) == 1 and parts[0] in top):
             stray.append(path.relative_to(ROOT).as_posix())
-    assert stray == [] and all((ROOT / "train" / floor / "__init__.py").is_file() for floor in TRAIN_FLOORS)
+    faceless = [f for f in folders if not (ROOT / package / f / "__init__.py").is_file()]
+    return stray + [f"{package}/{f}/__init__.py missing" for f in faceless]
+
+
+def test_the_trainers_floors_and_the_benchmarks_questions_are_folders():
+    """Every trainer module lies in one of its floor folders and every benchmark in its question's folder,
+    but for the few top-level modules each names."""
+    assert _stray("train", TRAIN_FLOORS, TRAIN_TOP) == []
+    assert _stray("benchmarks", BENCHMARK_FOLDERS, BENCHMARK_TOP) == []
 
 
 def test_the_run_evaluation_and_export_reach_a_learner_only_through_the_registry():

@@ -1,4 +1,4 @@
-"""benchmarks.profile_policies: which runs play which profile, and the report's pooling and checks."""
+"""benchmarks.robots.policies: which runs play which profile, and the report's pooling and checks."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import json
 
 import pytest
 
-from benchmarks import profile_policies, sweep
+from benchmarks.robots import policies as profile_policies
+from benchmarks.sweeps import run as sweep
 
 
 @pytest.fixture(scope="module")

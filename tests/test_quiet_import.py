@@ -82,7 +82,9 @@ def test_importing_the_packages_changes_nothing_and_make_env_sets_up_what_it_nee
     (line,) = proc.stdout.splitlines()  # nothing printed but the facts, and no "Failed to import warp" line
     assert line.startswith("FACTS ") and "Failed to import" not in proc.stderr, proc.stdout + proc.stderr
     facts = json.loads(line[6:])
-    assert {"hsa_mjx.sim.model", "train.trainer", "train.episodes.play", "benchmarks.scaling"} <= set(facts["imported"])
+    assert {"hsa_mjx.sim.model", "train.trainer", "train.episodes.play", "benchmarks.scaling.devices"} <= set(
+        facts["imported"]
+    )
     assert facts["changed"] == {}  # environment, start method, JAX lowerings, matplotlib backend: as before
     assert facts["yaml_reads"] == 0  # no config file is read on import
     assert facts["make_env_lowerings"] == ["cholesky", "triangular_solve"]  # explicit, when an env is built

@@ -86,9 +86,9 @@ def test_bad_reachability_settings_are_refused(change, message):
 
 
 def test_the_measured_limits_put_the_map_on_the_measured_side_of_a_step():
-    """``benchmarks.capability``: the robots got past a 5 cm step and not past a 7.5 cm one; the map with
+    """``benchmarks.terrain.capability``: the robots got past a 5 cm step and not past a 7.5 cm one; the map with
     ``traversability.ROBOT`` says the same; the limit is the hardest value passed."""
-    from benchmarks import capability
+    from benchmarks.terrain import capability
 
     step = capability.PROBES["step"]
     assert capability.predicted_pass(step, 0.05) and not capability.predicted_pass(step, 0.075)
@@ -100,9 +100,9 @@ def test_the_measured_limits_put_the_map_on_the_measured_side_of_a_step():
 
 
 def test_the_ladder_audit_reads_each_level_on_the_robots_map():
-    """``benchmarks.ladders``: level 0 is open ground, the dispatcher's corridor at full wall height closes
+    """``benchmarks.terrain.ladders``: level 0 is open ground, the dispatcher's corridor at full wall height closes
     (its 0.2 m floor is narrower than the blocks), and the parameter is given in physical units."""
-    from benchmarks import ladders
+    from benchmarks.terrain import ladders
 
     config = dataclasses.replace(
         TerrainConfig(), types=("corridor", "stairs"), proportions=(0.5, 0.5), levels=2, tiles_per_type=1
@@ -114,11 +114,11 @@ def test_the_ladder_audit_reads_each_level_on_the_robots_map():
 
 
 def test_the_ladder_audit_counts_time_at_the_measured_speed(tmp_path):
-    """``benchmarks.ladders --speeds``: a level is in time when its farthest goals, along the ground, take
+    """``benchmarks.terrain.ladders --speeds``: a level is in time when its farthest goals, along the ground, take
     no longer than an episode at the speed measured there (interpolated between evaluated difficulties)."""
     import json
 
-    from benchmarks import ladders
+    from benchmarks.terrain import ladders
 
     cells = [("poles", 0.0, 0.2), ("poles", 0.5, 0.1), ("poles", 1.0, None), ("flat", 0.0, 0.2)]
     path = tmp_path / "terrain_eval.json"

@@ -86,11 +86,11 @@ def test_unknown_profiles_and_older_servo_keys():
 
 
 def test_the_task_rule_and_each_profiles_config_follow_the_measured_speeds():
-    """benchmarks.robot_speed's rule, and configs/train_flat_<profile>.yaml set to the task it gave."""
+    """benchmarks.robots.speed's rule, and configs/train_flat_<profile>.yaml set to the task it gave."""
     import json
     from pathlib import Path
 
-    from benchmarks.robot_speed import DEFAULT_OUT, scaled_task
+    from benchmarks.robots.speed import DEFAULT_OUT, scaled_task
     from train import config as train_config
     from train.episodes.policy_sources import default_goal_range
 

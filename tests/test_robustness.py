@@ -1,4 +1,4 @@
-"""benchmarks.robustness: the grids, one model per cell, the intervals, sim-to-sim, the written results."""
+"""benchmarks.robustness.score: the grids, one model per cell, the intervals, sim-to-sim, the written results."""
 
 from __future__ import annotations
 
@@ -11,7 +11,12 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from benchmarks import robustness, robustness_compare, robustness_grids, robustness_merge, sim_to_sim, stats
+from benchmarks import stats
+from benchmarks.robustness import compare as robustness_compare
+from benchmarks.robustness import grids as robustness_grids
+from benchmarks.robustness import merge as robustness_merge
+from benchmarks.robustness import score as robustness
+from benchmarks.robustness import sim_to_sim
 from hsa_mjx.deploy import policy_file
 from hsa_mjx.robots import profile_servo
 
@@ -151,14 +156,14 @@ def test_where_keeps_the_matching_cells_and_refuses_unknown_factors_and_values()
 
 
 def test_every_documented_robustness_command_parses_and_selects_cells():
-    """The commands the docs give (``python -m benchmarks.robustness ...``) name a grid and ``--where`` cells
+    """The commands the docs give (``python -m benchmarks.robustness.score ...``) name a grid and ``--where`` cells
     that exist: a broken example is caught here, not by a reader."""
     docs = Path(__file__).resolve().parents[1] / "docs"
     commands = [
-        line.split("python -m benchmarks.robustness", 1)[1].split("#")[0].split("`")[0]
+        line.split("python -m benchmarks.robustness.score", 1)[1].split("#")[0].split("`")[0]
         for page in sorted(docs.glob("*.md"))
         for line in page.read_text().splitlines()
-        if "python -m benchmarks.robustness " in line
+        if "python -m benchmarks.robustness.score " in line
     ]
     assert len(commands) >= 3
     for command in commands:
@@ -195,7 +200,7 @@ def test_every_stress_cell_runs_its_own_model_and_sim_to_sim_replays_it(tmp_path
 
 
 def check_parts_join_into_the_whole(result: dict, tmp_path) -> None:
-    """Parts (``--part K/N``) cover the grid once; ``benchmarks.robustness_merge`` joins them into the whole."""
+    """Parts (``--part K/N``) cover the grid once; ``benchmarks.robustness.merge`` joins them into the whole."""
     cells = robustness_grids.grid("stress")
     shares = [robustness_grids.part(cells, f"{k}/3") for k in (1, 2, 3)]
     assert sorted(len(s) for s in shares) == [8, 8, 8] and sum(shares, []) != cells
@@ -291,7 +296,7 @@ def test_a_cell_without_pushes_is_never_pushed():
 def test_sim_to_sim_feeds_a_history_policy_with_noisy_readings():
     """The shipped randomised policy reads a history: the deployment loop's noise goes on this tick's
     readings only, and the episode runs."""
-    from benchmarks import sim_to_sim
+    from benchmarks.robustness import sim_to_sim
     from hsa_mjx.deploy import policy_file
 
     directory = policy_file.locate("flat_dr")
@@ -301,10 +306,10 @@ def test_sim_to_sim_feeds_a_history_policy_with_noisy_readings():
 
 
 def test_the_stability_check_runs_every_env_on_one_stress_corner():
-    """``benchmarks.throughput --observations stress_cornerN``: each corner of the stress grid as one fixed
+    """``benchmarks.speed.throughput --observations stress_cornerN``: each corner of the stress grid as one fixed
     model (ranges collapsed to its values), without the qacc rule, so the NaN check alone guards the state."""
     import hsa_mjx
-    from benchmarks import throughput
+    from benchmarks.speed import throughput
 
     corners = robustness_grids.stress_grid()[-4:]
     for number, corner in enumerate(corners, start=1):
@@ -321,7 +326,9 @@ def test_the_stability_check_runs_every_env_on_one_stress_corner():
 def test_a_stability_run_without_the_ceiling_is_reported_with_empty_ceiling_cells(tmp_path):
     """``--no-ceiling`` (long random-action runs at the corners): the row's ceiling fields are None and the
     table, the plot and a later ``--append`` run still work."""
-    from benchmarks import throughput, throughput_loops, throughput_report
+    from benchmarks.speed import loops as throughput_loops
+    from benchmarks.speed import report as throughput_report
+    from benchmarks.speed import throughput
 
     assert throughput.parse_args(["--no-ceiling"]).ceiling is False and throughput.parse_args([]).ceiling is True
     assert throughput.parse_args(["--episode-steps", "10"]).episode_steps == 10

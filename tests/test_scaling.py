@@ -1,4 +1,4 @@
-"""The scaling benchmark (``python -m benchmarks.scaling``): end to end on this machine's one CPU device,
+"""The scaling benchmark (``python -m benchmarks.scaling.devices``): end to end on this machine's one CPU device,
 with the tiny training config (its epoch is the shared tiny run's program), and its arithmetic over
 device counts. Its multi-device rows come from GPU runs (docs/scaling.md)."""
 
@@ -12,7 +12,7 @@ from conftest import TINY_RUN
 
 
 def test_scaling_benchmark_runs_end_to_end(tmp_path):
-    from benchmarks import scaling
+    from benchmarks.scaling import devices as scaling
 
     config = tmp_path / "tiny.yaml"
     config.write_text(yaml.safe_dump(TINY_RUN))
@@ -30,7 +30,7 @@ def test_scaling_benchmark_runs_end_to_end(tmp_path):
 
 
 def test_scaling_speedups_are_relative_to_the_fewest_devices():
-    from benchmarks.scaling_report import with_speedups
+    from benchmarks.scaling.report import with_speedups
 
     rows = with_speedups(
         [
@@ -46,7 +46,7 @@ def test_scaling_speedups_are_relative_to_the_fewest_devices():
 
 
 def test_scaling_device_counts_and_config():
-    from benchmarks.scaling import device_counts, scaled_config
+    from benchmarks.scaling.devices import device_counts, scaled_config
     from train import config as train_config
 
     assert [device_counts(n) for n in (1, 2, 6, 8)] == [[1], [1, 2], [1, 2, 4, 6], [1, 2, 4, 8]]
@@ -61,7 +61,7 @@ def test_scaling_device_counts_and_config():
 
 
 def test_same_run_names_the_metric_that_differs_and_ignores_the_clock(tmp_path):
-    from benchmarks import same_run
+    from benchmarks.scaling import same_run
 
     base = {"step": 10, "loss/v_loss": 2.0, "episode/return": -5.0, "time": 1.0, "training/env_steps_per_s": 100.0}
     runs = {
@@ -97,7 +97,7 @@ def test_network_cost_counts_each_collective_as_often_as_it_runs_and_projects_th
     import jax
     import jax.numpy as jnp
 
-    from benchmarks import network_cost
+    from benchmarks.scaling import network_cost
 
     def fn(x):  # 3 trips of two all-reduces (one round), then one all-gather of 4 float32
         def body(c, _):
@@ -116,7 +116,7 @@ def test_network_cost_counts_each_collective_as_often_as_it_runs_and_projects_th
 
 def test_allreduce_times_the_iterations_rounds_and_appends_results(tmp_path):
     """On one CPU device (no process flags): the iteration's rounds as network_cost counts them, each timed."""
-    from benchmarks import allreduce
+    from benchmarks.scaling import allreduce
 
     config = tmp_path / "tiny.yaml"
     config.write_text(yaml.safe_dump(TINY_RUN))

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from benchmarks import sweep, sweep_report
+from benchmarks.sweeps import report as sweep_report
+from benchmarks.sweeps import run as sweep
 from train import config as train_config
 
 SWEEP = {
@@ -169,7 +170,7 @@ def test_a_bad_grid_evaluation_is_refused_before_anything_runs(tmp_path, grid, e
 
 
 def _fake_grid(path: Path, rates: list[float], episodes: int = 50) -> None:
-    """A robustness result as benchmarks.robustness writes it: per cell, its label and counts."""
+    """A robustness result as benchmarks.robustness.score writes it: per cell, its label and counts."""
     path.parent.mkdir(parents=True, exist_ok=True)
     cells = [
         {"label": f"cell {i}", "successes": round(r * episodes), "episodes": episodes, "success_rate": r}

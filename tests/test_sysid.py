@@ -85,7 +85,7 @@ def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_
 
 def test_the_recovery_reports_the_motor_damping_the_log_sees_in_unsaturated_motion():
     """Back-EMF slope (stall torque / no-load speed) plus viscous damping: one figure, true and fitted."""
-    from benchmarks.sysid_recovery import motor_damping
+    from benchmarks.robots.sysid_recovery import motor_damping
 
     figures = {"stall_torque": {"true": 1.0, "fitted": 0.5}, "no_load_speed": {"true": 2.0, "fitted": 2.0}}
     figures["damping"] = {"true": 0.5, "fitted": 0.75}

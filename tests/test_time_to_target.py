@@ -1,11 +1,12 @@
-"""benchmarks.time_to_target: the first log meeting the target, resumed calls' clocks added up, bad folders refused."""
+"""benchmarks.scaling.time_to_target: the first log meeting the target, resumed calls' clocks added up, bad
+folders refused."""
 
 import json
 
 import pytest
 import yaml
 
-import benchmarks.time_to_target
+import benchmarks.scaling.time_to_target
 
 CONFIG = {
     "env": {"physics": {"backend": "warp"}},
@@ -34,8 +35,8 @@ def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path
         _row(1920, 5.0, 4.5, 0.92, launch=8.0),  # a resumed call: its clocks restart
         _row(2560, 9.0, 4.5, 0.97, launch=12.0),
     ]
-    result = benchmarks.time_to_target.time_to_target(
-        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
+    result = benchmarks.scaling.time_to_target.time_to_target(
+        *benchmarks.scaling.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
     )
     assert result["iteration_env_steps"] == 640
     assert result["first_log_s"] == 10.0
@@ -43,49 +44,52 @@ def test_the_first_log_at_full_range_and_success_counts_across_a_resume(tmp_path
     assert result["reached"]["since_launch_s"] == 32.0 and result["last"]["since_launch_s"] == 36.0
     assert result["reached"]["ppo_iterations"] == 3
     assert result["last"]["wall_s"] == 29.0 and result["last"]["success_rate"] == 0.97
-    assert "| 10.0 | 25.0 | 32.0 | 1,920 | 3 |" in benchmarks.time_to_target.markdown({"run": result})
+    assert "| 10.0 | 25.0 | 32.0 | 1,920 | 3 |" in benchmarks.scaling.time_to_target.markdown({"run": result})
 
 
 def test_a_target_never_met_is_none_with_the_last_log(tmp_path):
     rows = [_row(640, 10.0, 1.8, 0.95), _row(1280, 20.0, 2.1, 0.99)]
-    result = benchmarks.time_to_target.time_to_target(
-        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
+    result = benchmarks.scaling.time_to_target.time_to_target(
+        *benchmarks.scaling.time_to_target.read_run(_run(tmp_path, rows)), success=0.9
     )
     assert result["reached"] is None and result["last"]["goal_max_m"] == 2.1
     assert result["last"]["since_launch_s"] is None  # logged before the key existed
-    assert "not reached" in benchmarks.time_to_target.markdown({"run": result})
+    assert "not reached" in benchmarks.scaling.time_to_target.markdown({"run": result})
     assert result["physics_backend"] == "warp"
     (tmp_path / "summary.json").write_text(json.dumps({"physics_backend": "jax"}))  # what "auto" resolved to
     assert (
-        benchmarks.time_to_target.time_to_target(*benchmarks.time_to_target.read_run(tmp_path), success=0.9)[
-            "physics_backend"
-        ]
+        benchmarks.scaling.time_to_target.time_to_target(
+            *benchmarks.scaling.time_to_target.read_run(tmp_path), success=0.9
+        )["physics_backend"]
         == "jax"
     )
     no_curriculum = {**CONFIG, "goal_curriculum": {"enabled": False}}  # then the success alone counts
-    result = benchmarks.time_to_target.time_to_target(
-        *benchmarks.time_to_target.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9
+    result = benchmarks.scaling.time_to_target.time_to_target(
+        *benchmarks.scaling.time_to_target.read_run(_run(tmp_path, rows, no_curriculum)), success=0.9
     )
     assert result["reached"]["env_steps"] == 640
 
 
 def test_a_step_count_target_reads_the_first_log_at_it_whatever_the_logged_success(tmp_path):
     rows = [_row(640, 10.0, 1.8, 0.0, launch=14.0), _row(1280, 20.0, 2.1, 0.2, launch=24.0), _row(1920, 30.0, 2.4, 0.3)]
-    result = benchmarks.time_to_target.time_to_target(
-        *benchmarks.time_to_target.read_run(_run(tmp_path, rows)), success=0.9, at_env_steps=1000
+    result = benchmarks.scaling.time_to_target.time_to_target(
+        *benchmarks.scaling.time_to_target.read_run(_run(tmp_path, rows)), success=0.9, at_env_steps=1000
     )
     assert result["target"] == {"env_steps": 1000}
     assert result["reached"]["env_steps"] == 1280 and result["reached"]["since_launch_s"] == 24.0
-    assert benchmarks.time_to_target.main([str(tmp_path), "--at-env-steps", "5000"]) == 0  # never reached: reported
+    assert (
+        benchmarks.scaling.time_to_target.main([str(tmp_path), "--at-env-steps", "5000"]) == 0
+    )  # never reached: reported
     with pytest.raises(SystemExit):
-        benchmarks.time_to_target.main([str(tmp_path), "--at-env-steps", "0"])
+        benchmarks.scaling.time_to_target.main([str(tmp_path), "--at-env-steps", "0"])
 
 
 def test_bad_folders_are_refused(tmp_path, capsys):
     with pytest.raises(FileNotFoundError, match="metrics.jsonl"):
-        benchmarks.time_to_target.read_run(tmp_path)
+        benchmarks.scaling.time_to_target.read_run(tmp_path)
     assert (
-        benchmarks.time_to_target.main([str(tmp_path)]) == 2 and "not a training run folder" in capsys.readouterr().out
+        benchmarks.scaling.time_to_target.main([str(tmp_path)]) == 2
+        and "not a training run folder" in capsys.readouterr().out
     )
     with pytest.raises(ValueError, match="no log rows"):
-        benchmarks.time_to_target.read_run(_run(tmp_path, []))
+        benchmarks.scaling.time_to_target.read_run(_run(tmp_path, []))

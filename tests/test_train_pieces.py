@@ -75,8 +75,8 @@ def test_default_and_shipped_configs_validate():
 
 
 def test_training_configs_use_the_guarded_physics():
-    """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity.py)."""
-    from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+    """Training physics = the fidelity guard's shipped setting for the scene (benchmarks/fidelity/guard.py)."""
+    from benchmarks.fidelity.guard import SETTINGS, SHIPPED_BY_SCENE
 
     for name in ("train_flat", "train_quickstart_cpu", "train_corridor", "train_corridor_scan", "train_spiral"):
         physics = train_config.load(f"configs/{name}.yaml").env.physics

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from .config import CPU_CONFIG, GPU_CONFIG, TrainConfig, default_config, load
-from .devices import distributed
+from .devices import cluster, distributed
 from .run import checkpoint
 from .trainer import train
 
@@ -67,21 +67,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--coordinator",
         default=None,
         metavar="HOST:PORT",
-        help=f"process 0's address (env {distributed.ENV_VARS['coordinator']})",
+        help=f"process 0's address (env {cluster.ENV_VARS['coordinator']})",
     )
     group.add_argument(
         "--num-processes",
         type=int,
         default=None,
         metavar="N",
-        help=f"processes (hosts) taking part (env {distributed.ENV_VARS['num_processes']})",
+        help=f"processes (hosts) taking part (env {cluster.ENV_VARS['num_processes']})",
     )
     group.add_argument(
         "--process-id",
         type=int,
         default=None,
         metavar="I",
-        help=f"this process, 0..N-1; 0 writes the run dir (env {distributed.ENV_VARS['process_id']})",
+        help=f"this process, 0..N-1; 0 writes the run dir (env {cluster.ENV_VARS['process_id']})",
+    )
+    group.add_argument(
+        "--requeue",
+        action="store_true",
+        help="SLURM: a run stopped by a signal at its job's time limit requeues the job (scontrol requeue) "
+        "once its checkpoint is written",
     )
     return parser.parse_args(argv)
 
@@ -116,8 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     run_dir = args.run_dir or "the run dir"
     try:
-        spec = distributed.resolve_spec(args.coordinator, args.num_processes, args.process_id)
-        distributed.initialize(spec)  # before anything asks JAX for its devices
+        spec = cluster.resolve_spec(args.coordinator, args.num_processes, args.process_id)
+        cluster.initialize(spec)  # before anything asks JAX for its devices
         config, run_dir = resolve(args)
         if args.resume and args.overwrite:
             raise ValueError("--resume continues the run in --run-dir and --overwrite replaces it: give one")
@@ -128,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # during set-up or compile, or a second Ctrl-C: no checkpoint of this moment
         print(f"\n{interrupted_message(run_dir)}", file=sys.stderr)
         return 130
+    if args.requeue and summary.get("interrupted") and distributed.is_main() and cluster.should_requeue():
+        print(cluster.requeue(), flush=True)
     print(f"\nrun dir: {run_dir}")
     for key, value in summary.items():
         print(f"  {key}: {value:.4g}" if isinstance(value, float) else f"  {key}: {value}")

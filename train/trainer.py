@@ -109,6 +109,8 @@ def train(
     distributed.check_agreement(to_dict(config), devices)  # every process: one config, as many devices
     init = None if resume else read_init_from(config)
     meta = prepare_run_dir(run_dir, to_dict(config), resume, overwrite)
+    if resume and meta is None:  # the same SLURM job, requeued before its first checkpoint: a fresh start
+        init = read_init_from(config)
     if distributed.is_main() and not quiet:
         print(_announce(config, run_dir, devices), flush=True)
     strategy = strategies.build(config, devices)

@@ -2,7 +2,7 @@
 
 MJX's JAX implementation is built for thousands of envs at once; one env on a CPU pays XLA's
 per-op cost on every substep, and C MuJoCo steps the same compiled model several times faster
-(``python -m benchmarks.single_env``; docs/speed.md). :class:`HostPhysics` runs the ``frame_skip`` substeps of
+(``python -m benchmarks.speed.single_env``; docs/speed.md). :class:`HostPhysics` runs the ``frame_skip`` substeps of
 ``HSAEnv.step_with`` through ``jax.pure_callback`` on a C ``MjData``: the state goes in through
 public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, the solver warm start,
 ``time``) and comes back through the fields the env reads (positions, orientations, ``qacc``,

@@ -10,7 +10,7 @@ closes and the robot's centre may use every free cell; steep ground is not (its 
 robot). :func:`path_distances` is the length of the shortest 8-connected path over free cells from every
 cell to a target (a geodesic distance field, computed by relaxation on the device); cells it cannot reach
 are ``inf``. The same functions serve the goal sampler (``hsa_mjx.terrain.reachability``), the atlas and
-the tests. :data:`ROBOT` holds this robot's limits as ``python -m benchmarks.capability`` measured them
+the tests. :data:`ROBOT` holds this robot's limits as ``python -m benchmarks.terrain.capability`` measured them
 (``docs/terrain.md``).
 """
 
@@ -53,7 +53,7 @@ class Limits:
                 raise ValueError(f"traversability limit '{name}' must be > 0, got {getattr(self, name)!r}")
 
 
-# This robot's limits, measured by ``python -m benchmarks.capability`` (docs/terrain.md): a 5 cm step (a
+# This robot's limits, measured by ``python -m benchmarks.terrain.capability`` (docs/terrain.md): a 5 cm step (a
 # rise over one heightfield vertex spacing) passes, 7.5 cm does not; an incline of 8 degrees passes, 12 does
 # not (over the robot's 0.46 m length: 0.141 passes, 0.213 fails); half its 0.28 m full width (blocks
 # 0.24 m, the HSA units 0.28 m).

@@ -7,123 +7,20 @@ one host: ``jax.distributed.initialize`` must run before any other JAX call, the
 over the global device count, every process takes its own slice of the env and epoch keys, only
 process 0 writes the run dir, and a stop request on any process stops all of them together.
 
-Processes find each other from flags (``--coordinator``, ``--num-processes``, ``--process-id``), the
-``HSA_*`` variables, or, with neither, a cluster's own launcher: under ``srun`` (SLURM) or ``mpirun``
-(Open MPI) with more than one task, ``jax.distributed.initialize()`` reads the job's variables.
-Once joined, the processes check that they run the same config on as many devices each.
+How the processes find each other and join is ``train.devices.cluster``'s. Once joined, they check
+that they run the same config on as many devices each.
 
 With one process every function here is the plain single-host behaviour.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
-import os
-from collections.abc import Mapping
 from typing import Any
 
 import jax
 import numpy as np
-
-ENV_VARS = {"coordinator": "HSA_COORDINATOR", "num_processes": "HSA_NUM_PROCESSES", "process_id": "HSA_PROCESS_ID"}
-
-
-# A cluster launcher's variables: (the launcher, its task count, this task's index). JAX's
-# auto-detection (jax.distributed.initialize() with no argument) reads the same ones.
-LAUNCHERS = (
-    ("slurm", "SLURM_STEP_NUM_TASKS", "SLURM_PROCID"),  # srun: one job step of N tasks
-    ("openmpi", "OMPI_COMM_WORLD_SIZE", "OMPI_COMM_WORLD_RANK"),  # mpirun
-)
-
-
-@dataclasses.dataclass(frozen=True)
-class ClusterSpec:
-    """Where the coordinator listens, how many processes take part and which one this is.
-
-    ``coordinator`` None: the processes were started by ``launcher`` (``slurm``, ``openmpi``) and
-    ``jax.distributed.initialize()`` finds the coordinator from its variables.
-    """
-
-    coordinator: str | None
-    num_processes: int
-    process_id: int
-    launcher: str = "flags"
-
-
-def _int_setting(value: int | str | None, flag: str, env_var: str) -> int | None:
-    """An integer from a flag or environment variable (ValueError naming both when it is not one)."""
-    if value is None or value == "":
-        return None
-    try:
-        return int(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{flag} / {env_var} must be an integer, got {value!r}") from err
-
-
-def resolve_spec(
-    coordinator: str | None = None,
-    num_processes: int | None = None,
-    process_id: int | None = None,
-    environ: Mapping[str, str] | None = None,
-) -> ClusterSpec | None:
-    """The cluster from flags, else ``HSA_*`` environment variables; None when none is asked for."""
-    environ = os.environ if environ is None else environ
-    coordinator = coordinator or environ.get(ENV_VARS["coordinator"]) or None
-    count = _int_setting(
-        num_processes if num_processes is not None else environ.get(ENV_VARS["num_processes"]),
-        "--num-processes",
-        ENV_VARS["num_processes"],
-    )
-    index = _int_setting(
-        process_id if process_id is not None else environ.get(ENV_VARS["process_id"]),
-        "--process-id",
-        ENV_VARS["process_id"],
-    )
-    if coordinator is None and count is None and index is None:
-        return from_launcher(environ)
-    if coordinator is None or count is None or index is None:
-        raise ValueError(
-            "several processes need all of --coordinator HOST:PORT, --num-processes N and "
-            f"--process-id I (or {', '.join(ENV_VARS.values())}); got coordinator={coordinator!r}, "
-            f"num_processes={count}, process_id={index}"
-        )
-    host, _, port = coordinator.rpartition(":")
-    if not host or not port.isdigit():
-        raise ValueError(f"--coordinator must be HOST:PORT (process 0's address), got {coordinator!r}")
-    if count < 1 or not 0 <= index < count:
-        raise ValueError(f"need --num-processes >= 1 and 0 <= --process-id < --num-processes, got {count}, {index}")
-    return ClusterSpec(coordinator, count, index)
-
-
-def from_launcher(environ: Mapping[str, str]) -> ClusterSpec | None:
-    """The cluster a launcher (``srun``, ``mpirun``) started with more than one task; None otherwise."""
-    for launcher, count_var, index_var in LAUNCHERS:
-        count = _int_setting(environ.get(count_var), launcher, count_var)
-        if count is not None and count > 1:
-            index = _int_setting(environ.get(index_var), launcher, index_var)
-            if index is None or not 0 <= index < count:
-                raise ValueError(f"{launcher} started {count} tasks but {index_var} is {environ.get(index_var)!r}")
-            return ClusterSpec(None, count, index, launcher)
-    return None
-
-
-def initialize(spec: ClusterSpec | None) -> None:
-    """Join the cluster with ``jax.distributed.initialize`` (call before any other JAX call); None: one host."""
-    if spec is None:
-        return
-    if spec.coordinator is None:  # the launcher's variables say where and who (JAX's auto-detection)
-        jax.distributed.initialize()
-    else:
-        jax.distributed.initialize(
-            coordinator_address=spec.coordinator, num_processes=spec.num_processes, process_id=spec.process_id
-        )
-    if jax.process_count() != spec.num_processes:
-        raise ValueError(f"expected {spec.num_processes} processes ({spec.launcher}), JAX joined {jax.process_count()}")
-    # Open the collectives now, while the processes are together: a collective's first use waits only
-    # 30 s for the others, and later set-up and compiles may keep one process longer than that.
-    any_process(False)
 
 
 def _fingerprint(config: dict, local_devices: int) -> np.ndarray:

@@ -196,7 +196,7 @@ class ThreadPerDevice(Replicated):
         return ts, states, {"totals": totals, "losses": losses}
 
     def collect_epoch(self, ts: TrainingState, states: DeviceStates, keys: jax.Array):
-        """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling)."""
+        """The epoch's collections alone (no learning): for timing the update's share (benchmarks.scaling.devices)."""
         keys = self._device_keys(keys)
         envs = list(states.pieces)
         for _ in range(self.learner.iterations_per_epoch):

@@ -3,7 +3,7 @@
 Both give ``(config, env, policy fn, ...)``: the training config, an env rebuilt from it for
 evaluation (``evaluation_env_config``: spiral episodes from the origin, on the physics backend asked
 for, with ``env.KEY=VALUE`` overrides), and ``policy(obs, key) -> (action, extras)`` in JAX. Used by
-``python -m train.evaluate``, the per-terrain evaluation and ``benchmarks.robustness``.
+``python -m train.evaluate``, the per-terrain evaluation and ``benchmarks.robustness.score``.
 """
 
 from __future__ import annotations

@@ -94,7 +94,7 @@ def evaluate(
 ) -> list[dict[str, Any]]:
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes,
     and how fast the goals that were reached were reached (``success_speed_m_s``: start distance over the
-    episode's time, the mean over those episodes; ``None`` where none was; ``benchmarks.ladders`` reads it).
+    episode's time, the mean over those episodes; ``None`` where none was; ``benchmarks.terrain.ladders`` reads it).
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
     (``train.episodes.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and

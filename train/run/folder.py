@@ -1,9 +1,11 @@
 """A run directory: what a run writes there, and the checks before it starts or resumes.
 
 A run dir holds ``config.yaml``, ``checkpoints/``, ``metrics.jsonl``, ``tensorboard/``,
-``summary.json``, ``learning_curve.png`` and ``ppo_diagnostics.png``. A new run refuses a folder that already holds one
-(``--overwrite`` replaces the run's own files, nothing else); a resume reads the newest readable
-checkpoint's metadata and refuses one written with a config whose networks, env or curricula differ.
+``summary.json``, ``learning_curve.png``, ``ppo_diagnostics.png`` and, under SLURM, ``job.json`` (the job
+that started it). A new run refuses a folder that already holds one (``--overwrite`` replaces the run's
+own files, nothing else), unless it is the same SLURM job, requeued before its first checkpoint: that run
+starts afresh (``train.devices.cluster``). A resume reads the newest readable checkpoint's metadata and
+refuses one written with a config whose networks, env or curricula differ.
 Every check runs before anything compiles; with several processes, process 0 alone writes.
 """
 
@@ -16,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from ..config import TrainConfig, from_dict, to_dict
-from ..devices import distributed
+from ..devices import cluster, distributed
 from . import checkpoint
 
 
@@ -35,7 +37,9 @@ RUN_FILES = (
     "summary.json",
     "learning_curve.png",
     "ppo_diagnostics.png",
+    "job.json",
 )
+JOB_FILE = "job.json"
 
 
 def run_files(run_dir: Path) -> list[str]:
@@ -56,8 +60,12 @@ def prepare_run_dir(run_dir: Path, config_dict: dict, resume: bool, overwrite: b
     """Create the run dir (process 0), refuse to write into another run's files, and read the checkpoint
     to resume (the newest readable one; before any compile). When one process refuses, all stop."""
     refused = meta = None
+    requeued = _requeued_before_a_checkpoint(run_dir)
     try:
-        meta = _resume_meta(run_dir, config_dict) if resume else _start_run_dir(run_dir, config_dict, overwrite)
+        if resume and not requeued:
+            meta = _resume_meta(run_dir, config_dict)
+        else:
+            _start_run_dir(run_dir, config_dict, overwrite or requeued)
     except (ValueError, FileNotFoundError) as err:
         refused = err
     if distributed.any_process(refused is not None):  # a process going on alone would wait for the others
@@ -80,7 +88,25 @@ def _start_run_dir(run_dir: Path, config_dict: dict, overwrite: bool) -> None:
         shutil.rmtree(target) if target.is_dir() else target.unlink()
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict, sort_keys=False))
+    marker = cluster.job_marker()
+    if marker:
+        (run_dir / JOB_FILE).write_text(json.dumps(marker))
     return None
+
+
+def _requeued_before_a_checkpoint(run_dir: Path) -> bool:
+    """Whether the run in ``run_dir`` is this SLURM job's own, requeued before it wrote a checkpoint: it
+    then starts afresh (a new run would be refused, a resume would find nothing to resume)."""
+    if checkpoint.list_checkpoints(run_dir) or not (run_dir / JOB_FILE).is_file():
+        return False
+    try:
+        marker = json.loads((run_dir / JOB_FILE).read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    requeued = cluster.restarted_job(marker)
+    if requeued and distributed.is_main():
+        print(f"{run_dir}: this SLURM job, requeued before its first checkpoint: starting afresh", flush=True)
+    return requeued
 
 
 def _resume_meta(run_dir: Path, config_dict: dict) -> dict:

@@ -1,6 +1,6 @@
 """Time to a training target, read from the logs of finished runs.
 
-    python -m benchmarks.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9 | --at-env-steps N]
+    python -m benchmarks.scaling.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9 | --at-env-steps N]
         [--out-dir DIR --tag NAME]
 
 For each run (a folder ``python -m train`` wrote, or a copy under ``benchmarks/results/training/``)
@@ -14,7 +14,7 @@ show ``-``), the env steps and the PPO iterations to it. Beside it, what the
 run had at its last log: wall-clock, env steps, iterations, success, goal range and, on terrain, the
 mean terrain level. A target never met is reported as ``null`` with the last log's figures.
 ``--at-env-steps N`` takes as the target the first log at N env steps or more instead: the step
-count at which an evaluation found the target met (a sweep's, ``benchmarks.sweep``), so that the run's
+count at which an evaluation found the target met (a sweep's, ``benchmarks.sweeps.run``), so that the run's
 clock to it is read without the logged success rate, which counts the episodes that end (successes
 end sooner, and the goal curriculum's range lags the skill). The
 first log's wall-clock (the compile and the first epoch) is given too: it depends on the caches
@@ -170,9 +170,9 @@ def _round(value: float | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.time_to_target``."""
+    """Entry point of ``python -m benchmarks.scaling.time_to_target``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.time_to_target",
+        prog="python -m benchmarks.scaling.time_to_target",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

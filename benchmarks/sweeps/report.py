@@ -1,9 +1,9 @@
-"""The report of a sweep (``benchmarks.sweep``): every run's evaluation and learning signs, each arm pooled
+"""The report of a sweep (``benchmarks.sweeps.run``): every run's evaluation and learning signs, each arm pooled
 over its seeds with a 95 % interval, each arm against the first, a table and plots.
 
 Per run: the evaluated success (goals reached with the mean action, on terrain the mean over its types at
 the evaluated levels, each type's share beside it) with its Wilson interval, the first and the largest
-logged value loss, the logged time to the target (``benchmarks.time_to_target``) and the run's wall-clock.
+logged value loss, the logged time to the target (``benchmarks.scaling.time_to_target``) and the run's wall-clock.
 Per arm: the successes of all its seeds pooled (Wilson), each seed's figure, and the difference to the
 first arm with Newcombe's interval. The pooled interval counts episodes, not seeds: the seeds' spread is
 listed beside it, and a difference smaller than that spread is not read as a win.
@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from benchmarks import sweep_grid, time_to_target
 from benchmarks.run_info import run_info
+from benchmarks.scaling import time_to_target
 from benchmarks.stats import difference_interval, wilson_interval
-from benchmarks.sweep_grid import read_json
+from benchmarks.sweeps import grid as sweep_grid
+from benchmarks.sweeps.grid import read_json
 from train.run.logger import read_jsonl
 
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
@@ -234,7 +235,7 @@ def write(
     """``sweep.json``, ``sweep.md``, ``sweep.png`` and one ``arm_<arm>.png`` per arm into ``out`` (``gpus``: the
     host's GPUs, recorded). ``rewrite``: a report written again from the runs keeps the host and date its
     runs were recorded with (the ``sweep.json`` already there), not this machine's. ``references``: the
-    grid evaluation's reference policies (``benchmarks.sweep.references``)."""
+    grid evaluation's reference policies (``benchmarks.sweeps.run.references``)."""
     out.mkdir(parents=True, exist_ok=True)
     before = read_json(out / "sweep.json") if rewrite else {}
     report = {

@@ -1,4 +1,4 @@
-"""Does the servo fit recover known figures? ``python -m benchmarks.sysid_recovery``.
+"""Does the servo fit recover known figures? ``python -m benchmarks.robots.sysid_recovery``.
 
 For each robot profile: a "true" servo (the profile's figures moved by ``TRUTH`` factors, so the fit
 does not start at the answer), its 60 s log made by the rig (``hsa_mjx.sysid synth``: tracker noise
@@ -157,8 +157,8 @@ def markdown(rows: list[dict], info: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.sysid_recovery``."""
-    parser = argparse.ArgumentParser(prog="python -m benchmarks.sysid_recovery", description=__doc__)
+    """Entry point of ``python -m benchmarks.robots.sysid_recovery``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.robots.sysid_recovery", description=__doc__)
     parser.add_argument("--robots", nargs="+", default=list(ROBOTS))
     parser.add_argument("--generations", type=int, default=80)
     parser.add_argument("--population", type=int, default=12)

@@ -1,4 +1,4 @@
-"""The grid part of a sweep's report (``evaluate.grid``): per cell of a ``benchmarks.robustness`` grid, each
+"""The grid part of a sweep's report (``evaluate.grid``): per cell of a ``benchmarks.robustness.score`` grid, each
 arm's seeds pooled with a 95 % Wilson interval, each reference policy's figure, and each arm's difference
 to each reference with Newcombe's interval.
 
@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.robustness_report import TARGET, rate
-from benchmarks.stats import difference_interval, wilson_interval
+from benchmarks.robustness.report import TARGET, rate, versus
+from benchmarks.stats import wilson_interval
 
 PLAYED = ("grid", "physics_backend", "episodes_per_cell", "seed", "where")
 
@@ -72,15 +72,6 @@ def _summary(cells: list[dict]) -> dict[str, Any]:
         "cells_upper_bound_below_90": sum(c["ci95"][1] < TARGET for c in cells),
         "cell_count": len(cells),
     }
-
-
-def versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
-    """Per cell, the arm minus the reference with its 95 % interval."""
-    out = []
-    for a, r in zip(arm, reference):
-        d, low, high = difference_interval((a["successes"], r["successes"]), (a["episodes"], r["episodes"]))
-        out.append({"label": a["label"], "difference": d, "ci95": [low, high]})
-    return out
 
 
 def collect(arms: list[str], jobs: list, references: list) -> dict[str, Any] | None:

@@ -16,7 +16,7 @@ too). Each row names it (``collection``).
   termination, auto-reset, curriculum), random actions, ``--steps`` steps per call under
   ``lax.scan``, on every device at once: jitted for one device, ``pmap``-ed (outcomes gathered over
   the devices every step) or jitted once per device (one host thread per device);
-  the loop of ``benchmarks.throughput``.
+  the loop of ``benchmarks.speed.throughput``.
 - **collect** (the split, best effort after the rest): the epoch's collections alone (policy plus
   env steps), so the update's share is the epoch time minus it.
 
@@ -25,7 +25,7 @@ then timed (``block_until_ready``); rates use the median call. Speed-up and effi
 device ratio) are relative to the smallest k measured. Results go to ``--out-dir`` as
 ``scaling_<tag>.{json,md,png}`` (tag default: the device name), rewritten after every measurement.
 
-    python -m benchmarks.scaling [--config FILE] [--envs-per-device N] [--devices 1,2,4] [--steps K]
+    python -m benchmarks.scaling.devices [--config FILE] [--envs-per-device N] [--devices 1,2,4] [--steps K]
         [--repeats R] [--epochs E] [--iterations-per-epoch I] [--no-split] [--budget-s S] [--tag TAG]
         [--out-dir benchmarks/results/scaling] [--compile-cache DIR]
 """
@@ -45,10 +45,10 @@ from typing import Any
 import jax
 import numpy as np
 
-import benchmarks.scaling_report
-from benchmarks import throughput_loops
+import benchmarks.scaling.report
 from benchmarks.run_info import run_info
-from benchmarks.throughput_report import slug
+from benchmarks.speed import loops as throughput_loops
+from benchmarks.speed.report import slug
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 from hsa_mjx.curricula import goal_curriculum
 from train.config import TrainConfig, default_config, load, validate_devices
@@ -234,7 +234,7 @@ def measure_count(
         "num_envs": config.run.num_envs,
         "batch_size": config.ppo.batch_size,
         "iterations_per_epoch": args.iterations_per_epoch,
-        **benchmarks.scaling_report.provenance(info),
+        **benchmarks.scaling.report.provenance(info),
     }
     # PPO first: traced before anything else in the process, its epoch lowers to the trainer's program
     # text, so a persistent compilation cache filled by a training run serves it
@@ -273,15 +273,15 @@ def run_all(args: argparse.Namespace, info: dict[str, Any], write: Callable[[lis
     for k in args.devices:
         row, bench = measure_count(args, base, k, over_budget, info)
         rows, benches = rows + [row], benches + [bench]
-        write(benchmarks.scaling_report.with_speedups(rows))
+        write(benchmarks.scaling.report.with_speedups(rows))
     for i, (row, bench) in enumerate(zip(rows, benches)):
         if args.split and "ppo_epoch_s" in row and not over_budget():
             rows[i] = measure_split(args, row, bench)
-            write(benchmarks.scaling_report.with_speedups(rows))
+            write(benchmarks.scaling.report.with_speedups(rows))
     skipped = [r["devices"] for r in rows if "ppo_env_steps_per_s" not in r or "env_steps_per_s" not in r]
     if skipped:
         print(f"past --budget-s {args.budget_s}: measurements missing at {skipped} device(s)", flush=True)
-    return benchmarks.scaling_report.with_speedups(rows)
+    return benchmarks.scaling.report.with_speedups(rows)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -340,7 +340,7 @@ def resolve_defaults(args: argparse.Namespace) -> argparse.Namespace:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.scaling``; 2 on a bad option or config."""
+    """Entry point of ``python -m benchmarks.scaling.devices``; 2 on a bad option or config."""
     args = parse_args(argv)
     if args.compile_cache:
         jax.config.update("jax_compilation_cache_dir", str(args.compile_cache))
@@ -369,9 +369,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{args.envs_per_device:,} envs per device, config {args.config}",
         flush=True,
     )
-    rows = run_all(args, info, lambda rows: benchmarks.scaling_report.write_all(args.out_dir, stem, rows, meta))
-    paths = benchmarks.scaling_report.write_all(args.out_dir, stem, rows, meta)
-    print(benchmarks.scaling_report.markdown(rows, meta))
+    rows = run_all(args, info, lambda rows: benchmarks.scaling.report.write_all(args.out_dir, stem, rows, meta))
+    paths = benchmarks.scaling.report.write_all(args.out_dir, stem, rows, meta)
+    print(benchmarks.scaling.report.markdown(rows, meta))
     print("wrote " + ", ".join(str(p) for p in paths), flush=True)
     return 0
 

@@ -1,9 +1,9 @@
 """Each hardware profile's policies on its own task: its own flat policy, the family policy, MJX and C MuJoCo.
 
-    python -m benchmarks.profile_policies [--sweep benchmarks/sweeps/hardware_profiles.yaml] [--sweep-dir DIR]
+    python -m benchmarks.robots.policies [--sweep benchmarks/sweeps/hardware_profiles.yaml] [--sweep-dir DIR]
         [--backend auto|jax|warp|c] [--workers K] [--report-only] [--out benchmarks/results/robots]
 
-The runs are a sweep's (``benchmarks.sweep``): its arms named after a robot profile (``hsa_mjx.robots``)
+The runs are a sweep's (``benchmarks.sweeps.run``): its arms named after a robot profile (``hsa_mjx.robots``)
 are that profile's own policies, an arm whose config draws robots per env (``randomization.robots``) is a
 family policy over them. Each evaluation plays the run's final checkpoint with its mean action on the
 sweep's goals (``evaluate.episodes`` from ``evaluate.seed``) in the profile's task (its own config's goal
@@ -31,11 +31,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks import sweep as sweeps
-from benchmarks import sweep_report
 from benchmarks.run_info import run_info
 from benchmarks.stats import difference_interval, wilson_interval
-from benchmarks.sweep_grid import read_json
+from benchmarks.sweeps import report as sweep_report
+from benchmarks.sweeps import run as sweeps
+from benchmarks.sweeps.grid import read_json
 from hsa_mjx.robots import profile_names
 from train import config as train_config
 from train.episodes.policy_sources import default_goal_range
@@ -238,9 +238,9 @@ def play(todo: list[tuple[Path, list[str]]]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.profile_policies``."""
+    """Entry point of ``python -m benchmarks.robots.policies``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.profile_policies",
+        prog="python -m benchmarks.robots.policies",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -1,4 +1,4 @@
-"""What ``benchmarks.robustness`` writes: the summary over cells, the markdown table, the heat map."""
+"""What ``benchmarks.robustness.score`` writes: the summary over cells, the markdown table, the heat map."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.stats import difference_interval
 from hsa_mjx.deploy.perturbation import per_foot
 
 TARGET = 0.9  # a cell "below 90 %" when its whole interval is
@@ -158,3 +159,12 @@ def write(result: dict, out: Path, tag: str) -> list[str]:
     if "note" in result:
         lines.append(f"note: {result['note']}")
     return lines
+
+
+def versus(arm: list[dict], reference: list[dict]) -> list[dict[str, Any]]:
+    """Per cell, the arm minus the reference with its 95 % interval."""
+    out = []
+    for a, r in zip(arm, reference):
+        d, low, high = difference_interval((a["successes"], r["successes"]), (a["episodes"], r["episodes"]))
+        out.append({"label": a["label"], "difference": d, "ci95": [low, high]})
+    return out

@@ -1,11 +1,11 @@
-"""Join the parts of one robustness grid: ``python -m benchmarks.robustness_merge PART.json ... --tag TAG``.
+"""Join the parts of one robustness grid: ``python -m benchmarks.robustness.merge PART.json ... --tag TAG``.
 
 A long grid (many episodes a cell, ``--sim-to-sim``) can be played in parts, one call or machine
-each: ``python -m benchmarks.robustness POLICY ... --part 1/2``, then ``--part 2/2`` (or disjoint
+each: ``python -m benchmarks.robustness.score POLICY ... --part 1/2``, then ``--part 2/2`` (or disjoint
 ``--where`` selections). The parts must agree on everything but their cells (policy, grid, episodes,
 seed, steps, backend, rules, noise and pushes); their cells are joined in the grid's order and the
 summary is computed over all of them. The joined result keeps the first part's provenance and each
-part's command, date, device and commit under ``parts``; it is written as ``benchmarks.robustness``
+part's command, date, device and commit under ``parts``; it is written as ``benchmarks.robustness.score``
 writes one (``robustness_<tag>.{json,md,png}``).
 
 A joined result can be a part again: it is split back into its parts (each part's cells are the ones
@@ -22,8 +22,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks import robustness_grids as grids
-from benchmarks import robustness_report as report
+from benchmarks.robustness import grids, report
 
 # what every part of one grid shares
 SAME = (
@@ -51,7 +50,7 @@ def read_part(path: Path, keys: tuple[str, ...] = SAME) -> dict[str, Any]:
         raise ValueError(f"{path} is not JSON: {err}") from err
     missing = [k for k in (*keys, "cells", "sim_to_sim") if k not in result]
     if missing:
-        raise ValueError(f"{path} is not a benchmarks.robustness result: no {', '.join(missing)}")
+        raise ValueError(f"{path} is not a benchmarks.robustness.score result: no {', '.join(missing)}")
     return result
 
 
@@ -125,9 +124,9 @@ def merge(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.robustness_merge``."""
+    """Entry point of ``python -m benchmarks.robustness.merge``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.robustness_merge",
+        prog="python -m benchmarks.robustness.merge",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

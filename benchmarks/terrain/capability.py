@@ -1,6 +1,6 @@
 """What the robot can pass: the highest step, the steepest slope and the narrowest gap, measured.
 
-    python -m benchmarks.capability [--policy rough] [--episodes 4] [--backend c]
+    python -m benchmarks.terrain.capability [--policy rough] [--episodes 4] [--backend c]
         [--out benchmarks/results/capability]
 
 **Geometry.** From the model at its spawn pose: the robot's length, the width of its blocks (the parts

@@ -26,7 +26,7 @@ reachable ground (``terrain.reachability``); ``heightfield_geodesic`` with goals
 progress measured along the ground (``reward.progress: geodesic``). ``--backends jax,warp`` measures MJX's JAX and Warp
 implementations side by side (each row records its backend).
 
-    python -m benchmarks.throughput [--backends jax,warp] [--batches 4096,16384,65536]
+    python -m benchmarks.speed.throughput [--backends jax,warp] [--batches 4096,16384,65536]
         [--terrains flat,heightfield,heightfield_reachable,heightfield_geodesic] [--settings NAME ...]
         [--observations original,heading,heading+scan,heading+randomized,stress_corner1,...]
         [--steps K] [--repeats R] [--episode-steps N] [--regenerate-every K] [--no-ceiling] [--append]
@@ -47,12 +47,12 @@ import jax
 import mujoco
 import numpy as np
 
-import benchmarks.throughput_report
+import benchmarks.speed.report
 import hsa_mjx
 import hsa_mjx.sim.backend
-from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+from benchmarks.fidelity.guard import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from benchmarks.throughput_loops import (
+from benchmarks.speed.loops import (
     CEILING_FIELDS,
     Timed,
     device_bytes,
@@ -107,7 +107,7 @@ def _stress_corner(number: int) -> dict[str, Any]:
     """Corner ``number`` (1-4) of the robustness benchmark's stress grid as one fixed model for every env:
     each range collapsed to the corner's value, its latency, pushes and noise, no ``qacc_limit`` rule
     (so the NaN check alone guards the state)."""
-    from benchmarks import robustness_grids as grids
+    from benchmarks.robustness import grids
     from hsa_mjx.deploy.loop import latency_steps
 
     corner = grids.stress_grid()[-4:][number - 1]
@@ -290,7 +290,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--settings",
         nargs="+",
         default=None,
-        help="physics settings from benchmarks.fidelity.SETTINGS (space or comma separated); "
+        help="physics settings from benchmarks.fidelity.guard.SETTINGS (space or comma separated); "
         f"default per scene {SHIPPED_BY_SCENE}",
     )
     p.add_argument(
@@ -386,7 +386,7 @@ def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
 
 def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
     """Measure every (backend, terrain, setting, batch) until the time budget runs out; write after each row."""
-    rows = benchmarks.throughput_report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
+    rows = benchmarks.speed.report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
     start = time.perf_counter()
     for terrain in args.terrains:
         for setting in settings_for(terrain, args.settings):
@@ -398,7 +398,7 @@ def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[li
                         flush=True,
                     )
                     continue
-                rows = benchmarks.throughput_report.upsert(
+                rows = benchmarks.speed.report.upsert(
                     rows, _row(args, info, terrain, setting, backend, batch, baseline, observation)
                 )
                 out(rows)
@@ -434,7 +434,7 @@ def _row(
         **baseline,
         **_row_meta(info),
     }
-    fmt = benchmarks.throughput_report.fmt
+    fmt = benchmarks.speed.report.fmt
     print(
         f"{backend:4s} {terrain:11s} {setting} {observation} batch {batch:6d}: env {row['env_steps_per_s']:12,.0f}/s  "
         f"ceiling {fmt(row['physics_ceiling_env_steps_per_s'])}/s  compile "
@@ -451,8 +451,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         jax.config.update("jax_compilation_cache_dir", str(args.compile_cache))
     info = run_info()
     tag = "_".join(t for t in (args.tag, "quick" if args.quick else "") if t)
-    args.stem = f"throughput_{benchmarks.throughput_report.slug(info['device'])}" + (
-        f"_{benchmarks.throughput_report.slug(tag)}" if tag else ""
+    args.stem = f"throughput_{benchmarks.speed.report.slug(info['device'])}" + (
+        f"_{benchmarks.speed.report.slug(tag)}" if tag else ""
     )
     meta = {
         **info,
@@ -463,11 +463,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         "observations": {o: OBSERVATIONS[o]() for o in args.observations},
         "terrains": {t: TERRAINS[t] for t in args.terrains},
     }
-    rows = run_matrix(
-        args, info, lambda rows: benchmarks.throughput_report.write_all(args.out_dir, args.stem, rows, meta)
-    )
-    paths = benchmarks.throughput_report.write_all(args.out_dir, args.stem, rows, meta)
-    print(benchmarks.throughput_report.markdown(rows, meta))
+    rows = run_matrix(args, info, lambda rows: benchmarks.speed.report.write_all(args.out_dir, args.stem, rows, meta))
+    paths = benchmarks.speed.report.write_all(args.out_dir, args.stem, rows, meta)
+    print(benchmarks.speed.report.markdown(rows, meta))
     print("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -1,4 +1,4 @@
-"""Sim-to-sim: a policy scored by ``benchmarks.robustness`` on MJX, played again on C MuJoCo.
+"""Sim-to-sim: a policy scored by ``benchmarks.robustness.score`` on MJX, played again on C MuJoCo.
 
 Each cell's episodes run through the deployment loop (``hsa_mjx.deploy.loop``: the policy sees only
 sensor readings, actions go through the control law after the cell's latency) against a
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks import robustness_grids as grids
+from benchmarks.robustness import grids
 from benchmarks.stats import paired_difference_interval, wilson_interval
 
 PHYSICS = "c_mujoco"

@@ -1,6 +1,6 @@
 """What the GPUs exchange in one PPO iteration, and what that would cost over a network.
 
-    python -m benchmarks.network_cost [--config configs/train_flat.yaml] [--gpus 8,64]
+    python -m benchmarks.scaling.network_cost [--config configs/train_flat.yaml] [--gpus 8,64]
         [--links-gbps 100,400] [--latency-us 5] [--iteration-s S] [--out FILE [--append]]
 
 Traces the learner's epoch with its device axis (nothing runs; a CPU does) and adds up every

@@ -1,10 +1,10 @@
 """Time the all-reduces of one PPO iteration on the devices of every process that joins.
 
-    python -m benchmarks.allreduce [--config configs/train_flat.yaml] [--repeats 5] [--out FILE [--append]]
+    python -m benchmarks.scaling.allreduce [--config configs/train_flat.yaml] [--repeats 5] [--out FILE [--append]]
         [--coordinator HOST:PORT --num-processes N --process-id I]   # or srun / mpirun, as the trainer
 
 Each process runs the same command (flags, ``HSA_*`` variables or a cluster launcher, as
-``python -m train``). The iteration's all-reduces (:mod:`benchmarks.network_cost` counts them on a
+``python -m train``). The iteration's all-reduces (:mod:`benchmarks.scaling.network_cost` counts them on a
 CPU: ``rounds`` rounds of ``bytes / rounds`` bytes each, the gradient's mean once per minibatch
 step) run as one ``pmap``-ed ``lax.scan`` of ``psum``s over every device of every process, so each
 round waits for the last, as the minibatch steps do. Timed after a warm-up call, the median of
@@ -27,10 +27,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-from benchmarks import network_cost
 from benchmarks.run_info import report, run_info
+from benchmarks.scaling import network_cost
 from train import config as train_config
-from train.devices import distributed
+from train.devices import cluster
 from train.devices.replicas import replicate
 from train.learners.ppo.learner import AXIS
 
@@ -128,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ValueError(f"--repeats must be >= 1, got {args.repeats}")
     if not Path(args.config).is_file():
         raise FileNotFoundError(f"no config at {args.config}")
-    distributed.initialize(distributed.resolve_spec(args.coordinator, args.num_processes, args.process_id))
+    cluster.initialize(cluster.resolve_spec(args.coordinator, args.num_processes, args.process_id))
     result = {**measure(args.config, args.repeats), "note": args.note}
     if jax.process_index() == 0:
         report(args.out, result, to_markdown(result), append=args.append)

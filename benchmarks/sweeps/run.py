@@ -1,6 +1,6 @@
 """Compare training recipes honestly: arms x seeds at equal env steps, each run evaluated, with intervals.
 
-    python -m benchmarks.sweep SWEEP.yaml [--out DIR] [--devices 0,1] [--time-limit S] [--report-only]
+    python -m benchmarks.sweeps.run SWEEP.yaml [--out DIR] [--devices 0,1] [--time-limit S] [--report-only]
 
 A sweep file (``benchmarks/sweeps/*.yaml``) names a question, a training config, the env steps every run
 trains for, the seeds, the arms (each a list of ``--set`` overrides over the config, or a mapping
@@ -10,12 +10,12 @@ per GPU at a time on a host of several (``CUDA_VISIBLE_DEVICES`` per process; in
 or a CPU), then one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat
 ground over ``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed
 the run never trained on. With ``evaluate.grid`` each run's policy is also exported and played over a
-``benchmarks.robustness`` grid, and so is every ``grid.reference`` policy (a shipped name or a policy
+``benchmarks.robustness.score`` grid, and so is every ``grid.reference`` policy (a shipped name or a policy
 folder): per cell, each arm pooled over its seeds and its difference to each reference, with intervals
-(``benchmarks.sweep_grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
+(``benchmarks.sweeps.grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
 nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
 is done. Raising ``env_steps`` continues every run from its checkpoint and evaluates it again (an
-evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweep_report``):
+evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweeps.report``):
 ``sweep.json``, ``sweep.md`` and one plot per arm plus ``sweep.png`` in ``OUT``; every figure with its
 95 % interval, the arms against the first.
 
@@ -40,8 +40,8 @@ from typing import Any
 import jax
 import yaml
 
-from benchmarks import robustness_grids as grids
-from benchmarks import sweep_report
+from benchmarks.robustness import grids
+from benchmarks.sweeps import report as sweep_report
 from hsa_mjx.deploy import policy_file
 from train import config as train_config
 
@@ -184,11 +184,11 @@ def evaluation_args(sweep: Sweep, run_dir: Path) -> list[str]:
 
 
 def grid_args(sweep: Sweep, policy: str | Path, out: Path) -> list[str]:
-    """``python -m benchmarks.robustness``'s arguments for one policy over the sweep's grid."""
+    """``python -m benchmarks.robustness.score``'s arguments for one policy over the sweep's grid."""
     ev, grid = sweep.evaluate, sweep.evaluate["grid"]
     args = [str(policy), "--grid", grid["name"], "--episodes", str(grid.get("episodes", ev.get("episodes", 128)))]
     args += ["--seed", str(ev.get("seed", 1000)), "--backend", str(ev.get("backend", "auto"))]
-    return ["-m", "benchmarks.robustness", *args, "--tag", GRID_TAG, "--out-dir", str(out / "sweep_grid")]
+    return ["-m", "benchmarks.robustness.score", *args, "--tag", GRID_TAG, "--out-dir", str(out / "sweep_grid")]
 
 
 def grid_commands(sweep: Sweep, run_dir: Path) -> list[list[str]]:
@@ -316,9 +316,11 @@ def local_gpus() -> list[str | None]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.sweep``."""
+    """Entry point of ``python -m benchmarks.sweeps.run``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.sweep", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="python -m benchmarks.sweeps.run",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("sweep", help="a sweep file (benchmarks/sweeps/*.yaml)")
     parser.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>)")

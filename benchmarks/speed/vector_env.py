@@ -14,12 +14,12 @@ Every mode makes one Python call per env step of the whole batch, as a Gymnasium
   DLPack, on the GPU when torch sees one) on torch actions; left out, with a message, where torch
   is not installed (it is no dependency of this package).
 
-Physics: the shipped setting of the scene (``benchmarks.fidelity.SHIPPED_BY_SCENE``) unless
+Physics: the shipped setting of the scene (``benchmarks.fidelity.guard.SHIPPED_BY_SCENE``) unless
 ``--setting`` names another. Per batch and mode: one warm-up call (the compile), then ``--repeats``
 runs of ``--steps`` steps; the median is reported. Results: ``--out``.json (rows and provenance:
 date, device, versions, command, git commit) and ``--out``.md, rewritten after every batch.
 
-    python -m benchmarks.vector_env --batches 4096,16384 [--steps 100] [--repeats 3] [--scene flat|terrain]
+    python -m benchmarks.speed.vector_env --batches 4096,16384 [--steps 100] [--repeats 3] [--scene flat|terrain]
         [--setting NAME] [--modes ...] [--out benchmarks/results/throughput/vector_env_<device>]
 """
 
@@ -38,9 +38,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from benchmarks.fidelity import SETTINGS, SHIPPED_BY_SCENE
+from benchmarks.fidelity.guard import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from benchmarks.throughput_report import slug
+from benchmarks.speed.report import slug
 from hsa_mjx.adapters.gymnasium_vector import HSAVectorEnv, NumpyOutput
 from hsa_mjx.batch.auto_reset import AutoResetEnv
 
@@ -189,7 +189,7 @@ def write_results(
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
-        prog="python -m benchmarks.vector_env",
+        prog="python -m benchmarks.speed.vector_env",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -9,11 +9,11 @@ Modes, each one ``env.step`` call per env step with random actions, as a Gymnasi
   observation, reward or Python env around it): the ceiling.
 
 Settings: the ``flat`` preset as ``gymnasium.make`` builds it (the original's physics: Euler, Newton
-100/50) and, with ``--setting``, a setting of ``benchmarks.fidelity.SETTINGS``. One warm-up episode
+100/50) and, with ``--setting``, a setting of ``benchmarks.fidelity.guard.SETTINGS``. One warm-up episode
 (the compile), then ``--repeats`` runs of ``--steps`` steps (episodes reset when they end); the median
 is reported. Results: ``--out``.json and .md (provenance included).
 
-    python -m benchmarks.single_env [--steps 2000] [--repeats 3] [--setting NAME]
+    python -m benchmarks.speed.single_env [--steps 2000] [--repeats 3] [--setting NAME]
         [--out benchmarks/results/throughput/single_env_cpu]
 """
 
@@ -29,9 +29,9 @@ import gymnasium
 import numpy as np
 
 import hsa_mjx
-from benchmarks.fidelity import SETTINGS
-from benchmarks.throughput import cpu_baseline
-from benchmarks.vector_env import write_results
+from benchmarks.fidelity.guard import SETTINGS
+from benchmarks.speed.throughput import cpu_baseline
+from benchmarks.speed.vector_env import write_results
 
 MODES = {"host_physics": {"physics__backend": "c"}, "mjx": {"physics__backend": "jax"}}
 
@@ -83,7 +83,7 @@ def measure(setting: str | None, steps: int, repeats: int) -> list[dict[str, Any
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(
-        prog="python -m benchmarks.single_env",
+        prog="python -m benchmarks.speed.single_env",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

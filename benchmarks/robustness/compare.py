@@ -1,4 +1,4 @@
-"""Two policies' robustness results, cell by cell: ``python -m benchmarks.robustness_compare A.json B.json``.
+"""Two policies' robustness results, cell by cell: ``python -m benchmarks.robustness.compare A.json B.json``.
 
 For every cell both results played (matched by the cell's label), each policy's success with its
 95 % Wilson interval and A minus B with Newcombe's interval (the two results' episodes are
@@ -14,9 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks.robustness_merge import read_part
-from benchmarks.robustness_report import rate
-from benchmarks.sweep_grid import versus
+from benchmarks.robustness.merge import read_part
+from benchmarks.robustness.report import rate, versus
 
 NEEDED = ("policy", "physics_backend", "episodes_per_cell")  # what the table's heading names
 
@@ -56,13 +55,13 @@ def markdown(rows: list[dict[str, Any]], a: dict[str, Any], b: dict[str, Any]) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.robustness_compare``."""
+    """Entry point of ``python -m benchmarks.robustness.compare``."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.robustness_compare",
+        prog="python -m benchmarks.robustness.compare",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("a", metavar="A.json", help="a benchmarks.robustness result")
+    parser.add_argument("a", metavar="A.json", help="a benchmarks.robustness.score result")
     parser.add_argument("b", metavar="B.json", help="another, compared against")
     parser.add_argument("--out", default=None, help="also write the table to this markdown file")
     args = parser.parse_args(argv)

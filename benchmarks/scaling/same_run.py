@@ -1,6 +1,6 @@
 """Are two training runs the same run? Their logged metrics side by side, step by step, and their speed.
 
-    python -m benchmarks.same_run RUN_A RUN_B [--names A B] [--note TEXT] [--out FILE.json [--append]]
+    python -m benchmarks.scaling.same_run RUN_A RUN_B [--names A B] [--note TEXT] [--out FILE.json [--append]]
 
 Reads each run dir's ``metrics.jsonl`` (or the files given) and, for every step both logged,
 counts the metrics that are equal and names the largest difference; the clock's records (wall

@@ -1,6 +1,6 @@
 """Fidelity guard: do the fast physics settings still move the robot like the original's physics?
 
-Open-loop gaits (``benchmarks/gaits.py``) are played on flat ground for ``--duration`` seconds
+Open-loop gaits (``benchmarks/fidelity/gaits.py``) are played on flat ground for ``--duration`` seconds
 (default 10). The reference is C MuJoCo (float64) at the original's settings (timestep 0.001,
 Euler, Newton 100 / 50, tolerance 1e-8, pyramidal cone) on this repo's asset. Every candidate
 setting runs through the env itself (``hsa_mjx.make_env`` with config overrides, ``env.step``
@@ -16,7 +16,7 @@ original) validates the contact pruning, the ``C_VARIANTS`` (C MuJoCo at other i
 timesteps) separate integration effects from MJX's, and ``mjx_reference`` checks the float32 MJX
 port at the reference settings.
 
-    python -m benchmarks.fidelity [--settings NAME ...] [--gaits NAME ...] [--duration 10]
+    python -m benchmarks.fidelity.guard [--settings NAME ...] [--gaits NAME ...] [--duration 10]
                                   [--out benchmarks/results/fidelity/NAME.json]
 """
 
@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-import benchmarks.gaits
+import benchmarks.fidelity.gaits
 import hsa_mjx
 from benchmarks.run_info import run_info
 from hsa_mjx.config import EnvConfig, TerminationConfig, get_preset, with_overrides
@@ -292,9 +292,9 @@ def compare(reference: Run, candidate: Run) -> dict[str, Any]:
 
 def gait_matrix(gait_names: Sequence[str], duration_s: float) -> np.ndarray:
     """Actions of every gait, shape (gaits, steps, 8), with the layout read from the asset."""
-    layout = benchmarks.gaits.gait_layout(load_mj_model(fidelity_config()))
+    layout = benchmarks.fidelity.gaits.gait_layout(load_mj_model(fidelity_config()))
     steps = int(round(duration_s / CONTROL_DT))
-    return np.stack([benchmarks.gaits.gait_actions(name, layout, steps, CONTROL_DT) for name in gait_names])
+    return np.stack([benchmarks.fidelity.gaits.gait_actions(name, layout, steps, CONTROL_DT) for name in gait_names])
 
 
 def references(actions: np.ndarray, scene: str, **kwargs: Any) -> tuple[list[Run], float]:
@@ -399,7 +399,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         metavar="NAME",
         help=f"MJX settings to test (default all): {', '.join(SETTINGS)}",
     )
-    parser.add_argument("--gaits", nargs="+", default=list(GUARD_GAITS), choices=sorted(benchmarks.gaits.GAITS))
+    parser.add_argument(
+        "--gaits", nargs="+", default=list(GUARD_GAITS), choices=sorted(benchmarks.fidelity.gaits.GAITS)
+    )
     parser.add_argument("--duration", type=float, default=10.0, help="seconds of simulated time per gait")
     parser.add_argument("--no-contact-check", action="store_true", help="skip the all-contacts C reference")
     parser.add_argument(

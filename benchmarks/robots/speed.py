@@ -1,10 +1,10 @@
 """How fast each robot profile crawls, and the flat task scaled to that speed.
 
-    python -m benchmarks.robot_speed [--robots all] [--gaits extend_contract] [--seconds 10]
+    python -m benchmarks.robots.speed [--robots all] [--gaits extend_contract] [--seconds 10]
         [--policy-eval NAME=EVAL.json ...] [--out benchmarks/results/robots/speed.json]
 
 Two speeds per profile (``robots/``):
-- the original's open-loop gaits (``benchmarks.gaits``) through the profile's control law and servos, on
+- the original's open-loop gaits (``benchmarks.fidelity.gaits``) through the profile's control law and servos, on
   C MuJoCo's flat floor: the straight-line distance the blocks' midpoint moves over ``--seconds``;
 - its own policy's, read from a ``python -m train.evaluate`` file (``mean_speed_m_per_s``: displacement
   over episode time, every episode), given with ``--policy-eval``.
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.gaits import GAITS, gait_actions, gait_layout
+from benchmarks.fidelity.gaits import GAITS, gait_actions, gait_layout
 
 REFERENCE_EVAL = "benchmarks/results/training/flat_warp/eval_deterministic_cpu.json"  # the original's policy
 REFERENCE_FARTHEST_M = 4.5  # the original task's farthest goal
@@ -144,11 +144,11 @@ def markdown(report: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.robot_speed``."""
+    """Entry point of ``python -m benchmarks.robots.speed``."""
     from hsa_mjx.robots import profile_names
 
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.robot_speed",
+        prog="python -m benchmarks.robots.speed",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     report |= {
         "date": datetime.date.today().isoformat(),
         "host": f"{os.cpu_count()}-core {platform.machine()} CPU",
-        "command": "python -m benchmarks.robot_speed " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": "python -m benchmarks.robots.speed " + " ".join(argv if argv is not None else sys.argv[1:]),
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,8 +1,8 @@
 """Mixed terrain at scale: a batch resets onto per-env terrain tiles, steps, and every robot settles on its own.
 
-    python -m benchmarks.terrain --envs 1024 --steps 15        # ten types, the original's solver
-    python -m benchmarks.terrain --envs 16384 --types craters --backend warp
-    python -m benchmarks.terrain --envs 16384 --types craters --shared   # one terrain for every env
+    python -m benchmarks.terrain.mixed --envs 1024 --steps 15        # ten types, the original's solver
+    python -m benchmarks.terrain.mixed --envs 16384 --types craters --backend warp
+    python -m benchmarks.terrain.mixed --envs 16384 --types craters --shared   # one terrain for every env
 
 Prints timings (compile and run, reset and step), the height of each block above the surface
 under it per terrain type after the steps (flat-ground rest: 0.138-0.140 m), terminations and

@@ -1,11 +1,11 @@
 """How hard each terrain level is for this robot: the ladders of a training config measured on its map.
 
-    python -m benchmarks.ladders [--config configs/train_rough.yaml] [--goal-range 1.5 4.5]
+    python -m benchmarks.terrain.ladders [--config configs/train_rough.yaml] [--goal-range 1.5 4.5]
         [--out benchmarks/results/ladders] [--picture docs/ladders.png]
 
 Builds the config's terrain pool as training draws it (every type, level and tile; no re-draws) and
 maps each tile with the robot's measured limits (``traversability.ROBOT``, ``python -m
-benchmarks.capability``). Per type and level it reports the parameter the difficulty scales in physical
+benchmarks.terrain.capability``). Per type and level it reports the parameter the difficulty scales in physical
 units, the share of the goal ring (cells at a straight-line distance inside ``--goal-range``) the robot
 can reach from its spawn, the median detour (path over straight-line distance) to the reachable ones,
 and the steepest slope over the robot's length on the reachable ground. A level whose goals cannot be

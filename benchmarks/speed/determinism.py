@@ -7,7 +7,7 @@ how many envs differ at all, the largest hinge-angle and block-position differen
 step at which the first difference appears. A third call of a freshly compiled copy of the same
 program checks compile-to-compile determinism too.
 
-    python -m benchmarks.determinism [--backends jax,warp] [--terrains flat,heightfield]
+    python -m benchmarks.speed.determinism [--backends jax,warp] [--terrains flat,heightfield]
         [--envs 1024] [--steps 200] [--out-dir benchmarks/results/determinism]
 
 Writes ``determinism_<gpu>.{json,md}`` (temp file + rename).
@@ -26,9 +26,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from benchmarks.fidelity import SHIPPED_BY_SCENE
+from benchmarks.fidelity.guard import SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from benchmarks.throughput import TERRAINS, bench_env
+from benchmarks.speed.throughput import TERRAINS, bench_env
 
 SCENES = {"flat": "flat", "heightfield": "terrain"}
 

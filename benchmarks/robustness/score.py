@@ -1,8 +1,9 @@
-"""How a policy fares on models that differ from the one it trained on: ``python -m benchmarks.robustness POLICY``.
+"""How a policy fares on models that differ from the one it trained on:
+``python -m benchmarks.robustness.score POLICY``.
 
 ``--grid nominal`` (72 cells within the randomised training span) or ``--grid stress`` (24 cells that
 go past it: each factor alone at both ends of its stress range, and four corners), described in
-``benchmarks/robustness_grids.py``. Every cell plays ``--episodes`` episodes from the same starts and
+``benchmarks/robustness/grids.py``. Every cell plays ``--episodes`` episodes from the same starts and
 goals (the policy's training goal range) with the policy's mean action, for at most ``--steps`` steps.
 A cell reports its success rate with a 95 % Wilson interval, its mean net progress towards the goal
 and how its failed episodes ended; the summary gives the lowest success, the lowest lower bound and
@@ -32,8 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks import robustness_grids as grids
-from benchmarks import robustness_report as report
+from benchmarks.robustness import grids, report
 from benchmarks.run_info import run_info
 from benchmarks.stats import wilson_interval
 from hsa_mjx.config import BACKENDS
@@ -178,7 +178,7 @@ def failures(summary: dict[str, Any]) -> dict[str, float]:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line's arguments."""
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.robustness",
+        prog="python -m benchmarks.robustness.score",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -206,7 +206,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--part",
         default=None,
         metavar="K/N",
-        help="every N-th chosen cell from the K-th: a long grid in parts (joined by benchmarks.robustness_merge)",
+        help="every N-th chosen cell from the K-th: a long grid in parts (joined by benchmarks.robustness.merge)",
     )
     parser.add_argument("--qacc-rule", choices=("off", "on"), default="off", help="end episodes on qacc_limit too")
     parser.add_argument("--sim-to-sim", action="store_true", help="also play the cells on C MuJoCo's deployment loop")
@@ -230,7 +230,7 @@ def resolve(args: argparse.Namespace) -> tuple[Path, str, list[dict]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m benchmarks.robustness``."""
+    """Entry point of ``python -m benchmarks.robustness.score``."""
     args = parse_args(argv)
     try:
         directory, backend, chosen = resolve(args)
@@ -243,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     sim_rows = []
     if args.sim_to_sim:
-        from benchmarks.sim_to_sim import play_cells
+        from benchmarks.robustness.sim_to_sim import play_cells
 
         sim_rows = play_cells(directory, rows, args.steps, args.qacc_rule == "on", args.workers)
     tag = args.tag or f"{directory.resolve().name}_{args.grid}"
