@@ -131,6 +131,9 @@ def test_the_evaluation_api_takes_a_spec_and_the_command_is_its_wrapper(tmp_path
         "env.goal.radial_range=[4.0, 4.5]",
     )
     assert (typed.levels, typed.terrain_types) == ((0.0, 1.0), ("a", "b"))
-    for bad, match in (({"overrides": "env.seed=1"}, "overrides must map"), ({"levels": "0,1"}, "levels must be")):
+    bad_specs = (({"overrides": "env.seed=1"}, "overrides must map"), ({"levels": "0,1"}, "levels must be"))
+    bad_specs += (({"video_cell": ("stairs", 1.0)}, "add --video and --terrain-types"),)
+    bad_specs += (({"stuck_window_s": 0.0}, "--stuck-window-s"),)
+    for bad, match in bad_specs:
         with pytest.raises(ValueError, match=match):
             evaluate(EvalSpec(policy="flat", **bad))

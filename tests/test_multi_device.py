@@ -387,17 +387,24 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
                 "2",
                 "--backend",
                 "c",
+                "--video",
+                "--video-cell",
+                "stairs:0.5",
             ]
         )
         == 0
     )
     table = json.loads((run_dir / "eval" / "terrain_eval.json").read_text())
+    assert (run_dir / "eval" / "episode_stairs_0.5.gif").stat().st_size > 1_000  # the chosen cell, rendered
     assert [(r["type"], r["difficulty"], r["episodes"]) for r in table["rows"]] == [
         (t, d, 2) for t in ("flat", "stairs") for d in (0.0, 0.5, 1.0)
     ]
     assert all(0.0 <= r["success_rate"] <= 1.0 and np.isfinite(r["mean_progress_m"]) for r in table["rows"])
     assert all((r["success_speed_m_s"] is None) == (r["success_rate"] == 0.0) for r in table["rows"])
     assert (run_dir / "eval" / "terrain_eval.png").stat().st_size > 5_000
+    assert (run_dir / "eval" / "failure_modes.png").stat().st_size > 5_000  # how each cell's episodes ended
+    assert all(sum(r["modes"].values()) == pytest.approx(1.0) for r in table["rows"])
+    assert table["failure_rule"] == {"window_s": 20.0, "stuck_m": 0.1}
     # evaluated on tiles the run's pool was not drawn from, both seeds recorded
     assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table
     assert table["tiles_per_cell"] == 2

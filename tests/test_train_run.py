@@ -258,6 +258,9 @@ def test_auto_reset_draws_fresh_goals_from_curriculum():
     assert logged["env_steps"] == 14  # 7 steps x 2 envs
     distances = np.asarray(state.env.metrics["distance_to_goal"])
     assert 1.0 < logged["step/distance_to_goal"] < 5.0 and np.all(distances > 0)  # a mean over every env step
+    assert "terrain/redraw_truncated_share" not in logged  # no re-draws
+    cut = summarize({**{k: float(v) for k, v in jax.device_get(state.totals).items()}, "redraw_truncations": 1.0})
+    assert cut["terrain/redraw_truncated_share"] == 1.0 / 5.0  # one of the five episodes that ended was cut
 
 
 def test_init_from_starts_with_the_source_networks(run_dir, tmp_path):

@@ -118,6 +118,27 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="tiles of each random terrain type per difficulty, drawn from --terrain-seed (default 1); each "
         "episode plays one of them, so a cell's episodes spread over this many tiles",
     )
+    parser.add_argument(
+        "--video-cell",
+        default=None,
+        metavar="TYPE:LEVEL",
+        help="with --terrain-types and --video: the cell whose first episode is rendered (default: the first "
+        "type at the top level)",
+    )
+    parser.add_argument(
+        "--stuck-window-s",
+        type=float,
+        default=20.0,
+        help="a time-out's mode is read over the episode's last this many seconds (default 20): stuck, lost "
+        "or slow (train/episodes/failures.py)",
+    )
+    parser.add_argument(
+        "--stuck-distance-m",
+        type=float,
+        default=0.1,
+        help="within this distance of where it was over that window, a timed-out robot is stuck; this much "
+        "farther, lost; this much closer, slow (default 0.1 m)",
+    )
     return parser.parse_args(argv)
 
 
@@ -135,6 +156,12 @@ def spec_from_args(args: argparse.Namespace) -> Any:
             fields["levels"] = tuple(float(v) for v in args.levels.split(","))
         except ValueError as err:
             raise ValueError(f"--levels must be comma-separated numbers in [0, 1], got {args.levels!r}") from err
+    if args.video_cell is not None:
+        name, _, level = args.video_cell.partition(":")
+        try:
+            fields["video_cell"] = (name.strip(), float(level))
+        except ValueError as err:
+            raise ValueError(f"--video-cell must be TYPE:LEVEL, e.g. stairs:1, got {args.video_cell!r}") from err
     if args.terrain_types not in (None, "all"):
         fields["terrain_types"] = tuple(t.strip() for t in args.terrain_types.split(",") if t.strip())
     return EvalSpec(**fields)

@@ -281,8 +281,10 @@ def summarize(totals: dict[str, float], levels: int = 1) -> dict[str, float]:
             "step/checkpoint_index": totals["step_checkpoint"] / steps,
         }
     )
-    if totals.get("redraw_truncations", 0.0) > 0:  # only with terrain re-draws shorter than an episode
-        out["terrain/redraw_truncations"] = totals["redraw_truncations"]
+    cut = totals.get("redraw_truncations", 0.0)
+    if cut > 0:  # only with terrain re-draws shorter than an episode
+        out["terrain/redraw_truncations"] = cut
+        out["terrain/redraw_truncated_share"] = cut / (cut + totals["episodes"])  # of the episodes that ended
     out.update(terrain_curriculum.summarize(totals, levels))
     out.update(randomization_curriculum.summarize(totals))
     episodes = totals["episodes"]

@@ -166,3 +166,30 @@ def write_all(traces: dict, env, out: Path, video: bool = False) -> list[Path]:
     if video:
         written.append(render_gif(traces, env, out / "episode.gif"))
     return written
+
+
+MODE_COLOURS = {"reached": "tab:green", "terminated": "tab:red", "stuck": "tab:gray", "lost": "tab:purple"}
+MODE_COLOURS["slow"] = "tab:olive"
+
+
+def failure_modes(rows: list[dict], path: Path) -> Path:
+    """How each (type, difficulty) cell's episodes ended, one stacked bar each, a panel per difficulty:
+    reached, terminated, and the time-outs' modes (stuck, lost, slow; ``train.episodes.failures``)."""
+    levels = sorted({r["difficulty"] for r in rows})
+    types = list(dict.fromkeys(r["type"] for r in rows))
+    cell = {(r["type"], r["difficulty"]): r for r in rows}
+    fig = Figure(figsize=(2.5 + 3.2 * len(levels), 1.2 + 0.35 * len(types)), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(levels), sharey=True))
+    for ax, level in zip(axes, levels):
+        left = np.zeros(len(types))
+        for mode, colour in MODE_COLOURS.items():
+            share = np.array([cell[(t, level)]["modes"][mode] for t in types])
+            ax.barh(range(len(types)), share, left=left, color=colour, label=mode)
+            left += share
+        ax.set_xlim(0, 1)
+        ax.set_title(f"difficulty {level:g}")
+        ax.set_yticks(range(len(types)), types)
+        ax.invert_yaxis()
+    axes[-1].legend(loc="lower right", fontsize=7)
+    fig.savefig(path, dpi=100)
+    return Path(path)

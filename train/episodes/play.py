@@ -26,6 +26,7 @@ from hsa_mjx.task.env import HSAEnv
 from ..config import TrainConfig, assignments
 from ..run.folder import portable
 from . import diagnostics, host_workers, terrain_eval
+from .failures import DEFAULT_RULE, FailureRule
 from .policy_sources import (
     default_goal_range,
     evaluation_env_config,
@@ -47,7 +48,9 @@ class EvalSpec:
 
     ``overrides`` maps dotted env keys to values (``{"env.goal.radial_range": [4.0, 4.5]}``: the
     command's ``--set``); ``terrain_types`` (``"all"``: the run's own, or a tuple of names) and
-    ``levels`` (a tuple of difficulties in [0, 1]) evaluate per terrain type and difficulty instead."""
+    ``levels`` (a tuple of difficulties in [0, 1]) evaluate per terrain type and difficulty instead;
+    there ``video`` renders the first episode of ``video_cell`` (type, difficulty; default the first type
+    at the top difficulty)."""
 
     run_dir: str | None = None
     policy: str | None = None
@@ -65,6 +68,13 @@ class EvalSpec:
     terrain_seed: int | None = None
     tiles: int = 1
     workers: int = 1
+    video_cell: tuple[str, float] | None = None
+    stuck_window_s: float = DEFAULT_RULE.window_s
+    stuck_distance_m: float = DEFAULT_RULE.stuck_m
+
+    def failure_rule(self) -> FailureRule:
+        """How a time-out's mode is told (``train.episodes.failures``; ValueError for a bad window)."""
+        return FailureRule(self.stuck_window_s, self.stuck_distance_m)
 
     def override_items(self) -> tuple[str, ...]:
         """``overrides`` as ``env.KEY=VALUE`` strings (what the env loaders apply)."""
@@ -89,6 +99,9 @@ def check_spec(spec: EvalSpec) -> None:
 def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
     """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
     check_spec(args)
+    args.failure_rule()
+    if args.video_cell is not None and not (args.video and (args.terrain_types or args.levels)):
+        raise ValueError("--video-cell picks a terrain evaluation's rendered cell: add --video and --terrain-types")
     if (args.run_dir is None) == (args.policy is None):
         raise ValueError("give either a RUN_DIR or --policy NAME_OR_DIR (one of them)")
     if args.episodes is not None and args.episodes < 1:
@@ -189,7 +202,7 @@ def evaluate(spec: EvalSpec) -> dict:
         "policy": "stochastic" if spec.stochastic else "deterministic",
         "max_steps": steps,
         "physics": "c_mujoco" if env.physics_backend == "c" else f"mjx_{env.physics_backend}",
-        **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral"),
+        **summarize(traces, env.dt, checkpoints=config.env.goal.mode == "spiral", rule=spec.failure_rule()),
     }
     out.mkdir(parents=True, exist_ok=True)
     written = diagnostics.write_all(traces, env, out, video=spec.video)
@@ -214,7 +227,18 @@ def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: P
     def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
         return rollout(env, policy, keys, goal_range, steps, cells=cells)
 
-    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed, args.tiles)
+    rule, shown = args.failure_rule(), []
+    chosen = args.video_cell or (types[0], max(levels))
+    if args.video_cell is not None and (chosen[0] not in types or float(chosen[1]) not in levels):
+        cells = f"types {list(types)}, levels {list(levels)}"
+        raise ValueError(f"--video-cell {chosen[0]}:{chosen[1]:g} is no evaluated cell: {cells}")
+
+    def render(name: str, difficulty: float, env: HSAEnv, traces: dict) -> None:
+        if args.video and (name, difficulty) == tuple(chosen):
+            shown.append(diagnostics.render_gif(traces, env, out / f"episode_{name}_{difficulty:g}.gif"))
+
+    out.mkdir(parents=True, exist_ok=True)
+    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed, args.tiles, rule, render)
     header = {
         **header,
         "goal_range": [float(v) for v in goal_range],
@@ -225,6 +249,7 @@ def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: P
         "tiles_per_cell": args.tiles,
         "training_terrain_seed": trained_on,
         "training_seed": config.run.seed,
+        "failure_rule": {"window_s": rule.window_s, "stuck_m": rule.stuck_m},
     }
-    written = terrain_eval.write(rows, header, out)
+    written = terrain_eval.write(rows, header, out) + shown
     return {**header, "rows": rows, "files": [str(p) for p in written]}

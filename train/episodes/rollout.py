@@ -21,6 +21,8 @@ from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.task.params import FREE_CELL, EnvParams
 from hsa_mjx.task.randomization import NEVER
 
+from .failures import DEFAULT_RULE, FailureRule, episode_modes, shares
+
 
 def _while(simulate: Any, alive: jax.Array) -> Any:
     """``simulate`` for one episode: where it takes ``idle`` (``HostPhysics``), an ended episode runs no
@@ -131,8 +133,11 @@ def by_goal_bearing(traces: dict[str, np.ndarray], success: np.ndarray) -> dict[
     return out
 
 
-def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False) -> dict[str, Any]:
-    """Success rate, mean final distance and mean speed of the evaluated episodes (spiral: checkpoints each)."""
+def summarize(
+    traces: dict[str, np.ndarray], dt: float, checkpoints: bool = False, rule: FailureRule = DEFAULT_RULE
+) -> dict[str, Any]:
+    """Success rate, mean final distance and mean speed of the evaluated episodes (spiral: checkpoints each),
+    how they ended, and what the robot did in those that ran out of time (``rule``: ``train.episodes.failures``)."""
     alive = traces["alive"].astype(bool)
     length = alive.sum(axis=1)
     last = np.maximum(length - 1, 0)
@@ -171,6 +176,7 @@ def summarize(traces: dict[str, np.ndarray], dt: float, checkpoints: bool = Fals
         **{k: v for k, v in ends.items() if v > 0},
         "time_out": float(np.mean(ended & ~reasons.any(axis=1))),
         "not_finished": float(np.mean(~ended)),
+        **shares(episode_modes(traces, dt, rule)),
     }
 
 

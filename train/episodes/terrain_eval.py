@@ -27,6 +27,8 @@ from hsa_mjx.task.env import HSAEnv
 from hsa_mjx.terrain.params import TERRAIN_TYPES
 
 from ..run.plots import terrain_grid
+from .diagnostics import failure_modes
+from .failures import DEFAULT_RULE, FailureRule, episode_modes, mode_shares, shares
 
 TRACK_TYPES = ("spiral",)  # a checkpoint track, not ground to reach goals on: only with goal.mode spiral
 
@@ -91,6 +93,8 @@ def evaluate(
     episodes: int,
     seed: int,
     tiles: int = 1,
+    rule: FailureRule = DEFAULT_RULE,
+    on_cell: Callable[[str, float, HSAEnv, dict], None] | None = None,
 ) -> list[dict[str, Any]]:
     """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes,
     and how fast the goals that were reached were reached (``success_speed_m_s``: start distance over the
@@ -98,7 +102,10 @@ def evaluate(
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
     (``train.episodes.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
-    difficulty, the episodes of a cell spread over them by their keys.
+    difficulty, the episodes of a cell spread over them by their keys. ``ended_by`` gives each termination
+    reason's share, ``time_out``'s, and the time-outs' modes (``time_out/stuck`` ...: ``rule``,
+    ``train.episodes.failures``). ``on_cell(type, difficulty, env, traces)`` is given each cell's traces
+    (its episodes alone), e.g. to render one.
     """
     rows = []
     for group in level_groups(levels):
@@ -109,9 +116,11 @@ def evaluate(
         cells = jnp.asarray(np.stack([type_of, level_of], axis=-1), jnp.int32)
         env = HSAEnv(cell_config(config, types, group, tiles), num_envs=len(type_of))
         traces = {k: np.asarray(v) for k, v in jax.device_get(rollout(env, keys, cells)).items()}
-        outcome = episode_outcomes(traces)
+        outcome, modes = episode_outcomes(traces), episode_modes(traces, env.dt, rule)
         for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
             mine = (type_of == i) & (level_of == level)
+            if on_cell is not None:
+                on_cell(name, difficulty, env, {k: v[mine] for k, v in traces.items()})
             rows.append(
                 {
                     "type": name,
@@ -120,7 +129,8 @@ def evaluate(
                     "success_rate": float(outcome["success"][mine].mean()),
                     "mean_progress_m": float(outcome["progress"][mine].mean()),
                     "mean_final_distance": float(outcome["final_distance"][mine].mean()),
-                    "ended_by": ended_by(outcome["reasons"][mine]),
+                    "ended_by": {**ended_by(outcome["reasons"][mine]), **shares(modes[mine])},
+                    "modes": mode_shares(modes[mine]),
                     "success_speed_m_s": _success_speed(outcome, mine, env.dt),
                 }
             )
@@ -179,8 +189,9 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def write(rows: list[dict[str, Any]], header: dict[str, Any], out: Path) -> list[Path]:
-    """``terrain_eval.json`` and ``terrain_eval.png`` (success rate and progress per type and difficulty)."""
+    """``terrain_eval.json``, ``terrain_eval.png`` (success rate and progress per type and difficulty) and
+    ``failure_modes.png`` (how each cell's episodes ended)."""
     out.mkdir(parents=True, exist_ok=True)
     path = out / "terrain_eval.json"
     path.write_text(json.dumps({**header, "rows": rows}, indent=1))
-    return [path, terrain_grid(rows, out / "terrain_eval.png")]
+    return [path, terrain_grid(rows, out / "terrain_eval.png"), failure_modes(rows, out / "failure_modes.png")]

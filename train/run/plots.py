@@ -33,7 +33,7 @@ PPO_PANELS = (
     ("loss/learning_rate", "learning rate"),
     ("loss/policy_loss", "policy loss"),
     ("loss/entropy_loss", "entropy loss"),
-    ("terrain/redraw_truncations", "episodes cut by terrain re-draws"),
+    ("terrain/redraw_truncated_share", "share of episodes cut by terrain re-draws"),
 )
 LOG_SCALE = {"loss/total_loss", "loss/v_loss", "loss/kl_mean"}
 
