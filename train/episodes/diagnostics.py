@@ -178,7 +178,7 @@ def failure_modes(rows: list[dict], path: Path) -> Path:
     levels = sorted({r["difficulty"] for r in rows})
     types = list(dict.fromkeys(r["type"] for r in rows))
     cell = {(r["type"], r["difficulty"]): r for r in rows}
-    fig = Figure(figsize=(2.5 + 3.2 * len(levels), 1.2 + 0.35 * len(types)), layout="constrained")
+    fig = Figure(figsize=(3.5 + 3.2 * len(levels), 1.4 + 0.35 * len(types)), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, len(levels), sharey=True))
     for ax, level in zip(axes, levels):
         left = np.zeros(len(types))
@@ -190,6 +190,7 @@ def failure_modes(rows: list[dict], path: Path) -> Path:
         ax.set_title(f"difficulty {level:g}")
         ax.set_yticks(range(len(types)), types)
         ax.invert_yaxis()
-    axes[-1].legend(loc="lower right", fontsize=7)
+        ax.set_xlabel("share of episodes")
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside right upper", fontsize=7)
     fig.savefig(path, dpi=100)
     return Path(path)
