@@ -212,6 +212,11 @@ def test_evaluate_writes_summary_and_plots(run_dir):
     # trained on MJX's JAX implementation (the CPU's, recorded with the checkpoint), sampled on MJX's, asked
     # for by name (a shipped policy on the Warp backend: tests/test_backend.py)
     assert checkpoint.read_meta(checkpoint.latest(run_dir))["physics_backend"] == "jax"
+    # an earlier checkpoint by its step (a plateau check compares two), a step it never saved refused
+    first = int(checkpoint.list_checkpoints(run_dir)[0].name.split("_")[-1])
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--checkpoint", str(first)]) == 0
+    assert json.loads((run_dir / "eval" / "eval.json").read_text())["step"] == first
+    assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--checkpoint", str(first + 1)]) == 2
     assert main([str(run_dir), "--episodes", "2", "--steps", "12", "--stochastic", "--backend", "jax"]) == 0
     sampled = json.loads((run_dir / "eval" / "eval.json").read_text())
     assert sampled["policy"] == "stochastic" and sampled["episodes"] == 2 and sampled["mean_episode_steps"] > 0

@@ -1,8 +1,8 @@
 """Evaluate a trained run or a shipped policy on the device.
 
-``python -m train.evaluate RUN_DIR [--episodes N] [--video]``: loads the run's config and latest
-checkpoint and runs N episodes at once with the deterministic policy (its mean action;
-``--stochastic`` samples as in training; each env plays exactly one episode).
+``python -m train.evaluate RUN_DIR [--episodes N] [--checkpoint STEP] [--video]``: loads the run's config and
+latest checkpoint (or the one ``--checkpoint`` names) and runs N episodes at once with the deterministic
+policy (its mean action; ``--stochastic`` samples as in training; each env plays exactly one episode).
 ``python -m train.evaluate --policy NAME_OR_DIR [--episodes N] [--video]``: the same for a policy
 directory (``policies/<NAME>`` or a path; ``hsa_mjx/deploy/policy_file.py``), its env rebuilt from its
 ``policy.json`` and its network run from its ``policy.npz``; defaults sized for a CPU (4 episodes
@@ -117,6 +117,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=1,
         help="tiles of each random terrain type per difficulty, drawn from --terrain-seed (default 1); each "
         "episode plays one of them, so a cell's episodes spread over this many tiles",
+    )
+    parser.add_argument(
+        "--checkpoint",
+        default=None,
+        metavar="STEP_OR_DIR",
+        help="a run's checkpoint to evaluate: a step it saved (e.g. 26214400) or a checkpoint directory "
+        "(default: the newest readable one)",
     )
     parser.add_argument(
         "--video-cell",

@@ -24,6 +24,7 @@ from hsa_mjx.sim.backend import for_one_env
 from hsa_mjx.task.env import HSAEnv
 
 from ..config import TrainConfig, assignments
+from ..run import checkpoint
 from ..run.folder import portable
 from . import diagnostics, host_workers, terrain_eval
 from .failures import DEFAULT_RULE, FailureRule
@@ -68,6 +69,7 @@ class EvalSpec:
     terrain_seed: int | None = None
     tiles: int = 1
     workers: int = 1
+    checkpoint: str | None = None
     video_cell: tuple[str, float] | None = None
     stuck_window_s: float = DEFAULT_RULE.window_s
     stuck_distance_m: float = DEFAULT_RULE.stuck_m
@@ -110,6 +112,8 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         raise ValueError(f"--tiles must be between 1 and 256, got {args.tiles}")
     check_workers(args)
     if args.policy is not None:
+        if args.checkpoint is not None:
+            raise ValueError("--checkpoint picks one of a RUN_DIR's checkpoints: a policy directory holds one policy")
         if args.stochastic:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = policy_file.locate(args.policy)
@@ -126,6 +130,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         return config, env, policy, header, out
     config, env, policy, path, step = load_policy(
         Path(args.run_dir),
+        checkpoint_of(Path(args.run_dir), args.checkpoint),
         deterministic=not args.stochastic,
         backend=args.backend,
         num_envs=_episodes(args, False),
@@ -137,6 +142,18 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         **({"env_overrides": dict(args.overrides)} if args.overrides else {}),
     }
     return config, env, policy, header, Path(args.out) if args.out else Path(args.run_dir) / "eval"
+
+
+def checkpoint_of(run_dir: Path, which: str | None) -> Path | None:
+    """The checkpoint ``--checkpoint`` names: a path, or a step the run saved (``40`` is ``checkpoints/
+    step_000000000040``); None: the newest readable one. FileNotFoundError naming the saved steps."""
+    if which is None:
+        return None
+    path = checkpoint.checkpoint_dir(run_dir) / f"step_{int(which):012d}" if which.isdigit() else Path(which)
+    if not path.is_dir():
+        saved = [int(p.name.split("_")[-1]) for p in checkpoint.list_checkpoints(run_dir)]
+        raise FileNotFoundError(f"--checkpoint {which}: no checkpoint {path}; {run_dir} saved steps {saved}")
+    return path
 
 
 def check_workers(args: EvalSpec) -> None:
