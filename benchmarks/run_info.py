@@ -81,6 +81,20 @@ def run_info() -> dict[str, Any]:
     }
 
 
+def row_provenance(info: dict[str, Any]) -> dict[str, Any]:
+    """The fields of :func:`run_info` every result row carries (``gpu``: the device name)."""
+    return {
+        "gpu": info["device"],
+        "device_count": info["device_count"],
+        "backend": info["backend"],
+        "versions": info["versions"],
+        "date": info["date"],
+        "command": info["command"],
+        "git_commit": info.get("git_commit"),
+        "git_dirty": info.get("git_dirty"),
+    }
+
+
 def _module_name() -> str:
     """Dotted module name of the running script (``benchmarks.fidelity.guard``), or its path."""
     main = sys.modules.get("__main__")

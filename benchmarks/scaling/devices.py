@@ -46,7 +46,7 @@ import jax
 import numpy as np
 
 import benchmarks.scaling.report
-from benchmarks.run_info import run_info
+from benchmarks.run_info import row_provenance, run_info
 from benchmarks.speed import loops as throughput_loops
 from benchmarks.speed.report import slug
 from hsa_mjx.batch.auto_reset import AutoResetEnv
@@ -234,7 +234,7 @@ def measure_count(
         "num_envs": config.run.num_envs,
         "batch_size": config.ppo.batch_size,
         "iterations_per_epoch": args.iterations_per_epoch,
-        **benchmarks.scaling.report.provenance(info),
+        **row_provenance(info),
     }
     # PPO first: traced before anything else in the process, its epoch lowers to the trainer's program
     # text, so a persistent compilation cache filled by a training run serves it

@@ -15,20 +15,6 @@ RATES = (
 SPEEDUP_RATES = RATES[:2]
 
 
-def provenance(info: dict[str, Any]) -> dict[str, Any]:
-    """The fields of ``benchmarks.run_info.run_info()`` every row carries (``gpu``: the device name)."""
-    return {
-        "gpu": info["device"],
-        "device_count": info["device_count"],
-        "backend": info["backend"],
-        "versions": info["versions"],
-        "date": info["date"],
-        "command": info["command"],
-        "git_commit": info.get("git_commit"),
-        "git_dirty": info.get("git_dirty"),
-    }
-
-
 def with_speedups(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Rows with ``speedup_<rate>`` and ``efficiency_<rate>`` relative to the fewest devices measuring it."""
     out = [dict(r) for r in rows]

@@ -51,7 +51,7 @@ import benchmarks.speed.report
 import hsa_mjx
 import hsa_mjx.sim.backend
 from benchmarks.fidelity.guard import SETTINGS, SHIPPED_BY_SCENE
-from benchmarks.run_info import run_info
+from benchmarks.run_info import row_provenance, run_info
 from benchmarks.speed.loops import (
     CEILING_FIELDS,
     Timed,
@@ -370,20 +370,6 @@ def steps_for(batch: int, steps: int | None) -> int:
     return steps if steps else max(2, min(20, ENV_STEPS_PER_CALL // batch))
 
 
-def _row_meta(info: dict[str, Any]) -> dict[str, Any]:
-    """The provenance fields every row carries."""
-    return {
-        "gpu": info["device"],
-        "device_count": info["device_count"],
-        "backend": info["backend"],
-        "versions": info["versions"],
-        "date": info["date"],
-        "command": info["command"],
-        "git_commit": info.get("git_commit"),
-        "git_dirty": info.get("git_dirty"),
-    }
-
-
 def run_matrix(args: argparse.Namespace, info: dict[str, Any], out: Callable[[list], None]) -> list[dict]:
     """Measure every (backend, terrain, setting, batch) until the time budget runs out; write after each row."""
     rows = benchmarks.speed.report.load_rows(args.out_dir / f"{args.stem}.json") if args.append else []
@@ -432,7 +418,7 @@ def _row(
         "full_step_note": note,
         **measured,
         **baseline,
-        **_row_meta(info),
+        **row_provenance(info),
     }
     fmt = benchmarks.speed.report.fmt
     print(
