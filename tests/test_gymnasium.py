@@ -137,3 +137,42 @@ def test_render_works_headless_with_mujoco_gl_unset(tmp_path):
     )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split("\n")[-2] == "egl (48, 64, 3) uint8 1", out.stdout
+
+
+def test_packed_state_round_trips_and_refuses_another_layout():
+    """One buffer per dtype and back, inside jit and on the host; a leaf of another shape is refused."""
+    import jax
+    import jax.numpy as jnp
+
+    from hsa_mjx.adapters.packed import Packing
+
+    tree = {"a": jnp.arange(6.0).reshape(2, 3), "b": (jnp.int32(4), jnp.array([True, False])), "c": jnp.ones(())}
+    layout = Packing(jax.eval_shape(lambda: tree))
+    assert [str(d) for d in layout.dtypes] == ["bool", "float32", "int32"] and layout.sizes == (2, 7, 1)
+    back = jax.jit(lambda t: layout.unpack(layout.pack(t)))(tree)
+    host = layout.unpack(layout.pack(jax.device_get(tree), np))
+    for got in (back, host):
+        assert jax.tree.all(jax.tree.map(lambda x, y: np.array_equal(x, y) and x.dtype == y.dtype, got, tree))
+    with pytest.raises(ValueError, match="shape"):
+        layout.pack({**tree, "a": jnp.zeros(3)})
+
+
+def test_c_physics_step_is_the_envs_own_step(gym_env):
+    """The Gymnasium env's C MuJoCo step (two jitted halves around the host's substeps) plays exactly the
+    env's ``step`` (its substeps through a callback) from the same state."""
+    import jax
+
+    env = gym_env.unwrapped
+    assert env.env.physics_backend == "c"
+    gym_env.reset(seed=5)
+    state, step = env.state, jax.jit(env.env.step)
+    rng = np.random.default_rng(1)
+    for _ in range(4):
+        action = rng.uniform(-1, 1, 8).astype(np.float32)
+        obs, reward, *_ = gym_env.step(action)
+        state = step(state, action)
+        np.testing.assert_array_equal(obs, np.asarray(state.obs))
+        assert reward == float(state.reward)
+    np.testing.assert_array_equal(
+        np.asarray(env.state.pipeline_state.physics.qpos), np.asarray(state.pipeline_state.physics.qpos)
+    )

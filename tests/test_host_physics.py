@@ -143,8 +143,8 @@ def test_ended_episodes_run_no_c_substeps_and_play_the_same():
 
     env = hsa_mjx.make_env("flat", physics__backend="c", max_episode_steps=3)
     host, played = env.host_physics, []
-    run = host._run
-    host._run = lambda shapes, names, idle, *arrays: played.append(not idle) or run(shapes, names, idle, *arrays)
+    run = host.run
+    host.run = lambda idle, *args: played.append(not idle) or run(idle, *args)
     every = HostPhysics(env.robot.mj_model, env.index)
     keys, goals = jax.random.split(jax.random.PRNGKey(2), 2), jnp.array([1.5, 1.8])
     policy = lambda obs, key: (jnp.full(8, 0.5), {})  # noqa: E731

@@ -229,7 +229,7 @@ def test_gymnasium_renders_each_episodes_own_terrain():
         for seed in range(6):
             env.reset(seed=seed)
             frames.append(env.render())
-            state = env.unwrapped._state
+            state = env.unwrapped.state
             poles.append(TERRAIN_TYPES[int(state.pipeline_state.task.terrain_id)] == "poles")
             drawn = env.unwrapped._renderer._data.mocap_pos[env.unwrapped.env.index.terrain_mocap]
             np.testing.assert_allclose(

@@ -22,6 +22,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hsa_mjx.adapters.checks import check_actions
+from hsa_mjx.adapters.packed import Packing
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.backend import one_env_config
@@ -54,9 +55,9 @@ def pick_camera(camera: str | int | None, overrides: dict[str, Any]) -> str | in
     return next(iter(given.values()), None)
 
 
-def _with_outputs(state: EnvState) -> tuple[EnvState, dict[str, Any]]:
-    """The state and what a Gymnasium step returns from it (fetched from the device in one call)."""
-    return state, {
+def _outputs(state: EnvState) -> dict[str, Any]:
+    """What a Gymnasium step returns from a state (fetched from the device in one call)."""
+    return {
         "obs": state.obs,
         "reward": state.reward,
         "done": state.done,
@@ -138,10 +139,8 @@ class HSAGymEnv(gymnasium.Env):
         self.metadata = dict(self.metadata, render_fps=int(round(1.0 / self.env.dt)))
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.env.observation_size,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (self.env.action_size,), np.float32)
-        self._reset_fn = jax.jit(self.env.reset)
-        self._step_fn = jax.jit(lambda state, action: _with_outputs(self.env.step(state, action)))
-        self._goal_fn = jax.jit(self.env.set_goal)
-        self._state: EnvState | None = None
+        self._compile()
+        self._buffers: tuple[jax.Array, ...] | None = None
         self._width, self._height = width, height
         self._renderer: StateRenderer | None = None
 
@@ -149,27 +148,30 @@ class HSAGymEnv(gymnasium.Env):
         """Start an episode; the same ``seed`` gives the same episode."""
         super().reset(seed=seed)
         key = episode_key(seed if seed is not None else int(self.np_random.integers(0, 2**31 - 1)))
-        state = self._reset_fn(key)
         options = dict(options or {})
-        if "goal" in options:
-            goal = np.asarray(options.pop("goal"), np.float32)
+        goal = options.pop("goal", None)
+        if goal is not None:
+            goal = np.asarray(goal, np.float32)
             if goal.shape != (2,) or not np.all(np.isfinite(goal)):
                 raise ValueError(f"options['goal'] must be a finite (x, y) pair, got {goal!r}")
-            state = self._goal_fn(state, jnp.asarray(goal))
         if options:
             raise ValueError(f"unknown reset option(s) {sorted(options)}; valid options: ['goal']")
-        self._state = state
+        buffers, out = self._reset_fn(key)
+        if goal is not None:
+            buffers, out = self._goal_fn(buffers, jnp.asarray(goal))
+        self._buffers = buffers
+        out = self._outputs.unpack(jax.device_get(out))
         if self.render_mode == "human":
             self.render()
-        return np.asarray(state.obs, np.float32), self._info(jax.device_get(_with_outputs(state)[1]))
+        return np.asarray(out["obs"], np.float32), self._info(out)
 
     def step(self, action):
         """Apply one normalised action of shape (8,) in [-1, 1]."""
-        if self._state is None:
+        if self._buffers is None:
             raise RuntimeError("call reset() before step()")
         action = check_actions(action, self.action_space.shape)
-        self._state, out = self._step_fn(self._state, action)
-        out = jax.device_get(out)  # one transfer for everything the caller gets
+        self._buffers, out = self._step_fn(self._buffers, action)
+        out = self._outputs.unpack(jax.device_get(out))  # one transfer per dtype for everything returned
         truncated = bool(out["truncation"] > 0)
         terminated = bool(out["done"] > 0) and not truncated
         if self.render_mode == "human":
@@ -178,7 +180,7 @@ class HSAGymEnv(gymnasium.Env):
 
     @staticmethod
     def _info(out: dict[str, Any]) -> dict[str, Any]:
-        """The step's ``info`` from the host copy of ``_with_outputs``."""
+        """The step's ``info`` from the host copy of ``_outputs``."""
         metrics = {k: float(v) for k, v in out["metrics"].items()}
         info: dict[str, Any] = {k: v for k, v in metrics.items() if k.startswith("reward/")}
         info["termination_reasons"] = [r for r in REASONS if metrics[f"termination/{r}"] > 0]
@@ -193,17 +195,84 @@ class HSAGymEnv(gymnasium.Env):
         if self.render_mode is None:
             gymnasium.logger.warn("render() called without a render_mode; pass render_mode= to make()")
             return None
-        if self._state is None:
+        if self._buffers is None:
             raise RuntimeError("call reset() before render()")
         if self._renderer is None:
             self._renderer = StateRenderer(self.env, self.render_mode, self._width, self._height, self._camera)
-        return self._renderer.render(self._state)
+        return self._renderer.render(self.state)
+
+    @property
+    def state(self) -> EnvState | None:
+        """The env's current state (host copies of its arrays; None before ``reset``)."""
+        return None if self._buffers is None else self._layout.unpack(jax.device_get(self._buffers))
+
+    def _compile(self) -> None:
+        """The jitted reset, step and goal placement over packed states (``hsa_mjx.adapters.packed``):
+        each takes and returns one buffer per dtype instead of the state's ~150 arrays."""
+        env = self.env
+        shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+        self._layout = layout = Packing(shapes)
+        self._outputs = Packing(jax.eval_shape(_outputs, shapes))
+
+        def packed(state: EnvState) -> tuple[tuple[jax.Array, ...], tuple[jax.Array, ...]]:
+            return layout.pack(state), self._outputs.pack(_outputs(state))
+
+        self._reset_fn = jax.jit(lambda key: packed(env.reset(key)))
+        self._goal_fn = jax.jit(lambda buffers, goal: packed(env.set_goal(layout.unpack(buffers), goal)))
+        if env.host_physics is None:
+            self._step_fn = jax.jit(lambda buffers, action: packed(env.step(layout.unpack(buffers), action)))
+        else:
+            self._step_fn = HostStep(env, layout, shapes, packed)
 
     def close(self) -> None:
         """Release the renderer and viewer."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class HostStep:
+    """One step of a ``physics.backend: c`` env as two jitted halves around its C MuJoCo substeps.
+
+    The env's ``step`` runs the substeps through a ``jax.pure_callback``, which costs more than the
+    substeps themselves for one env. Here the first half (``HSAEnv.before_physics``) returns what the
+    substeps read, the host runs them (``HostPhysics.run``) and the second half
+    (``HSAEnv.after_physics``) takes what they return: the same code as ``step``, no callback.
+    """
+
+    def __init__(self, env: HSAEnv, layout: Packing, shapes: EnvState, packed: Any):
+        host, data = env.host_physics, shapes.pipeline_state.physics
+        self._run, self._shapes = host.run, host.output_shapes(data)
+
+        def first(buffers: tuple, action: jax.Array) -> tuple:
+            state, call = env.before_physics(layout.unpack(buffers), action)
+            return layout.pack(state), self._middle.pack(self._mid(host, call))
+
+        def second(buffers: tuple, middle: tuple, out: tuple) -> tuple:
+            state = layout.unpack(buffers)
+            call, _ = self._middle.unpack(middle)
+            call = call.replace(data=state.pipeline_state.physics)
+            return packed(env.after_physics(state, call, *host.outputs(call.data, self._out.unpack(out))))
+
+        action = jax.ShapeDtypeStruct((env.action_size,), jnp.float32)
+        call = jax.eval_shape(env.before_physics, shapes, action)[1]
+        self._middle = Packing(jax.eval_shape(lambda c: self._mid(host, c), call))
+        self._names = tuple(call.fields)
+        self._out = Packing(self._shapes)
+        self._first, self._second = jax.jit(first), jax.jit(second)
+
+    @staticmethod
+    def _mid(host: Any, call: Any) -> tuple:
+        """What passes between the halves: the call without its data (the state holds it) and the
+        substeps' inputs."""
+        return call.replace(data=None), host.inputs(call.data, call.targets, call.fields)
+
+    def __call__(self, buffers: tuple, action: jax.Array) -> tuple:
+        """(the packed state after one step, the packed outputs), as the env's jitted ``step`` gives them."""
+        buffers, middle = self._first(buffers, action)
+        _, inputs = self._middle.unpack(jax.device_get(middle))
+        out = self._run(False, self._names, self._shapes, *inputs)
+        return self._second(buffers, middle, self._out.pack(out, np))
 
 
 from_registry.metadata = HSAGymEnv.metadata  # what gymnasium.make reads from an entry point (render modes)

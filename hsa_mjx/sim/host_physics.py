@@ -77,23 +77,39 @@ class HostPhysics:
         longest one's."""
         fields = fields or {}
         idle = jnp.zeros((), bool) if idle is None else jnp.asarray(idle, bool)
-        inputs = [idle] + [getattr(data, name) for name in STATE_IN] + [targets] + list(fields.values())
-        shapes = tuple(
-            jax.ShapeDtypeStruct(getattr(data, name).shape, getattr(data, name).dtype) for name in STATE_OUT
-        ) + (jax.ShapeDtypeStruct((4,), jnp.float32),)
-        names = tuple(fields)
-        *out, stats = jax.pure_callback(
-            lambda *a: self._run(shapes, names, *a), shapes, *inputs, vmap_method="sequential"
+        names, shapes = tuple(fields), self.output_shapes(data)
+        out = jax.pure_callback(
+            lambda i, *a: self.run(bool(i), names, shapes, *a),
+            shapes,
+            idle,
+            *self.inputs(data, targets, fields),
+            vmap_method="sequential",
         )
-        new = data.replace(**dict(zip(STATE_OUT, out)))
+        return self.outputs(data, out)
+
+    @staticmethod
+    def inputs(data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array]) -> tuple[jax.Array, ...]:
+        """What the substeps read (traceable): the state fields ``STATE_IN``, the targets, the model fields."""
+        return tuple(getattr(data, name) for name in STATE_IN) + (targets,) + tuple(fields.values())
+
+    @staticmethod
+    def output_shapes(data: mjx.Data) -> tuple[jax.ShapeDtypeStruct, ...]:
+        """Shapes and dtypes of what :meth:`run` returns: the fields ``STATE_OUT`` of ``data``, then the stats."""
+        fields = tuple(jax.ShapeDtypeStruct(getattr(data, n).shape, getattr(data, n).dtype) for n in STATE_OUT)
+        return fields + (jax.ShapeDtypeStruct((4,), jnp.float32),)
+
+    @staticmethod
+    def outputs(data: mjx.Data, out: tuple[jax.Array, ...]) -> tuple[mjx.Data, SubstepStats]:
+        """The new data and stats from what :meth:`run` returned (traceable)."""
+        *fields, stats = out
+        new = data.replace(**dict(zip(STATE_OUT, fields)))
         return new, SubstepStats(
             max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0, final_abs_qacc=stats[3]
         )
 
-    def _run(self, shapes: tuple, names: tuple[str, ...], *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Host side: load the model fields and state, step (unless idle), return the fields (the env's
-        shapes and dtypes) and the stats."""
-        idle, arrays = bool(arrays[0]), arrays[1:]
+    def run(self, idle: bool, names: tuple[str, ...], shapes: tuple, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Host side: load the model fields ``names`` and the state (:meth:`inputs`), step (unless idle),
+        return the fields ``STATE_OUT`` and the stats in ``shapes`` (:meth:`output_shapes`)."""
         state, targets, values = arrays[: len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1 :]
         for name, value in zip(names, values):
             np.copyto(getattr(self.model, name), np.asarray(value, np.float64))
@@ -104,17 +120,17 @@ class HostPhysics:
             else:
                 np.copyto(getattr(d, name), np.asarray(value, np.float64).reshape(getattr(d, name).shape))
         counts = [d.warning[w].number for w in _BAD]
-        steps = 0 if idle else len(targets)
-        qvel, qacc = np.zeros(max(steps, 1)), np.zeros(max(steps, 1))
-        for i, target in enumerate(np.asarray(targets, np.float64)[:steps]):
+        targets = np.asarray(targets, np.float64)[: 0 if idle else len(targets)]
+        qvel, qacc = np.zeros((max(len(targets), 1), self.model.nv)), np.zeros((max(len(targets), 1), self.model.nv))
+        for i, target in enumerate(targets):
             servo.write_controls(self.model, d, self.index, self.motors, target)
             mujoco.mj_step(self.model, d)
-            qvel[i], qacc[i] = np.abs(d.qvel).max(), np.abs(d.qacc).max()  # a NaN stays a NaN
+            qvel[i], qacc[i] = d.qvel, d.qacc
+        qvel, qacc = np.abs(qvel).max(axis=1), np.abs(qacc).max(axis=1)  # per substep; a NaN stays a NaN
         reset = any(d.warning[w].number > c for w, c in zip(_BAD, counts))  # C MuJoCo reset a bad state
         bad = reset or not (np.isfinite(qvel).all() and np.isfinite(qacc).all() and np.isfinite(d.qpos).all())
-        qvel, qacc = np.nan_to_num(qvel), np.nan_to_num(qacc)
+        if bad:  # finite stats for the termination rules (the state is discarded)
+            qvel, qacc = np.nan_to_num(qvel), np.nan_to_num(qacc)
         stats = np.array([qvel.max(), qacc.max(), float(bad), qacc[-1]], np.float32)
-        outs = tuple(
-            np.asarray(getattr(d, name), shape.dtype).reshape(shape.shape) for name, shape in zip(STATE_OUT, shapes)
-        )
+        outs = tuple(np.asarray(getattr(d, n), s.dtype).reshape(s.shape) for n, s in zip(STATE_OUT, shapes))
         return outs + (stats,)

@@ -37,7 +37,7 @@ from hsa_mjx.task import (
 from hsa_mjx.task.metrics import step_metrics
 from hsa_mjx.task.observer import Observer
 from hsa_mjx.task.params import EnvParams
-from hsa_mjx.task.types import EnvState, SimState, TaskState
+from hsa_mjx.task.types import EnvState, PhysicsCall, SimState, TaskState
 from hsa_mjx.terrain.world import TerrainWorld
 
 GOAL_MARKER_Z = 0.1
@@ -278,6 +278,12 @@ class HSAEnv(BraxEnv):
         (data, SubstepStats)`` runs the substeps with this episode's randomised model fields
         (``hsa_mjx.task.randomization.model_fields``; e.g. ``hsa_mjx.sim.host_physics``: C MuJoCo for
         one env on a CPU); control, observation, reward and termination are this env's own."""
+        state, call = self.before_physics(state, action)
+        return self.after_physics(state, call, *simulate(call.data, call.targets, call.fields))
+
+    def before_physics(self, state: EnvState, action: jax.Array) -> tuple[EnvState, PhysicsCall]:
+        """``step_with``'s first half: the action sanitised and delayed, a push, the substeps' targets and
+        model fields. A host may run the substeps between two jitted halves (``hsa_mjx.adapters.gymnasium``)."""
         cfg, idx = self.config, self.index
         action, bad_action = control.sanitize_action(jnp.asarray(action, jnp.float32))
         state, data, applied = self._randomize_before_physics(state, action)
@@ -287,8 +293,7 @@ class HSAEnv(BraxEnv):
         before = (observation.robot_xy(data, idx), observation.heading(data, idx))
         scales = state.pipeline_state.task.randomization.physics
         fields = randomization.model_fields(self._nominal, scales, cfg.randomization)
-        new_data, stats = simulate(data, targets, fields)
-        return self._outcome(state, action, bad_action, before, new_data, stats)
+        return state, PhysicsCall(data, targets, fields, action, bad_action, before)
 
     def _simulate(self, data: mjx.Data, targets: jax.Array, fields: dict) -> tuple[mjx.Data, physics.SubstepStats]:
         """The substeps on this env's physics (MJX's JAX or Warp implementation, or C MuJoCo), with
@@ -313,17 +318,12 @@ class HSAEnv(BraxEnv):
             task, data = task.replace(rng=rng, randomization=drawn), data.replace(qvel=qvel)
         return state.replace(pipeline_state=SimState(data, task)), data, applied
 
-    def _outcome(
-        self,
-        state: EnvState,
-        action: jax.Array,
-        bad_action: jax.Array,
-        before: tuple,
-        new_data: mjx.Data,
-        stats: physics.SubstepStats,
+    def after_physics(
+        self, state: EnvState, call: PhysicsCall, new_data: mjx.Data, stats: physics.SubstepStats
     ) -> EnvState:
-        """Everything after the physics: goal, observation, termination, reward, metrics."""
-        cfg, idx = self.config, self.index
+        """``step_with``'s second half, everything after the physics: goal, observation, termination,
+        reward, metrics."""
+        cfg, idx, action, before = self.config, self.index, call.action, call.before
         task, data = state.pipeline_state.task, state.pipeline_state.physics
         after = observation.robot_xy(new_data, idx)
         task, collected, completed = self.progress.advance_checkpoint(task, after)
@@ -343,7 +343,7 @@ class HSAEnv(BraxEnv):
             prev_action=action, prev_joint_vel=inputs.joint_vel, prev_distance=distance, step_count=steps
         )
         new_data, obs, total = self._sanitize(data, new_data, obs, total, reasons["non_finite"])
-        metrics = step_metrics(components, reasons, bad_action, distance, task.checkpoint_index)
+        metrics = step_metrics(components, reasons, call.bad_action, distance, task.checkpoint_index)
         info = dict(state.info, truncation=truncated.astype(jnp.float32))
         if critic is not None:
             info["privileged_obs"] = jnp.where(jnp.isfinite(critic), critic, 0.0)

@@ -50,3 +50,17 @@ class EnvState(BraxState):
     (named reward components, termination reasons, counters), ``info`` (``truncation``: 1.0 when
     the episode hit ``max_episode_steps``).
     """
+
+
+@struct.dataclass
+class PhysicsCall:
+    """One env step's physics, as its first half (``HSAEnv.before_physics``) leaves it: the substeps run
+    ``targets`` (frame_skip, 8) from ``data`` with this episode's model ``fields``; the rest is what the
+    second half (``HSAEnv.after_physics``) reads from before them."""
+
+    data: mjx.Data
+    targets: jax.Array
+    fields: dict[str, jax.Array]
+    action: jax.Array  # (8,) the sanitised action
+    bad_action: jax.Array  # () bool, the action had a non-finite entry
+    before: tuple[jax.Array, jax.Array]  # the robot's xy and heading before the substeps
