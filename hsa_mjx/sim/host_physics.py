@@ -3,7 +3,9 @@
 MJX's JAX implementation is built for thousands of envs at once; one env on a CPU pays XLA's
 per-op cost on every substep, and C MuJoCo steps the same compiled model several times faster
 (``python -m benchmarks.speed.single_env``; docs/speed.md). :class:`HostPhysics` runs the ``frame_skip`` substeps of
-``HSAEnv.step_with`` through ``jax.pure_callback`` on a C ``MjData``: the state goes in through
+``HSAEnv.step_with`` on a C ``MjData``, through ``jax.pure_callback`` inside a jitted step (a batch), or
+:meth:`HostPhysics.run` called between the step's two jitted halves (the Gymnasium env, no callback: its
+``HostStep``). The state goes in through
 public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, the solver warm start,
 ``time``) and comes back through the fields the env reads (positions, orientations, ``qacc``,
 ``sensordata``), so the control law, observation, reward and termination are exactly the env's.
