@@ -27,7 +27,7 @@ from hsa_mjx.terrain import (
     to_hfield_data,
 )
 from hsa_mjx.terrain.generators import pole_centres
-from hsa_mjx.terrain.sampler import apply_flat_spawn, spawn_level
+from hsa_mjx.terrain.sampler import apply_flat_spawn, spawn_plane
 
 GRID = Grid()  # the asset's 50 x 50 vertices over 10 x 10 m, z scale 0.5 m
 D = TerrainConfig()
@@ -126,25 +126,30 @@ def test_layout_and_lookup_match_mujoco_ray_casts():
 @pytest.mark.parametrize(
     "terrain_type", ["wavy", "perlin", "stairs", "incline", "craters", "poles", "flat_with_incline", "flat_with_ramp"]
 )
-def test_spawn_zone_is_flat(terrain_type):
+def test_spawn_zone_is_level_or_follows_an_incline(terrain_type):
     config = _single(terrain_type)
     heights, _ = TerrainSampler(config, GRID).heights(jax.random.PRNGKey(4))
     x, y = GRID.mesh()
     zone = np.hypot(x, y) <= config.flat_spawn.radius * 2 * GRID.half_x
-    level = spawn_level(terrain_type, config.params(terrain_type), GRID, config.flat_spawn)
-    np.testing.assert_allclose(np.asarray(heights)[zone], level, atol=1e-6)
+    plane = spawn_plane(terrain_type, config.params(terrain_type), GRID, config.flat_spawn)
+    level, slope_x, slope_y = np.asarray(plane)
+    follows = terrain_type in ("incline", "flat_with_incline", "flat_with_ramp")  # planes under the whole zone
+    expected = level + slope_x * x + slope_y * y if follows else np.full_like(x, level)
+    np.testing.assert_allclose(np.asarray(heights)[zone], expected[zone], atol=1e-5)
     assert zone.sum() >= 49  # at least the original's 49 levelled cells
 
 
-def test_spawn_zone_keeps_an_incline_a_landing_and_blends_out():
+def test_spawn_zone_leaves_an_incline_through_it_without_a_step():
     config = _single("flat_with_incline")
-    level = spawn_level("flat_with_incline", config.flat_with_incline, GRID, config.flat_spawn)
-    assert level == pytest.approx(2.0 * math.tan(math.radians(1.92)), rel=1e-4)  # not a pit at 0
+    plane = spawn_plane("flat_with_incline", config.flat_with_incline, GRID, config.flat_spawn)
+    rise = math.tan(math.radians(1.92))
+    np.testing.assert_allclose(np.asarray(plane), [2.0 * rise, rise, 0.0], rtol=1e-3, atol=1e-6)  # not a pit at 0
     raw = generate("flat_with_incline", None, config.flat_with_incline, GRID)
-    out = np.asarray(apply_flat_spawn(raw, GRID, config.flat_spawn, jnp.asarray(level)))
-    x, y = GRID.mesh()
-    far = np.hypot(x, y) > 1.2 * 0.85 + 1e-3
-    np.testing.assert_array_equal(out[far], np.asarray(raw)[far])
+    out = np.asarray(apply_flat_spawn(raw, GRID, config.flat_spawn, plane))
+    np.testing.assert_allclose(out, np.asarray(raw), atol=1e-5)  # a level landing would leave a step at its rim
+    level = jnp.asarray([plane[0], 0.0, 0.0])  # a level landing: its uphill rim over 3x as steep as the slope
+    landing = np.asarray(apply_flat_spawn(raw, GRID, config.flat_spawn, level))
+    assert np.max(np.diff(landing, axis=1)) > 3.0 * rise * GRID.spacing_x
 
 
 def test_stairs_are_monotone_steps_of_the_requested_height():

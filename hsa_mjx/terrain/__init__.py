@@ -34,7 +34,7 @@ from hsa_mjx.terrain.params import (
     check_type,
     validate_terrain,
 )
-from hsa_mjx.terrain.sampler import TerrainSampler, apply_flat_spawn, generate, spawn_level
+from hsa_mjx.terrain.sampler import TerrainSampler, apply_flat_spawn, generate, spawn_plane
 
 __all__ = [
     "TERRAIN_TYPES",
@@ -43,7 +43,7 @@ __all__ = [
     "generate",
     "TerrainSampler",
     "apply_flat_spawn",
-    "spawn_level",
+    "spawn_plane",
     "surface_height",
     "to_hfield_data",
     "TerrainConfig",

@@ -19,6 +19,8 @@ from hsa_mjx.terrain.params import (
 )
 
 SPAWN_BLEND = 1.2  # the zone blends back into the terrain between radius and 1.2 x radius
+PLANE_STEP = 0.05  # m: the central differences that give the terrain's slope at the zone centre
+PLANAR = 0.005  # m: the terrain under the zone lies on its tangent plane within this: the zone follows the plane
 
 
 def generate(
@@ -43,27 +45,40 @@ def generate(
     return GENERATORS[terrain_type](key, params, grid, x, y, difficulty).astype(jnp.float32)
 
 
-def spawn_level(
+def spawn_plane(
     terrain_type: str, params: Any, grid: Grid, spawn: FlatSpawnConfig, difficulty: float | jax.Array = 1.0
 ) -> jax.Array:
-    """Height the spawn zone is levelled to: the terrain's own height at the zone centre for the
-    deterministic types (an incline or ramp under the spawn becomes a landing, not a pit), the
-    base level 0 for the random ones (their obstacles are removed, as the original did)."""
+    """The terrain's tangent plane at the spawn zone's centre, (height, slope along x, slope along y), for
+    the deterministic types (slopes: central differences over ``PLANE_STEP``); level 0 for the random
+    ones, whose obstacles the zone removes as the original did. :func:`apply_flat_spawn` follows it where
+    the terrain under the zone is that plane (an incline), else levels the zone at its height."""
     if terrain_type in RANDOM_TYPES:
-        return jnp.zeros((), jnp.float32)
+        return jnp.zeros((3,), jnp.float32)
     cx, cy = grid.fraction_to_x(spawn.center[0]), grid.fraction_to_y(spawn.center[1])
-    return point_height(GENERATORS[terrain_type], params, grid, cx, cy, difficulty)
+    fn, h = GENERATORS[terrain_type], PLANE_STEP
+
+    def at(x: float, y: float) -> jax.Array:
+        return point_height(fn, params, grid, x, y, difficulty)
+
+    slope_x = (at(cx + h, cy) - at(cx - h, cy)) / (2.0 * h)
+    slope_y = (at(cx, cy + h) - at(cx, cy - h)) / (2.0 * h)
+    return jnp.stack([at(cx, cy), slope_x, slope_y]).astype(jnp.float32)
 
 
-def apply_flat_spawn(heights: jax.Array, grid: Grid, spawn: FlatSpawnConfig, level: jax.Array) -> jax.Array:
-    """Level a disc of ``spawn.radius`` (fraction of the field width) at ``level``, blending back
-    into the terrain linearly out to 1.2 x the radius."""
+def apply_flat_spawn(heights: jax.Array, grid: Grid, spawn: FlatSpawnConfig, plane: jax.Array) -> jax.Array:
+    """Level a disc of ``spawn.radius`` (fraction of the field width), blending back into the terrain
+    linearly out to 1.2 x the radius: to ``plane`` (height, slope x, slope y at the centre:
+    :func:`spawn_plane`) where the terrain under the blended disc lies on it within ``PLANAR`` (an incline
+    passes through unchanged), else to the plane's height, level (stairs, waves, obstacles)."""
     radius = spawn.radius * 2.0 * grid.half_x
     if not spawn.enabled or radius <= 0.0:
         return heights
     x, y = vertex_mesh(grid)
-    d = jnp.hypot(x - grid.fraction_to_x(spawn.center[0]), y - grid.fraction_to_y(spawn.center[1]))
-    blend = jnp.clip((d - radius) / ((SPAWN_BLEND - 1.0) * radius), 0.0, 1.0)
+    dx, dy = x - grid.fraction_to_x(spawn.center[0]), y - grid.fraction_to_y(spawn.center[1])
+    tilted = plane[0] + plane[1] * dx + plane[2] * dy
+    blend = jnp.clip((jnp.hypot(dx, dy) - radius) / ((SPAWN_BLEND - 1.0) * radius), 0.0, 1.0)
+    planar = jnp.max(jnp.where(blend < 1.0, jnp.abs(heights - tilted), 0.0)) <= PLANAR
+    level = jnp.where(planar, tilted, plane[0])
     return jnp.where(blend < 1.0, level + (heights - level) * blend, heights)
 
 
@@ -90,7 +105,7 @@ class TerrainSampler:
 
         def branch(key: jax.Array, difficulty: jax.Array) -> jax.Array:
             heights = generate(terrain_type, key, params, grid, difficulty)
-            return apply_flat_spawn(heights, grid, spawn, spawn_level(terrain_type, params, grid, spawn, difficulty))
+            return apply_flat_spawn(heights, grid, spawn, spawn_plane(terrain_type, params, grid, spawn, difficulty))
 
         return branch
 
