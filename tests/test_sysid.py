@@ -61,6 +61,7 @@ def test_the_rig_holds_the_blocks_and_reads_late_as_a_tracker_does():
 def test_the_fit_lowers_the_error_from_the_data_sheet_figures_and_measures_each_figures_pull(tmp_path, monkeypatch):
     monkeypatch.setattr(fit, "POLISH_STEPS", 1)  # one derivative and no scans: the search's parts, not its length
     monkeypatch.setattr(fit, "SCANS", 0)
+    monkeypatch.setattr(fit, "REFINE_GENERATIONS", 1)
     truth = dataclasses.replace(
         CONFIG, servo=dataclasses.replace(CONFIG.servo, stall_torque=0.7, no_load_speed=8.0, damping=0.02)
     )
@@ -107,3 +108,30 @@ def test_the_polish_searches_along_the_valley_of_equal_motor_damping():
     assert moved.stall_torque / moved.no_load_speed + moved.damping == pytest.approx(
         servo.stall_torque / servo.no_load_speed + servo.damping
     )
+
+
+def test_the_last_stage_walks_a_long_valley_and_holds_the_dead_band():
+    """``refine`` on a made-up error (quadratic in the search's coordinates, long along friction's): the
+    error falls, friction comes most of the way back, the dead band is not moved."""
+    search = fit.Search(fit.at_supply(CONFIG.servo), valley=True)
+    centre = np.append(search.vector(search.start), 20.0)
+    curvature = np.array([1e4, 1e4, 1e4, 1.0, 1e4, 1.0, 1e4, 1e2]) * 1e-6  # friction: 1e4 times looser
+
+    def error(servos, latencies):
+        moves = [np.append(search.vector(s), t / fit.LATENCY_UNIT) - centre for s, t in zip(servos, latencies)]
+        return [(1e-4 + float(m @ (curvature * m)), t) for m, t in zip(moves, latencies)]
+
+    friction, deadband = fit.FITTED.index("friction"), fit.FITTED.index("deadband")
+    start = centre + 0.05 * np.eye(len(centre))[friction] + 0.01 * np.eye(len(centre))[deadband]
+    loss = error([search.servo(start[:-1])], [start[-1] * fit.LATENCY_UNIT])[0][0]
+    end, end_loss = fit.refine(search, start, loss, np.diag(curvature * 1e6), error)
+    assert end_loss < loss and abs(end[friction] - centre[friction]) < 0.02
+    assert end[deadband] == pytest.approx(start[deadband])
+
+
+def test_the_recovery_merges_rows_of_separate_runs_one_per_robot_in_profile_order():
+    from benchmarks.robots.sysid_recovery import merged
+
+    rows = merged(merged([], {"robot": "st3215", "n": 1}), {"robot": "dfr05sr", "n": 1})
+    rows = merged(rows, {"robot": "st3215", "n": 2})
+    assert [(r["robot"], r["n"]) for r in rows] == [("dfr05sr", 1), ("st3215", 2)]

@@ -4,7 +4,9 @@ For each robot profile: a "true" servo (the profile's figures moved by ``TRUTH``
 does not start at the answer), its 60 s log made by the rig (``hsa_mjx.sysid synth``: tracker noise
 and latency), then the fit from the profile's own figures (``hsa_mjx.sysid fit``). Each figure's
 relative error (``rel_error``; the absolute error where the truth is 0), the fit's own 95 % bound on
-it and whether the log pins it down, and the recovered latency go to ``--out`` (JSON and Markdown).
+it and whether the log pins it down, and the recovered latency go to ``--out`` (JSON and Markdown), each
+row with its run's provenance. ``--robots R --merge`` fits some profiles and keeps the other rows of
+``--out``: the profiles can be fitted in separate runs (each about 5 min on 16 cores, 30-40 on 2).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchmarks.run_info import report, run_info
+from benchmarks.run_info import report, row_provenance, run_info
 from hsa_mjx.config import get_preset, with_overrides
 from hsa_mjx.sysid import fit as fitting
 from hsa_mjx.sysid.rig import synthesize
@@ -124,6 +126,14 @@ def diagnosis(row: dict, config, log, truth) -> dict:
     }
 
 
+def run_note(row: dict) -> str:
+    """Where and how a row was fitted (rows of merged runs differ), or nothing for a row without it."""
+    if "run" not in row:
+        return ""
+    run = row["run"]
+    return f" on {run['cpu_count']} CPU cores ({run['date'][:10]}, `{run['command']}`)"
+
+
 def markdown(rows: list[dict], info: dict) -> str:
     """The result as a table per profile."""
     out = [f"# Servo fit recovery ({info['date'][:10]}, {info['cpu_count']} CPU cores)", "", f"`{info['command']}`", ""]
@@ -133,7 +143,7 @@ def markdown(rows: list[dict], info: dict) -> str:
             f"## {row['robot']} ({row['model']}): {verdict}",
             f"rms error {row['rms_error_rad']:.4f} rad (noise {row['noise_rad']:g}), latency "
             f"{row['latency_s']['fitted'] * 1000:.0f} ms (true {row['latency_s']['true'] * 1000:.0f}), "
-            f"{row['generations']} generations, {row['fit_seconds']:.0f} s",
+            f"{row['generations']} generations, {row['fit_seconds']:.0f} s" + run_note(row),
             "",
             "| figure | true | start | fitted | error | 95 % bound (fit's own) | identifiable |",
             "|---|---|---|---|---|---|---|",
@@ -168,6 +178,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULTS / "sysid_recovery.json")
     parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="keep the rows of other robots already in --out (each row names its run): profiles fitted in "
+        "separate runs, on one machine or several, in one file",
+    )
+    parser.add_argument(
         "--diagnose",
         type=Path,
         default=None,
@@ -180,12 +196,27 @@ def main(argv: list[str] | None = None) -> int:
         info = {k: v for k, v in data.items() if k != "rows"}
         report(args.diagnose, {**info, "rows": rows}, markdown(rows, info))
         return 0
-    rows, info = [], run_info()
+    info = run_info()
+    rows = kept_rows(args.out, args.robots) if args.merge else []
     for robot in args.robots:  # the files written again after each profile: a long run keeps what it has
-        rows.append(recover(robot, args))
-        print(f"{robot}: passed {rows[-1]['passed']}", flush=True)
+        row = {**recover(robot, args), "run": {**row_provenance(info), "cpu_count": info["cpu_count"]}}
+        rows = merged(rows, row)
+        print(f"{robot}: passed {row['passed']}", flush=True)
         report(args.out, {**info, "rows": rows}, markdown(rows, info))
     return 0 if all(r["passed"] for r in rows) else 1
+
+
+def kept_rows(out: Path, robots: list[str]) -> list[dict]:
+    """``--merge``: the rows of ``out`` (if it exists) for robots other than ``robots``."""
+    if not out.is_file():
+        return []
+    return [row for row in json.loads(out.read_text())["rows"] if row["robot"] not in robots]
+
+
+def merged(rows: list[dict], row: dict) -> list[dict]:
+    """``rows`` with ``row`` in place of any of its robot, in ``ROBOTS`` order (others last)."""
+    rows = [r for r in rows if r["robot"] != row["robot"]] + [row]
+    return sorted(rows, key=lambda r: ROBOTS.index(r["robot"]) if r["robot"] in ROBOTS else len(ROBOTS))
 
 
 if __name__ == "__main__":

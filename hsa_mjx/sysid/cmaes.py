@@ -13,7 +13,15 @@ import numpy as np
 class CMAES:
     """Minimise over R^n from ``mean`` with step size ``sigma``: ``ask()`` a population, ``tell()`` its losses."""
 
-    def __init__(self, mean: np.ndarray, sigma: float, population: int | None = None, seed: int = 0):
+    def __init__(
+        self,
+        mean: np.ndarray,
+        sigma: float,
+        population: int | None = None,
+        seed: int = 0,
+        covariance: np.ndarray | None = None,
+    ):
+        """``covariance``: the first distribution's shape (identity by default), ``sigma`` its scale."""
         n = len(mean)
         self.mean, self.sigma, self.rng = np.asarray(mean, float), float(sigma), np.random.default_rng(seed)
         self.lam = population or 4 + int(3 * np.log(n))
@@ -27,7 +35,8 @@ class CMAES:
         self.cmu = min(1 - self.c1, 2 * (self.mueff - 2 + 1 / self.mueff) / ((n + 2) ** 2 + self.mueff))
         self.damps = 1 + 2 * max(0.0, np.sqrt((self.mueff - 1) / (n + 1)) - 1) + self.cs
         self.chi = np.sqrt(n) * (1 - 1 / (4 * n) + 1 / (21 * n**2))
-        self.pc, self.ps, self.cov = np.zeros(n), np.zeros(n), np.eye(n)
+        self.pc, self.ps = np.zeros(n), np.zeros(n)
+        self.cov = np.eye(n) if covariance is None else np.array(covariance, float)
         self.generation = 0
         self._steps = np.zeros((self.lam, n))
 

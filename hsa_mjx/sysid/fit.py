@@ -5,13 +5,14 @@ Each candidate set of figures is rolled out on the lifted rig in C MuJoCo with t
 after the best latency (searched on a grid of substeps for every candidate), and scored by the mean
 squared angle error. CMA-ES (``hsa_mjx.sysid.cmaes``) searches the figures in log scale around the
 profile's (the data sheet's) values; Levenberg-Marquardt steps on the angles' derivatives finish the
-search where figures trade off and the strategy closes in slowly. After the fit, the log's information
-on each figure is measured: the angles' derivatives with respect to the figures (central differences)
-and the residual noise give the Fisher information, whose inverse bounds each figure's error with the
-others free to trade off against it; a figure whose 95 % bound is wider than ``IDENTIFIABLE`` is
-reported as not identifiable from this log, with its bound, not silently kept. Gear play and the
-encoder's resolution are held at the profile's values; how much a 50 % move of each changes the error
-is reported beside.
+search where figures trade off and the strategy closes in slowly, and a last evolution strategy shaped
+by the log's own error ellipsoid follows the valleys where friction makes the derivatives rough. After
+the fit, the log's information on each figure is measured: the angles' derivatives with respect to the
+figures (central differences) and the residual noise give the Fisher information, whose inverse bounds
+each figure's error with the others free to trade off against it; a figure whose 95 % bound is wider
+than ``IDENTIFIABLE`` is reported as not identifiable from this log, with its bound, not silently kept.
+Gear play and the encoder's resolution are held at the profile's values; how much a 50 % move of each
+changes the error is reported beside.
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ POLISH_TOLERANCE = 1e-5  # a step must lower the mean squared error by this shar
 SCANS = 4  # scans along the least determined directions, at most, each followed by more Levenberg-Marquardt
 SCAN_MOVES = (-1.2, -0.6, -0.3, 0.3, 0.6, 1.2)  # a scan's moves, in the search's coordinates
 SCAN_DIRECTIONS = 2  # the weakest directions each scan moves along
+REFINE_GENERATIONS = 20  # the last stage: an evolution strategy shaped by the log's own information
+REFINE_POPULATION = 10
+REFINE_SCALE = 2.0  # its first step: this many of the log's standard errors along its widest direction
 MAX_LATENCY_S = 0.1
 LATENCY_UNIT = 1e-3  # s: the latency's unit beside the figures' log scale in the derivatives
 # where the profile gives 0 for a figure, the search starts from this (per N m of stall torque for friction)
@@ -277,10 +281,10 @@ def jacobian(
 def polish(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluate: Evaluator) -> tuple:
     """Finish the search from its best: Levenberg-Marquardt steps (:func:`levenberg_marquardt`), then
     scans along the log's least determined directions (:func:`sloppy_scan`), each that finds a lower
-    error followed by more steps (at most ``SCANS`` scans). The search runs in the valley's coordinates
-    (``Search(valley=True)``) with the latency moved beside the figures, off its grid (a latency a substep
-    off holds the evolution strategy where other figures make up for it). Returns the best (vector in
-    ``search``'s coordinates, loss, latency)."""
+    error followed by more steps (at most ``SCANS`` scans), then :func:`refine`. The search runs in the
+    valley's coordinates (``Search(valley=True)``) with the latency moved beside the figures, off its grid
+    (a latency a substep off holds the evolution strategy where other figures make up for it). Returns
+    the best (vector in ``search``'s coordinates, loss, latency)."""
     figures, search = search, Search(search.start, valley=True)
     z = np.append(search.vector(figures.servo(x)), latency_s / LATENCY_UNIT)
     z, loss, normal = levenberg_marquardt(search, z, loss, evaluate)
@@ -289,7 +293,31 @@ def polish(search: Search, x: np.ndarray, loss: float, latency_s: float, evaluat
         if not moved:
             break
         z, loss, normal = levenberg_marquardt(search, z, loss, evaluate)
+    z, loss = refine(search, z, loss, normal, evaluate)
     return figures.vector(search.servo(z[:-1])), float(loss), float(z[-1] * LATENCY_UNIT)
+
+
+def refine(search: Search, z: np.ndarray, loss: float, normal: np.ndarray, evaluate: Evaluator, seed: int = 0) -> tuple:
+    """CMA-ES from ``z`` whose first distribution is the log's own error ellipsoid (``loss`` times the
+    inverse of the derivatives' ``normal`` matrix), ``REFINE_SCALE`` times as wide, the dead band held (a
+    command level of the signal crossing it switches the servo on or off: a cliff no difference step may
+    span). It follows the curved valleys where friction leaves the derivatives too rough for the steps
+    before it: at most ``REFINE_GENERATIONS``. The best (point, loss)."""
+    free = np.array([name != "deadband" for name in FITTED] + [True])
+    covariance = np.linalg.pinv(normal[np.ix_(free, free)]) * max(loss, 1e-12)
+    widest = float(np.sqrt(np.max(np.diag(covariance))))
+    es = CMAES(z[free], REFINE_SCALE * widest, REFINE_POPULATION, seed, covariance / widest**2)
+    best = (z, loss)
+    for _ in range(REFINE_GENERATIONS):
+        points = [np.where(free, 0.0, z) for _ in range(REFINE_POPULATION)]
+        for point, x in zip(points, es.ask()):
+            point[free] = x
+        scores = _scores(search, points, evaluate)
+        es.tell(np.array([score[0] for score in scores]))
+        k = int(np.argmin([score[0] for score in scores]))
+        if scores[k][0] < best[1]:
+            best = (np.append(points[k][:-1], scores[k][1] / LATENCY_UNIT), scores[k][0])
+    return best
 
 
 def _scores(search: Search, points: list[np.ndarray], evaluate: Evaluator) -> list[tuple[float, float]]:
