@@ -309,7 +309,7 @@ def refine(search: Search, z: np.ndarray, loss: float, normal: np.ndarray, evalu
     es = CMAES(z[free], REFINE_SCALE * widest, REFINE_POPULATION, seed, covariance / widest**2)
     best = (z, loss)
     for _ in range(REFINE_GENERATIONS):
-        points = [np.where(free, 0.0, z) for _ in range(REFINE_POPULATION)]
+        points = [z.copy() for _ in range(REFINE_POPULATION)]
         for point, x in zip(points, es.ask()):
             point[free] = x
         scores = _scores(search, points, evaluate)
