@@ -6,7 +6,8 @@ and latency), then the fit from the profile's own figures (``hsa_mjx.sysid fit``
 relative error (``rel_error``; the absolute error where the truth is 0), the fit's own 95 % bound on
 it and whether the log pins it down, and the recovered latency go to ``--out`` (JSON and Markdown), each
 row with its run's provenance. ``--robots R --merge`` fits some profiles and keeps the other rows of
-``--out``: the profiles can be fitted in separate runs (38-41 min a profile on 2 cores).
+``--out``: the profiles can be fitted in separate runs (38-41 min a profile on 2 cores, and about 10 min
+more for each figure's error profile).
 """
 
 from __future__ import annotations
