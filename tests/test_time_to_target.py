@@ -77,9 +77,13 @@ def test_a_step_count_target_reads_the_first_log_at_it_whatever_the_logged_succe
     )
     assert result["target"] == {"env_steps": 1000}
     assert result["reached"]["env_steps"] == 1280 and result["reached"]["since_launch_s"] == 24.0
-    assert (
-        benchmarks.scaling.time_to_target.main([str(tmp_path), "--at-env-steps", "5000"]) == 0
-    )  # never reached: reported
+    startup = {"first_update_since_launch_s": 21.5, "cold_caches": True}
+    (tmp_path / "summary.json").write_text(json.dumps({"startup": startup}))
+    out = tmp_path / "out"
+    args = [str(tmp_path), "--at-env-steps", "5000", "--out-dir", str(out)]
+    assert benchmarks.scaling.time_to_target.main(args) == 0  # never reached: reported
+    assert json.loads((out / "time_to_target_runs.json").read_text())[tmp_path.name]["startup"] == startup
+    assert f"| {tmp_path.name} | 64 | 2 | 21.5 | yes |" in (out / "time_to_target_runs.md").read_text()
     with pytest.raises(SystemExit):
         benchmarks.scaling.time_to_target.main([str(tmp_path), "--at-env-steps", "0"])
 

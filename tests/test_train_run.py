@@ -56,6 +56,10 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     ):
         assert np.isfinite(last[key]), key
     assert last["training/since_launch"] > last["training/walltime"] > 0  # the process started before the loop
+    startup = json.loads((run_dir / "summary.json").read_text())["startup"]
+    before = startup["imports_s"] + startup["build_s"] + startup["init_s"] + startup["reset_s"]
+    assert 0.0 < before < startup["first_update_since_launch_s"] <= recs[0]["training/since_launch"]
+    assert 0.0 <= startup["compile_s"] <= startup["first_update_s"] and isinstance(startup["cold_caches"], bool)
     with_episodes = [r for r in recs if r["episodes"] > 0]
     assert with_episodes and "episode/reward/forward" in with_episodes[0]
     assert "termination/goal_reached" in with_episodes[0]

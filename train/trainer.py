@@ -29,6 +29,7 @@ from .learners.ppo.networks import init_training_state
 from .run import checkpoint, plots, saved
 from .run.folder import portable, prepare_run_dir
 from .run.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
+from .run.startup import Startup
 from .run.warm_start import describe, read_init_from, warm_start
 
 
@@ -94,6 +95,7 @@ class Run:
     strategy: strategies.Strategy
     quiet: bool
     extra: dict  # metadata of every checkpoint and the summary (the physics backend)
+    startup: Startup  # this call's start-up parts, in the summary
 
 
 def train(
@@ -104,7 +106,7 @@ def train(
     ``resume`` continues the run in ``run_dir`` from its newest readable checkpoint; ``overwrite``
     replaces a run already there (otherwise a run dir holding one is refused).
     """
-    run_dir = Path(run_dir)
+    run_dir, startup = Path(run_dir), Startup()
     devices = select_devices(config)
     distributed.check_agreement(to_dict(config), devices)  # every process: one config, as many devices
     init = None if resume else read_init_from(config)
@@ -114,16 +116,20 @@ def train(
     if distributed.is_main() and not quiet:
         print(_announce(config, run_dir, devices), flush=True)
     strategy = strategies.build(config, devices)
+    startup.mark("build_s")
     extra = {
         "physics_backend": strategy.learner.env.physics_backend,
         "collection": strategy.name,  # run.collection with auto resolved
         "devices": len(devices) * jax.process_count(),
         "processes": jax.process_count(),
     }
-    run = Run(config, run_dir, strategy, quiet, extra)
+    run = Run(config, run_dir, strategy, quiet, extra, startup)
     ts, goal, key, step, levels = _start(run, meta, init)
+    startup.mark("init_s")
     key, k_env = jax.random.split(key)
     state = strategy.reset(distributed.env_keys(k_env, config.run.num_envs, devices), goal, levels)
+    jax.block_until_ready(state)
+    startup.mark("reset_s")
     if distributed.is_main() and not quiet:
         backend = run.extra["physics_backend"]
         print(f"compiling the training epoch on the {backend} backend (the first epoch includes it)...", flush=True)
@@ -180,6 +186,7 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
             out = jax.device_get(out)
             dt = time.perf_counter() - t0
             first_epoch_s = dt if first_epoch_s is None else first_epoch_s
+            run.startup.epoch(dt)
             step, epoch = step + steps_per_epoch, epoch + 1
             for k, v in out["totals"].items():
                 totals[k] = totals.get(k, 0.0) + float(np.asarray(v)[0])
@@ -199,6 +206,7 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s}
     summary.update(interrupted=stopped, checkpoint=None, **run.extra, **{k: latest.get(k) for k in HEADLINE})
+    summary["startup"] = run.startup.record()
     return _finish(run.run_dir, summary) if main else summary
 
 

@@ -18,7 +18,10 @@ count at which an evaluation found the target met (a sweep's, ``benchmarks.sweep
 clock to it is read without the logged success rate, which counts the episodes that end (successes
 end sooner, and the goal curriculum's range lags the skill). The
 first log's wall-clock (the compile and the first epoch) is given too: it depends on the caches
-(XLA's and Warp's kernel cache), so runs compare best on the time after it.
+(XLA's and Warp's kernel cache), so runs compare best on the time after it. Each run's start-up parts
+(``summary.json``'s ``startup``, ``train.run.startup``: imports, build, first state, reset, the first
+update and its compile, and whether the caches were cold) go into its JSON row; the table shows the
+first update's time from launch and ``cold caches``.
 
 Why PPO iterations: with weak scaling (the one-GPU batch on every GPU) an iteration of k GPUs
 takes about the wall-clock of one GPU's and holds k times the samples, so comparing iterations says
@@ -62,6 +65,13 @@ def read_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     if summary.is_file() and "physics_backend" in (resolved := json.loads(summary.read_text())):
         config["env"]["physics"]["backend"] = resolved["physics_backend"]
     return config, rows
+
+
+def read_startup(run_dir: Path) -> dict[str, Any] | None:
+    """The start-up parts of the run's last training call (``summary.json``'s ``startup``: imports, build,
+    first state, env reset, first update and its compile, the caches it found), or ``None``."""
+    summary = run_dir / "summary.json"
+    return json.loads(summary.read_text()).get("startup") if summary.is_file() else None
 
 
 def cumulative_walltime(rows: list[dict[str, Any]], key: str = WALL) -> list[float | None]:
@@ -138,16 +148,19 @@ def time_to_target(
 def markdown(results: dict[str, dict[str, Any]]) -> str:
     """One table row per run: time to the target, and the last log."""
     lines = [
-        "| run | envs | devices | first log (s) | target reached at (s) | from launch (s) | env steps | "
-        "PPO iterations | last log (s) | env steps | iterations | success | goal max (m) | mean terrain level |",
-        "|" + "---|" * 14,
+        "| run | envs | devices | first update from launch (s) | cold caches | first log (s) | target reached at (s) | "
+        "from launch (s) | env steps | PPO iterations | last log (s) | env steps | iterations | success | goal max (m) "
+        "| mean terrain level |",
+        "|" + "---|" * 16,
     ]
     for name, r in results.items():
-        hit, last = r["reached"] or {}, r["last"]
+        hit, last, startup = r["reached"] or {}, r["last"], r.get("startup") or {}
         cells = [
             name,
             f"{r['num_envs']:,}",
             r["num_devices"] or "all local",
+            startup.get("first_update_since_launch_s", "-"),
+            {True: "yes", False: "no"}.get(startup.get("cold_caches"), "-"),
             r["first_log_s"],
             hit.get("wall_s", "not reached"),
             hit.get("since_launch_s") or "-",
@@ -190,7 +203,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--at-env-steps must be a positive number of env steps, got {args.at_env_steps}")
     try:
         results = {
-            Path(d).name: time_to_target(*read_run(Path(d)), args.success, args.at_env_steps) for d in args.run_dirs
+            Path(d).name: {
+                **time_to_target(*read_run(Path(d)), args.success, args.at_env_steps),
+                "startup": read_startup(Path(d)),
+            }
+            for d in args.run_dirs
         }
     except (FileNotFoundError, ValueError, KeyError) as err:
         print(f"error: {err}")
