@@ -144,14 +144,16 @@ def test_packed_state_round_trips_and_refuses_another_layout():
     import jax
     import jax.numpy as jnp
 
-    from hsa_mjx.adapters.packed import Packing
+    from hsa_mjx.adapters.packed import Packing, to_host
 
     tree = {"a": jnp.arange(6.0).reshape(2, 3), "b": (jnp.int32(4), jnp.array([True, False])), "c": jnp.ones(())}
     layout = Packing(jax.eval_shape(lambda: tree))
     assert [str(d) for d in layout.dtypes] == ["bool", "float32", "int32"] and layout.sizes == (2, 7, 1)
     back = jax.jit(lambda t: layout.unpack(layout.pack(t)))(tree)
     host = layout.unpack(layout.pack(jax.device_get(tree), np))
-    for got in (back, host):
+    fetched = layout.unpack(to_host(jax.jit(layout.pack)(tree)))  # the host copy of jitted buffers
+    assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(fetched))
+    for got in (back, host, fetched):
         assert jax.tree.all(jax.tree.map(lambda x, y: np.array_equal(x, y) and x.dtype == y.dtype, got, tree))
     with pytest.raises(ValueError, match="shape"):
         layout.pack({**tree, "a": jnp.zeros(3)})

@@ -22,7 +22,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hsa_mjx.adapters.checks import check_actions
-from hsa_mjx.adapters.packed import Packing
+from hsa_mjx.adapters.packed import Packing, to_host
 from hsa_mjx.adapters.rendering import RENDER_MODES, StateRenderer, check_camera, check_render_mode
 from hsa_mjx.config import EnvConfig
 from hsa_mjx.sim.backend import one_env_config
@@ -160,10 +160,10 @@ class HSAGymEnv(gymnasium.Env):
         if goal is not None:
             buffers, out = self._goal_fn(buffers, jnp.asarray(goal))
         self._buffers = buffers
-        out = self._outputs.unpack(jax.device_get(out))
+        out = self._outputs.unpack(to_host(out))
         if self.render_mode == "human":
             self.render()
-        return np.asarray(out["obs"], np.float32), self._info(out)
+        return np.array(out["obs"], np.float32), self._info(out)
 
     def step(self, action):
         """Apply one normalised action of shape (8,) in [-1, 1]."""
@@ -171,12 +171,12 @@ class HSAGymEnv(gymnasium.Env):
             raise RuntimeError("call reset() before step()")
         action = check_actions(action, self.action_space.shape)
         self._buffers, out = self._step_fn(self._buffers, action)
-        out = self._outputs.unpack(jax.device_get(out))  # one transfer per dtype for everything returned
+        out = self._outputs.unpack(to_host(out))  # one transfer per dtype for everything returned
         truncated = bool(out["truncation"] > 0)
         terminated = bool(out["done"] > 0) and not truncated
         if self.render_mode == "human":
             self.render()
-        return np.asarray(out["obs"], np.float32), float(out["reward"]), terminated, truncated, self._info(out)
+        return np.array(out["obs"], np.float32), float(out["reward"]), terminated, truncated, self._info(out)
 
     @staticmethod
     def _info(out: dict[str, Any]) -> dict[str, Any]:
@@ -186,7 +186,7 @@ class HSAGymEnv(gymnasium.Env):
         info["termination_reasons"] = [r for r in REASONS if metrics[f"termination/{r}"] > 0]
         info["is_success"] = metrics["termination/goal_reached"] > 0
         info["distance_to_goal"] = metrics["distance_to_goal"]
-        info["goal"] = np.asarray(out["goal"], np.float32)
+        info["goal"] = np.array(out["goal"], np.float32)
         info["nonfinite_action"] = metrics["nonfinite_action"] > 0
         return info
 
@@ -270,7 +270,7 @@ class HostStep:
     def __call__(self, buffers: tuple, action: jax.Array) -> tuple:
         """(the packed state after one step, the packed outputs), as the env's jitted ``step`` gives them."""
         buffers, middle = self._first(buffers, action)
-        _, inputs = self._middle.unpack(jax.device_get(middle))
+        _, inputs = self._middle.unpack(to_host(middle))
         out = self._run(False, self._names, self._shapes, *inputs)
         return self._second(buffers, middle, self._out.pack(out, np))
 

@@ -69,3 +69,9 @@ class Packing:
             raise ValueError(f"expected {len(self.dtypes)} buffers ({names}), got {len(buffers)}")
         leaves = [buffers[s.buffer][s.offset : s.offset + s.size].reshape(s.shape) for s in self.slots]
         return jax.tree_util.tree_unflatten(self.treedef, leaves)
+
+
+def to_host(buffers: tuple[Any, ...]) -> tuple[np.ndarray, ...]:
+    """Host copies of fetched buffers, read-only. On a CPU ``np.asarray`` reads a jax array's buffer in
+    about 2 microseconds where ``jax.device_get`` takes about 15 (one env's step fetches two sets)."""
+    return tuple(np.asarray(buffer) for buffer in buffers)
