@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import types
 
 import numpy as np
@@ -180,9 +181,18 @@ def test_a_bound_widens_where_the_error_is_flatter_5_percent_away_than_at_the_de
         assert not identified or both["friction"] == pytest.approx(fisher["friction"], rel=0.02)
 
 
-def test_the_recovery_merges_rows_of_separate_runs_one_per_robot_in_profile_order():
-    from benchmarks.robots.sysid_recovery import merged
+def test_the_recovery_merges_rows_of_separate_runs_one_per_robot_in_profile_order(tmp_path):
+    from benchmarks.robots.sysid_recovery import merge_files, merged
 
     rows = merged(merged([], {"robot": "st3215", "n": 1}), {"robot": "dfr05sr", "n": 1})
     rows = merged(rows, {"robot": "st3215", "n": 2})
     assert [(r["robot"], r["n"]) for r in rows] == [("dfr05sr", 1), ("st3215", 2)]
+    with pytest.raises(FileNotFoundError, match="no results file"):
+        merge_files(tmp_path / "out.json", [tmp_path / "missing.json"])
+    row = {"model": "position", "rms_error_rad": 0.005, "noise_rad": 0.005, "generations": 1, "fit_seconds": 1.0}
+    row.update(latency_s={"true": 0.02, "fitted": 0.02}, figures={})
+    for robot, passed in (("st3215", True), ("dfr05sr", False)):  # two runs' files, one profile each
+        (tmp_path / f"{robot}.json").write_text(json.dumps({"rows": [{**row, "robot": robot, "passed": passed}]}))
+    out = tmp_path / "out.json"
+    assert merge_files(out, [tmp_path / "st3215.json", tmp_path / "dfr05sr.json"]) == 1  # one profile failed
+    assert [r["robot"] for r in json.loads(out.read_text())["rows"]] == ["dfr05sr", "st3215"]

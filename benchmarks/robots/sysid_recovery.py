@@ -6,7 +6,9 @@ and latency), then the fit from the profile's own figures (``hsa_mjx.sysid fit``
 relative error (``rel_error``; the absolute error where the truth is 0), the fit's own 95 % bound on
 it and whether the log pins it down, and the recovered latency go to ``--out`` (JSON and Markdown), each
 row with its run's provenance. ``--robots R --merge`` fits some profiles and keeps the other rows of
-``--out``: the profiles can be fitted in separate runs (38-41 min a profile on 2 cores, and about 10 min
+``--out``; ``--merge-from FILE ...`` fits nothing and puts the rows of other runs' files into ``--out``
+(profiles fitted at once in separate processes, each into its own file): the profiles can be fitted in
+separate runs (38-41 min a profile on 2 cores, and about 10 min
 more for each figure's error profile).
 """
 
@@ -185,6 +187,13 @@ def main(argv: list[str] | None = None) -> int:
         "separate runs, on one machine or several, in one file",
     )
     parser.add_argument(
+        "--merge-from",
+        type=Path,
+        nargs="+",
+        default=None,
+        help="results files of other runs: their rows replace those of the same robots in --out (nothing is fitted)",
+    )
+    parser.add_argument(
         "--diagnose",
         type=Path,
         default=None,
@@ -197,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
         info = {k: v for k, v in data.items() if k != "rows"}
         report(args.diagnose, {**info, "rows": rows}, markdown(rows, info))
         return 0
+    if args.merge_from is not None:
+        return merge_files(args.out, args.merge_from)
     info = run_info()
     rows = kept_rows(args.out, args.robots) if args.merge else []
     for robot in args.robots:  # the files written again after each profile: a long run keeps what it has
@@ -212,6 +223,21 @@ def kept_rows(out: Path, robots: list[str]) -> list[dict]:
     if not out.is_file():
         return []
     return [row for row in json.loads(out.read_text())["rows"] if row["robot"] not in robots]
+
+
+def merge_files(out: Path, paths: list[Path]) -> int:
+    """``--merge-from``: the rows of ``paths`` into ``out`` (each row keeps its run); 0 if every row passed.
+    FileNotFoundError naming a missing file."""
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise FileNotFoundError(f"no results file at {missing}")
+    rows = json.loads(out.read_text())["rows"] if out.is_file() else []
+    for path in paths:
+        for row in json.loads(path.read_text())["rows"]:
+            rows = merged(rows, row)
+    info = run_info()
+    report(out, {**info, "rows": rows}, markdown(rows, info))
+    return 0 if all(r["passed"] for r in rows) else 1
 
 
 def merged(rows: list[dict], row: dict) -> list[dict]:
