@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 
@@ -75,6 +76,7 @@ def test_resume_continues_step_and_curriculum(run_dir):
     from train.trainer import train
 
     before = records(run_dir)[-1]
+    clock = checkpoint.read_meta(checkpoint.latest(run_dir))["training_walltime_s"]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
     assert summary["env_steps"] == 160
     assert summary["checkpoint"] == "checkpoints/step_000000000160"  # within the run dir, no absolute path
@@ -82,6 +84,18 @@ def test_resume_continues_step_and_curriculum(run_dir):
     assert after["step"] == 160
     assert after["curriculum/episode_count"] > before["curriculum/episode_count"]
     assert after["curriculum/max_distance"] >= before["curriculum/max_distance"]
+    assert checkpoint.read_meta(checkpoint.latest(run_dir))["training_walltime_s"] > clock > 0.0  # the clock goes on
+
+
+def test_a_checkpoint_is_due_by_env_steps_or_by_the_clock_where_set():
+    from train.trainer import checkpoint_due
+
+    steps = tiny().run  # a checkpoint every 40 env steps
+    clock = dataclasses.replace(steps, checkpoint_every_s=30.0)
+    assert checkpoint_due(40, 0.0, steps) and not checkpoint_due(39, 1e6, steps)  # the clock off by default
+    assert checkpoint_due(1, 30.0, clock) and not checkpoint_due(39, 29.9, clock)
+    with pytest.raises(ValueError, match="checkpoint_every_s"):
+        train_config.from_dict({"run": {"checkpoint_every_s": -1.0}})
 
 
 def test_a_restored_learner_state_has_the_types_of_a_fresh_one(run_dir):

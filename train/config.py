@@ -117,6 +117,9 @@ class RunConfig:
     epochs_per_log: int = 1  # training epochs between host logs
     steps_per_epoch: int = 0  # env steps per jitted epoch; 0 = one PPO iteration per epoch
     checkpoint_every: int = 1_000_000  # env steps between checkpoints
+    # also a checkpoint once this many seconds of training have passed since the last (0: off): checkpoints
+    # at a steady clock, whose evaluations give the time to a target (each records training_walltime_s)
+    checkpoint_every_s: float = 0.0
     keep_checkpoints: int = 3
     num_devices: int = 0  # local devices to use; 0 = all
     # how the devices share an epoch (train.devices.strategies): "one_device", "pmap" (one pmapped
@@ -273,6 +276,8 @@ def _validate_run(run: RunConfig) -> None:
     for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
         if getattr(run, key) < 1:
             raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if run.checkpoint_every_s < 0:
+        raise ValueError(f"config key 'run.checkpoint_every_s' must be >= 0 (0: off), got {run.checkpoint_every_s}")
     if run.init_normalizer_count < 0:
         raise ValueError(
             f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "

@@ -96,6 +96,7 @@ class Run:
     quiet: bool
     extra: dict  # metadata of every checkpoint and the summary (the physics backend)
     startup: Startup  # this call's start-up parts, in the summary
+    walltime_before: float = 0.0  # the training clock of the calls before this one (a resumed run's)
 
 
 def train(
@@ -123,7 +124,8 @@ def train(
         "devices": len(devices) * jax.process_count(),
         "processes": jax.process_count(),
     }
-    run = Run(config, run_dir, strategy, quiet, extra, startup)
+    before = float(meta.get("training_walltime_s", 0.0)) if meta is not None else 0.0
+    run = Run(config, run_dir, strategy, quiet, extra, startup, before)
     ts, goal, key, step, levels = _start(run, meta, init)
     startup.mark("init_s")
     key, k_env = jax.random.split(key)
@@ -177,6 +179,7 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
     steps_per_epoch = strategy.learner.env_steps_per_epoch
     bar = ProgressBar(final_step(step, config.run.num_timesteps, steps_per_epoch), start=step)
     t_start, last_ckpt, epoch, latest = time.perf_counter(), step, 0, {}  # latest: each headline key's last value
+    last_ckpt_t = t_start
     first_epoch_s, stopped, totals = None, False, {}
     with StopFlag() as stop:
         while step < config.run.num_timesteps and not (stopped := distributed.any_process(stop.raised)):
@@ -197,17 +200,24 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
                 totals = {}
                 if main and not run.quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
-            if step - last_ckpt >= config.run.checkpoint_every:
-                _save(run, step, ts, state, key)
-                last_ckpt = step
+            now = time.perf_counter()
+            if checkpoint_due(step - last_ckpt, now - last_ckpt_t, config.run):
+                _save(run, step, ts, state, key, now - t_start)
+                last_ckpt, last_ckpt_t = step, now
         if step != last_ckpt or not checkpoint.list_checkpoints(run.run_dir):
-            _save(run, step, ts, state, key)
+            _save(run, step, ts, state, key, time.perf_counter() - t_start)
     bar.close()
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s}
     summary.update(interrupted=stopped, checkpoint=None, **run.extra, **{k: latest.get(k) for k in HEADLINE})
     summary["startup"] = run.startup.record()
     return _finish(run.run_dir, summary) if main else summary
+
+
+def checkpoint_due(steps: int, seconds: float, run: Any) -> bool:
+    """Whether a checkpoint is due ``steps`` env steps and ``seconds`` of training after the last:
+    every ``run.checkpoint_every`` env steps, and every ``run.checkpoint_every_s`` seconds where set."""
+    return steps >= run.checkpoint_every or 0.0 < run.checkpoint_every_s <= seconds
 
 
 def _finish(run_dir: Path, summary: dict) -> dict:
@@ -232,10 +242,12 @@ def _record(run: Run, out: dict, totals: dict, goal: Any, sps: float, t_start: f
     return record
 
 
-def _save(run: Run, step: int, ts: Any, state: Any, key: jax.Array) -> None:
+def _save(run: Run, step: int, ts: Any, state: Any, key: jax.Array, walltime: float) -> None:
     """Checkpoint the learner (first device's copy), the curricula (every process's envs' terrain and
-    randomisation levels, gathered) and rng; process 0 writes."""
-    config, strategy, extra = run.config, run.strategy, run.extra
+    randomisation levels, gathered) and rng, with the training clock (``walltime`` s of this call after
+    those before it); process 0 writes."""
+    config, strategy = run.config, run.strategy
+    extra = {**run.extra, "training_walltime_s": round(run.walltime_before + walltime, 3)}
     terrain = randomization = None
     if config.terrain_curriculum.enabled or config.randomization_curriculum.enabled:  # every process gathers
         mine = strategy.env_levels(state)
