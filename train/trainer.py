@@ -201,7 +201,10 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
                 if main and not run.quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
             now = time.perf_counter()
-            if checkpoint_due(step - last_ckpt, now - last_ckpt_t, config.run):
+            due = checkpoint_due(step - last_ckpt, now - last_ckpt_t, config.run)
+            if config.run.checkpoint_every_s > 0:  # processes' clocks differ: due on any, due on all (it gathers)
+                due = distributed.any_process(due)
+            if due:
                 _save(run, step, ts, state, key, now - t_start)
                 last_ckpt, last_ckpt_t = step, now
         if step != last_ckpt or not checkpoint.list_checkpoints(run.run_dir):
