@@ -38,8 +38,8 @@ TOOLS = (T + "cli", T + "evaluate", T + "export", T + "__main__")  # imported by
 # train/'s floors are folders: the learners' code; the devices (collection strategies, replicas, several
 # processes); the run (checkpoints, what they hold, the run folder, warm start, logs, plots); playing
 # episodes (evaluation); beside them at the top level only the config, the training loop and the tools
-TRAIN_FLOORS = ("learners", "devices", "run", "episodes")
-TRAIN_TOP = ("__init__", "__main__", "cli", "config", "evaluate", "export", "trainer")
+TRAIN_FLOORS = ("config", "learners", "devices", "run", "episodes")
+TRAIN_TOP = ("__init__", "__main__", "cli", "evaluate", "export", "trainer")
 # benchmarks/ is one folder per question, beside two shared modules (benchmarks/README.md)
 BENCHMARK_FOLDERS = ("speed", "fidelity", "scaling", "robustness", "sweeps", "terrain", "robots")
 BENCHMARK_TOP = ("__init__", "stats", "run_info")

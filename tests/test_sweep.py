@@ -221,3 +221,39 @@ def test_a_reference_is_played_once_and_never_trained(tmp_path):
     assert ref.grid_result.is_file() and not (ref.run_dir / "sweep_eval").exists()
     ref.grid = [["-c", "raise SystemExit(1)"]]  # would fail if played again
     sweep.Runner([None], deadline=None).run([ref], spec.env_steps)
+
+
+def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to_target_read_from_them(tmp_path):
+    """``budget_s`` stops each run on its training clock (a run so stopped is done); with
+    ``evaluate.every_checkpoint`` each checkpoint is evaluated once and the time to the target is the
+    first evaluated checkpoint at the target, with its training seconds."""
+    from train.run import checkpoint
+
+    spec = sweep.load(_write(tmp_path, budget_s=120, evaluate={"episodes": 100, "every_checkpoint": True}))
+    job = sweep.plan(spec, tmp_path / "out")[0]
+    assert train_config.load(spec.config, spec.overrides("a", 0)).run.max_training_s == 120
+    job.run_dir.mkdir(parents=True)
+    stopped = json.dumps({"env_steps": 655_360, "interrupted": False, "stopped_by": "max_training_s"})
+    job.train = ["-c", f"import pathlib; pathlib.Path({str(job.run_dir / 'summary.json')!r}).write_text({stopped!r})"]
+    for i, seconds in enumerate((40.0, 80.0, 120.0)):  # three checkpoints at a steady clock
+        path = checkpoint.checkpoint_dir(job.run_dir) / f"step_{(i + 1) * 1000:012d}"
+        path.mkdir(parents=True)
+        meta = {"format": checkpoint.FORMAT_VERSION, "config": {}, "step": (i + 1) * 1000}
+        (path / checkpoint.META_FILE).write_text(json.dumps({**meta, "training_walltime_s": seconds}))
+    script = (  # train.evaluate's stand-in: success 0.5, 0.95, 0.97 by checkpoint, into --out
+        "import json, pathlib, sys; a = sys.argv; out = pathlib.Path(a[a.index('--out') + 1]); out.mkdir(parents=True);"
+        "step = int(a[a.index('--checkpoint') + 1][-12:]) if '--checkpoint' in a else 3000;"
+        "rate = {1000: 0.5, 2000: 0.95, 3000: 0.97}[step];"
+        "(out / 'eval.json').write_text(json.dumps({'episodes': 100, 'success_rate': rate, 'step': step}))"
+    )
+    job.evaluate = ["-c", script, "--out", str(job.run_dir / "sweep_eval")]
+    sweep.Runner([None], deadline=None).run([job], spec.env_steps)
+    assert sweep.trained(job, spec.env_steps)  # stopped by its budget short of the env steps: done
+    report = sweep_report.write(spec, [job], tmp_path / "out")
+    run = report["runs"][0]
+    assert [p["training_walltime_s"] for p in run["checkpoints"]] == [40.0, 80.0, 120.0]
+    assert run["evaluated_time_to_target"] == {"training_s": 80.0, "env_steps": 2000, "success_rate": 0.95}
+    assert "80 s, 2,000 env steps" in (tmp_path / "out" / "sweep.md").read_text()
+    job.evaluate = ["-c", "raise SystemExit(1)", "--out", "x"]  # evaluated checkpoints are not evaluated again
+    sweep.Runner([None], deadline=None).run([job], spec.env_steps)
+    assert len(sweep_report.write(spec, [job], tmp_path / "out")["runs"][0]["checkpoints"]) == 3

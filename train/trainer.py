@@ -25,7 +25,6 @@ from hsa_mjx.curricula import goal_curriculum
 from .config import TrainConfig, to_dict, validate_devices
 from .devices import distributed, strategies
 from .devices.base import envs_per_process
-from .learners.ppo.networks import init_training_state
 from .run import checkpoint, plots, saved
 from .run.folder import portable, prepare_run_dir
 from .run.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
@@ -143,7 +142,7 @@ def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:
     from ``meta``'s checkpoint, or warm-started from ``init``."""
     config, learner = run.config, run.strategy.learner
     key, k_init = jax.random.split(jax.random.PRNGKey(config.run.seed))
-    ts = init_training_state(config, learner.networks, k_init, learner.network_input_size)
+    ts = learner.init_state(k_init)
     goal = goal_curriculum.init(config.goal_curriculum, tuple(config.env.goal.radial_range))
     if meta is not None:
         ts, goal, key = saved.restore(meta["path"], ts, goal, key)
@@ -180,9 +179,11 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
     bar = ProgressBar(final_step(step, config.run.num_timesteps, steps_per_epoch), start=step)
     t_start, last_ckpt, epoch, latest = time.perf_counter(), step, 0, {}  # latest: each headline key's last value
     last_ckpt_t = t_start
-    first_epoch_s, stopped, totals = None, False, {}
+    first_epoch_s, stopped, totals, budget_spent = None, False, {}, False
     with StopFlag() as stop:
         while step < config.run.num_timesteps and not (stopped := distributed.any_process(stop.raised)):
+            if budget_spent := out_of_time(run, time.perf_counter() - t_start):
+                break
             key, k_epoch = jax.random.split(key)
             t0 = time.perf_counter()
             ts, state, out = strategy.epoch(ts, state, distributed.epoch_keys(k_epoch, strategy.devices))
@@ -213,8 +214,16 @@ def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed
     logger.close()
     summary = {"env_steps": step, "wall_s": time.perf_counter() - t_start, "first_epoch_s": first_epoch_s}
     summary.update(interrupted=stopped, checkpoint=None, **run.extra, **{k: latest.get(k) for k in HEADLINE})
+    summary["stopped_by"] = "max_training_s" if budget_spent else "signal" if stopped else "num_timesteps"
     summary["startup"] = run.startup.record()
-    return _finish(run.run_dir, summary) if main else summary
+    return _finish(run.run_dir, summary, config.run.learner) if main else summary
+
+
+def out_of_time(run: Run, seconds: float) -> bool:
+    """Whether the run's training clock (this call's ``seconds`` after those before it) has reached
+    ``run.max_training_s`` (never when 0), on any process."""
+    limit = run.config.run.max_training_s
+    return limit > 0 and distributed.any_process(run.walltime_before + seconds >= limit)
 
 
 def checkpoint_due(steps: int, seconds: float, run: Any) -> bool:
@@ -223,10 +232,10 @@ def checkpoint_due(steps: int, seconds: float, run: Any) -> bool:
     return steps >= run.checkpoint_every or 0.0 < run.checkpoint_every_s <= seconds
 
 
-def _finish(run_dir: Path, summary: dict) -> dict:
-    """Process 0: learning curves, PPO diagnostics and ``summary.json`` (with the latest checkpoint)."""
+def _finish(run_dir: Path, summary: dict, learner: str) -> dict:
+    """Process 0: learning curves, the learner's diagnostics and ``summary.json`` (with the latest checkpoint)."""
     plots.learning_curves(run_dir / "metrics.jsonl", run_dir / "learning_curve.png")
-    plots.ppo_diagnostics(run_dir / "metrics.jsonl", run_dir / "ppo_diagnostics.png")
+    plots.learner_diagnostics(run_dir / "metrics.jsonl", run_dir, learner)
     summary = {**summary, "checkpoint": portable(checkpoint.latest(run_dir), run_dir)}  # within the run dir
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary

@@ -21,6 +21,7 @@ from matplotlib.figure import Figure
 from benchmarks.run_info import run_info
 from benchmarks.scaling import time_to_target
 from benchmarks.stats import difference_interval, wilson_interval
+from benchmarks.sweeps import checkpoints
 from benchmarks.sweeps import grid as sweep_grid
 from benchmarks.sweeps.grid import read_json
 from train.run.logger import read_jsonl
@@ -88,6 +89,7 @@ def collect(sweep: Any, jobs: list) -> dict[str, Any]:
     runs = []
     for job in jobs:
         summary = read_json(job.run_dir / "summary.json")
+        curve = checkpoints.curve(job.run_dir)
         runs.append(
             {
                 "arm": job.arm,
@@ -97,6 +99,8 @@ def collect(sweep: Any, jobs: list) -> dict[str, Any]:
                 "physics_backend": summary.get("physics_backend"),
                 "learning": learning(job.run_dir, sweep.target_success),
                 "evaluation": evaluation(job.run_dir),
+                "checkpoints": curve,
+                "evaluated_time_to_target": checkpoints.time_to_target(curve, sweep.target_success),
             }
         )
     arms = {arm: _pooled([r for r in runs if r["arm"] == arm]) for arm in sweep.arms}
@@ -244,6 +248,7 @@ def write(
         "config": sweep.config,
         "arm_configs": sweep.arm_configs,
         "env_steps": sweep.env_steps,
+        "budget_s": sweep.budget_s,
         "seeds": list(sweep.seeds),
         "common_overrides": list(sweep.common),
         "arms_overrides": {k: list(v) for k, v in sweep.arms.items()},
@@ -256,6 +261,7 @@ def write(
     }
     (out / "sweep.json").write_text(json.dumps(report, indent=1))
     text = markdown(report)
+    text += "\n".join(checkpoints.markdown(report)) + "\n" if checkpoints.markdown(report) else ""
     if report["grid"]:
         text += "\n".join(sweep_grid.markdown(report["grid"])) + "\n"
     (out / "sweep.md").write_text(text)

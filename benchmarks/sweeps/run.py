@@ -41,12 +41,13 @@ import jax
 import yaml
 
 from benchmarks.robustness import grids
+from benchmarks.sweeps import checkpoints
 from benchmarks.sweeps import report as sweep_report
 from hsa_mjx.deploy import policy_file
 from train import config as train_config
 
-KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success")
-EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain", "grid")
+KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success", "budget_s")
+EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain", "grid", "every_checkpoint")
 GRID_KEYS = ("name", "episodes", "reference")
 ARM_KEYS = ("config", "set")  # an arm given as a mapping: its own training config, its overrides
 TERRAIN_KEYS = ("types", "levels", "tiles", "terrain_seed")
@@ -68,14 +69,16 @@ class Sweep:
     evaluate: dict[str, Any]
     target_success: float = 0.9
     arm_configs: dict[str, str] = dataclasses.field(default_factory=dict)  # arms trained from another config
+    budget_s: float = 0.0  # > 0: every run trains this many seconds of its training clock (run.max_training_s)
 
     def config_of(self, arm: str) -> str:
         """The training config of one arm: its own, or the sweep's."""
         return self.arm_configs.get(arm, self.config)
 
     def overrides(self, arm: str, seed: int) -> list[str]:
-        """The ``--set`` overrides of one run: the common ones, the arm's, its seed and length."""
-        return [*self.common, *self.arms[arm], f"run.seed={seed}", f"run.num_timesteps={self.env_steps}"]
+        """The ``--set`` overrides of one run: the common ones, the arm's, its seed and length (and budget)."""
+        budget = [f"run.max_training_s={self.budget_s}"] if self.budget_s > 0 else []
+        return [*self.common, *self.arms[arm], f"run.seed={seed}", f"run.num_timesteps={self.env_steps}", *budget]
 
 
 def _unknown(data: dict, valid: tuple[str, ...], where: str) -> None:
@@ -141,6 +144,7 @@ def load(path: str | Path) -> Sweep:
         evaluate=evaluate,
         target_success=float(data.get("target_success", 0.9)),
         arm_configs=arm_configs,
+        budget_s=float(data.get("budget_s", 0.0)),
     )
     for arm in arms:
         try:
@@ -160,6 +164,7 @@ class Job:
     train: list[str]  # empty: a reference policy, evaluated only
     evaluate: list[str]  # empty: no evaluation at the training model
     grid: list[list[str]] = dataclasses.field(default_factory=list)  # export, then the robustness grid
+    every_checkpoint: bool = False  # also evaluate each checkpoint (benchmarks.sweeps.checkpoints)
 
     @property
     def grid_result(self) -> Path:
@@ -219,14 +224,17 @@ def plan(sweep: Sweep, out: Path) -> list[Job]:
             for item in sweep.overrides(arm, seed):
                 train += ["--set", item]
             evaluate = ["-m", "train.evaluate", *evaluation_args(sweep, run_dir)]
-            jobs.append(Job(arm, seed, run_dir, train, evaluate, grid_commands(sweep, run_dir)))
+            every = bool(sweep.evaluate.get("every_checkpoint"))
+            jobs.append(Job(arm, seed, run_dir, train, evaluate, grid_commands(sweep, run_dir), every))
     return jobs
 
 
 def trained(job: Job, env_steps: int) -> bool:
-    """Whether the run finished its env steps (its summary says so)."""
+    """Whether the run finished: its env steps, or its training clock's budget (its summary says so)."""
     summary = sweep_report.read_json(job.run_dir / "summary.json")
-    return bool(summary) and not summary.get("interrupted") and int(summary.get("env_steps", 0)) >= env_steps
+    if not summary or summary.get("interrupted"):
+        return False
+    return int(summary.get("env_steps", 0)) >= env_steps or summary.get("stopped_by") == "max_training_s"
 
 
 class Runner:
@@ -266,6 +274,11 @@ class Runner:
             print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
             if self._call(job.evaluate, device, log) != 0:
                 shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
+        if job.every_checkpoint and job.evaluate:
+            for path in checkpoints.pending(job.run_dir):
+                print(f"[{device}] evaluate {job.arm} seed {job.seed} {path.name}", flush=True)
+                if self._call(checkpoints.command(job.evaluate, path, job.run_dir), device, log) == 0:
+                    checkpoints.write_clock(path, job.run_dir)
         if job.grid and not job.grid_result.is_file():
             print(f"[{device}] grid {job.arm} seed {job.seed}", flush=True)
             for args in job.grid:

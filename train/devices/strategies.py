@@ -30,6 +30,7 @@ from hsa_mjx.task.env import HSAEnv
 from ..config import TrainConfig
 from ..learners.ppo.learner import AXIS, LoopState, PPOLearner
 from ..learners.ppo.networks import TrainingState
+from ..learners.td3.learner import TD3Learner
 from . import compat
 from .base import DeviceStrategy, Replicated, envs_per_device
 from .replicas import PmapWithoutEmpty, first_copy
@@ -145,7 +146,7 @@ def resolve_collection(config: TrainConfig, devices: Sequence[jax.Device]) -> st
         return kind
     if len(devices) * jax.process_count() == 1:
         return "one_device"
-    if len(devices) > 1 and devices[0].platform == "gpu":
+    if len(devices) > 1 and devices[0].platform == "gpu" and config.run.learner == "ppo":
         return "thread_per_device"
     return "pmap"
 
@@ -159,6 +160,7 @@ def build(config: TrainConfig, devices: Sequence[jax.Device]) -> Strategy:
     the env built for the batch each device steps (``run.num_envs`` over every process's devices): the
     one place that sizes it (Warp's shared contact buffer)."""
     kind = resolve_collection(config, devices)
-    env = HSAEnv(config.env, num_envs=envs_per_device(config, devices), privileged=config.ppo.privileged_critic)
-    learner = PPOLearner(config, env, axis=None if kind == "one_device" else AXIS)
+    env = HSAEnv(config.env, num_envs=envs_per_device(config, devices), privileged=config.privileged_critic)
+    learners = {"ppo": PPOLearner, "td3": TD3Learner}
+    learner = learners[config.run.learner](config, env, axis=None if kind == "one_device" else AXIS)
     return STRATEGIES[kind](learner, devices)

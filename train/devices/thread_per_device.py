@@ -94,7 +94,7 @@ class ThreadPerDevice(Replicated):
         self.batch_envs = []
         for device in self.devices:
             with jax.default_device(device):
-                env = HSAEnv(config.env, num_envs=learner.env.num_envs, privileged=config.ppo.privileged_critic)
+                env = HSAEnv(config.env, num_envs=learner.env.num_envs, privileged=config.privileged_critic)
                 self.batch_envs.append(AutoResetEnv(env, config.run.regenerate_terrain_every))
         donate = (2,) if self.devices[0].platform != "cpu" else ()  # the CPU client cannot reuse donated buffers
         self._collect = [

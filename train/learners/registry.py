@@ -11,6 +11,7 @@ from hsa_mjx.deploy import policy_file
 
 from ..config import TrainConfig
 from .ppo import policy as ppo
+from .td3 import policy as td3
 
 
 class Learner(Protocol):
@@ -36,9 +37,9 @@ class Learner(Protocol):
     def from_policy(self, ts: Any, policy: policy_file.NumpyPolicy, count: int) -> Any: ...
 
 
-LEARNERS: dict[str, Learner] = {ppo.NAME: ppo}
+LEARNERS: dict[str, Learner] = {ppo.NAME: ppo, td3.NAME: td3}
 
 
 def learner_of(config: TrainConfig) -> Learner:
-    """The learner ``config`` trains with (PPO: the one learner so far)."""
-    return LEARNERS["ppo"]
+    """The learner ``config`` trains with (``run.learner``)."""
+    return LEARNERS[config.run.learner]

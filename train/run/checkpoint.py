@@ -175,6 +175,9 @@ def incompatibilities(saved: dict, current: dict, defaults: dict | None = None) 
         ]
     from ..learners.registry import LEARNERS  # deferred: reading a checkpoint's files needs no learner
 
+    learners = [c.get("run", {}).get("learner", "ppo") for c in (saved, current)]
+    if learners[0] != learners[1]:  # another learner's state
+        problems.append("run.learner")
     for learner in LEARNERS.values():  # the keys each learner's networks are built from
         was, now, default = (c.get(learner.NAME, {}) for c in (saved, current, defaults))
         problems += [f"{learner.NAME}.{k}" for k in learner.NETWORK_KEYS if was.get(k, default.get(k)) != now.get(k)]

@@ -1,11 +1,12 @@
 """A run directory: what a run writes there, and the checks before it starts or resumes.
 
 A run dir holds ``config.yaml``, ``checkpoints/``, ``metrics.jsonl``, ``tensorboard/``,
-``summary.json``, ``learning_curve.png``, ``ppo_diagnostics.png`` and, under SLURM, ``job.json`` (the job
-that started it). A new run refuses a folder that already holds one (``--overwrite`` replaces the run's
-own files, nothing else), unless it is the same SLURM job, requeued before its first checkpoint: that run
-starts afresh (``train.devices.cluster``). A resume reads the newest readable checkpoint's metadata and
-refuses one written with a config whose networks, env or curricula differ.
+``summary.json``, ``learning_curve.png``, the learner's ``ppo_diagnostics.png`` or ``td3_diagnostics.png``
+and, under SLURM, ``job.json`` (the job that started it). A new run refuses a folder that already holds
+one (``--overwrite`` replaces the run's own files, nothing else), unless it is the same SLURM job,
+requeued before its first checkpoint: that run starts afresh (``train.devices.cluster``). A resume reads
+the newest readable checkpoint's metadata and refuses one written with a config whose networks, env or
+curricula differ.
 Every check runs before anything compiles; with several processes, process 0 alone writes.
 """
 
@@ -37,6 +38,7 @@ RUN_FILES = (
     "summary.json",
     "learning_curve.png",
     "ppo_diagnostics.png",
+    "td3_diagnostics.png",
     "job.json",
 )
 JOB_FILE = "job.json"

@@ -35,7 +35,20 @@ PPO_PANELS = (
     ("loss/entropy_loss", "entropy loss"),
     ("terrain/redraw_truncated_share", "share of episodes cut by terrain re-draws"),
 )
-LOG_SCALE = {"loss/total_loss", "loss/v_loss", "loss/kl_mean"}
+# what an off-policy engineer reads first (train.learners.td3): the critics' values and their spread, the buffer
+TD3_PANELS = (
+    ("loss/critic_loss", "critic loss (cross-entropy)"),
+    ("loss/actor_loss", "actor loss (minus the mean Q)"),
+    ("loss/q_mean", "Q (mean over the batch)"),
+    ("loss/q_std", "Q spread (std over the batch)"),
+    ("loss/critic_grad_norm", "critic gradient norm"),
+    ("loss/buffer_size", "transitions in the buffers"),
+    ("loss/buffer_age", "age of sampled transitions (env steps)"),
+    ("loss/noise_std_mean", "exploration noise (mean over envs)"),
+    ("loss/skipped_updates", "skipped updates (non-finite)"),
+)
+DIAGNOSTICS = {"ppo": PPO_PANELS, "td3": TD3_PANELS}  # run.learner -> its panels
+LOG_SCALE = {"loss/total_loss", "loss/v_loss", "loss/kl_mean", "loss/critic_loss"}
 
 
 def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str | None = None) -> Path | None:
@@ -43,10 +56,9 @@ def learning_curves(metrics_path: str | Path, out_path: str | Path, title: str |
     return _figure(metrics_path, out_path, PANELS, title)
 
 
-def ppo_diagnostics(metrics_path: str | Path, out_path: str | Path, title: str | None = None) -> Path | None:
-    """Plot the learning step's diagnostics (value loss, explained variance, KL, clip fraction, gradient norm,
-    learning rate) against env steps into ``out_path``; None if there is nothing to plot."""
-    return _figure(metrics_path, out_path, PPO_PANELS, title)
+def learner_diagnostics(metrics_path: str | Path, run_dir: str | Path, learner: str) -> Path | None:
+    """The learner's diagnostics into ``run_dir / f"{learner}_diagnostics.png"``; None if nothing to plot."""
+    return _figure(metrics_path, Path(run_dir) / f"{learner}_diagnostics.png", DIAGNOSTICS[learner], None)
 
 
 def _figure(metrics_path: str | Path, out_path: str | Path, panels: tuple, title: str | None) -> Path | None:

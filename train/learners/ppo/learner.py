@@ -33,7 +33,7 @@ from hsa_mjx.curricula.state import Curricula, CurriculumRules, EnvLevels
 from hsa_mjx.task.env import HSAEnv
 
 from ...config import TrainConfig
-from .networks import TrainingState, make_networks, network_obs
+from .networks import TrainingState, init_training_state, make_networks, network_obs
 from .update import PPOUpdate, explained_variance, with_targets
 
 REGENERATION_SALT = 0x7E77  # folded into an iteration's collection key for its terrain re-draw
@@ -47,6 +47,23 @@ def with_random_phase(envs: BatchState, keys: jax.Array, max_steps: int) -> Batc
     steps = jax.vmap(lambda k: jax.random.randint(jax.random.fold_in(k, PHASE_SALT), (), 0, max_steps))(keys)
     task = envs.env.pipeline_state.task.replace(step_count=steps.astype(jnp.int32))
     return envs.replace(env=envs.env.replace(pipeline_state=envs.env.pipeline_state.replace(task=task)))
+
+
+def start(
+    config: TrainConfig,
+    rules: CurriculumRules,
+    batch_env: AutoResetEnv,
+    keys: jax.Array,
+    goal: goal_curriculum.GoalCurriculumState,
+    levels: EnvLevels | None,
+) -> tuple[BatchState, Curricula]:
+    """One device's fresh envs (one key each) and curricula from the goal curriculum and, when given,
+    every env's levels; with ``run.random_initial_phase`` each first episode starts at a random step."""
+    curricula = rules.init(keys, goal, levels)
+    envs = batch_env.reset(keys, rules.params(curricula))
+    if config.run.random_initial_phase:
+        envs = with_random_phase(envs, keys, config.env.termination.max_episode_steps)
+    return envs, curricula
 
 
 @struct.dataclass
@@ -86,6 +103,10 @@ class PPOLearner:
         self.iterations_per_epoch = max(1, config.run.steps_per_epoch // config.env_steps_per_iteration)
         self.update = PPOUpdate(self.networks, ppo, axis)
 
+    def init_state(self, key: jax.Array) -> TrainingState:
+        """A fresh learner state."""
+        return init_training_state(self.config, self.networks, key, self.network_input_size)
+
     @property
     def env_steps_per_epoch(self) -> int:
         """Env steps (all devices) one epoch advances."""
@@ -109,11 +130,7 @@ class PPOLearner:
     ) -> LoopState:
         """One device's fresh envs (one key each) on the curricula's start (or restored) state; with
         ``run.random_initial_phase`` each first episode starts at a random step of its length."""
-        batch_env = batch_env or self.batch_env
-        curricula = self.rules.init(keys, goal, levels)
-        envs = batch_env.reset(keys, self.rules.params(curricula))
-        if self.config.run.random_initial_phase:
-            envs = with_random_phase(envs, keys, self.config.env.termination.max_episode_steps)
+        envs, curricula = start(self.config, self.rules, batch_env or self.batch_env, keys, goal, levels)
         return LoopState(envs=envs, curricula=curricula)
 
     def unroll(

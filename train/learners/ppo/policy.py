@@ -96,7 +96,7 @@ def from_checkpoint(ts: TrainingState, restored: TrainingState, count: int | Non
 def from_policy(ts: TrainingState, policy: policy_file.NumpyPolicy, count: int) -> TrainingState:
     """The policy file's layers and normaliser in ``ts``; the value network and noise scale stay fresh."""
     ts = with_policy_layers(ts, policy.params["kernels"], policy.params["biases"])
-    return ts.replace(normalizer=_statistics(ts.normalizer, policy, count))
+    return ts.replace(normalizer=statistics_from_policy(ts.normalizer, policy, count))
 
 
 # ----- the policy network's dense layers ----------------------------------------------------
@@ -126,10 +126,16 @@ def policy_arrays(config: TrainConfig, ts: TrainingState, action_size: int) -> d
         "kernel": np.asarray(dense[-1]["kernel"])[:, :action_size],
         "bias": np.asarray(dense[-1]["bias"])[:action_size],
     }
+    return file_arrays(dense, ts.normalizer if config.ppo.normalize_observations else None)
+
+
+def file_arrays(dense: list[dict], normalizer: Any | None) -> dict:
+    """A policy file's float32 arrays of dense layers (input first) and the statistics that normalise
+    their input (None: no normalisation): their first values, the policy's own inputs (a privileged
+    critic's follow them in the statistics)."""
     n_obs = np.asarray(dense[0]["kernel"]).shape[0]
-    if config.ppo.normalize_observations:
-        # the policy's own inputs only: a privileged critic's follow them in the statistics
-        mean, std = ts.normalizer.mean[:n_obs], ts.normalizer.std[:n_obs]
+    if normalizer is not None:
+        mean, std = normalizer.mean[:n_obs], normalizer.std[:n_obs]
     else:
         mean, std = np.zeros(n_obs), np.ones(n_obs)
 
@@ -161,7 +167,7 @@ def with_policy_layers(ts: TrainingState, kernels: tuple, biases: tuple) -> Trai
 
 
 # ----- observation statistics (Brax's running statistics) ------------------------------------
-def _statistics(stats: Any, policy: policy_file.NumpyPolicy, count: int) -> Any:
+def statistics_from_policy(stats: Any, policy: policy_file.NumpyPolicy, count: int) -> Any:
     """Running statistics with the policy file's mean and std, as if from ``count`` samples."""
     mean, std = (jnp.asarray(policy.params[k], jnp.float32) for k in ("obs_mean", "obs_std"))
     size = stats.mean.shape[0]  # a privileged critic's inputs follow the policy's: their statistics stay fresh

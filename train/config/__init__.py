@@ -1,6 +1,6 @@
 """Training configuration: the env, the curricula, PPO hyperparameters and the run, from one YAML file.
 
-A training YAML has six sections, each optional (missing keys take the dataclass defaults below,
+A training YAML has seven sections, each optional (missing keys take the dataclass defaults below,
 the only defaults there are)::
 
     env: {...}                 # an hsa_mjx env config: `preset: NAME` (default flat_radial) plus keys over it
@@ -8,6 +8,7 @@ the only defaults there are)::
     terrain_curriculum: {...}  # hsa_mjx.curricula.terrain_curriculum.TerrainCurriculumConfig (terrain levels)
     randomization_curriculum: {...}  # hsa_mjx.curricula.randomization_curriculum (randomisation ranges)
     ppo: {...}                 # PPOConfig
+    td3: {...}                 # train.config.td3.TD3Config (run.learner: td3)
     run: {...}                 # RunConfig
 
 Older keys (``curriculum:``, ``curriculum.initial_range``, ``run.multi_device``) are mapped by
@@ -18,14 +19,10 @@ naming the key when the config is built, before any compilation; a built ``Train
 
 from __future__ import annotations
 
-import copy
 import dataclasses
-import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 import hsa_mjx.config
 from hsa_mjx import migrations, resources
@@ -35,6 +32,10 @@ from hsa_mjx.curricula import goal_curriculum, randomization_curriculum, terrain
 from hsa_mjx.deploy.policy_file import ACTIVATIONS
 from hsa_mjx.terrain.params import RANDOM_TYPES
 
+from . import td3 as td3_config
+from .overrides import SECTIONS, apply_overrides, assignments, parse_assignment  # noqa: F401  (the config's API)
+from .td3 import TD3Config
+
 CPU_CONFIG = "configs/train_quickstart_cpu.yaml"  # python -m train on a CPU: the quickstart
 GPU_CONFIG = "configs/train_flat.yaml"  # and on a GPU: the flat task from scratch
 
@@ -42,7 +43,7 @@ DISTRIBUTIONS = ("tanh_normal", "normal")
 VALUE_TARGETS = ("per_iteration", "per_minibatch")  # ppo.value_targets (train.learners.ppo.update)
 LR_SCHEDULES = ("fixed", "adaptive_kl")  # ppo.learning_rate_schedule
 NOISE_STD_TYPES = ("scalar", "log")
-SECTIONS = ("env", "goal_curriculum", "terrain_curriculum", "randomization_curriculum", "ppo", "run")
+LEARNERS = ("ppo", "td3")  # run.learner: the section whose hyperparameters train (train.learners.registry)
 DEFAULT_ENV_PRESET = "flat_radial"
 COLLECTIONS = ("auto", "one_device", "pmap", "thread_per_device")  # run.collection (train.devices.strategies)
 
@@ -139,6 +140,10 @@ class RunConfig:
     # true: each env's first episode starts a random number of steps old (0..max_episode_steps), so that the
     # batch's episodes end spread over time instead of all at once (legged_gym's random episode phase)
     random_initial_phase: bool = False
+    # > 0: stop (with a checkpoint) once the training clock of every call so far reaches this many seconds:
+    # runs compared at equal wall-clock (a sweep's budget_s); summary.json says stopped_by max_training_s
+    max_training_s: float = 0.0
+    learner: str = "ppo"  # "ppo" (on-policy, the default) or "td3" (FastTD3: replay buffer, distributional critics)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,6 +157,7 @@ class TrainConfig:
         randomization_curriculum.RandomizationCurriculumConfig()
     )
     ppo: PPOConfig = PPOConfig()
+    td3: TD3Config = TD3Config()
     run: RunConfig = RunConfig()
 
     def __post_init__(self) -> None:
@@ -159,8 +165,15 @@ class TrainConfig:
 
     @property
     def env_steps_per_iteration(self) -> int:
-        """Env steps collected by one PPO iteration (all devices)."""
+        """Env steps collected by one iteration (all devices): PPO's collection, or one step of every env (TD3)."""
+        if self.run.learner == "td3":
+            return self.run.num_envs
         return self.ppo.batch_size * self.ppo.num_minibatches * self.ppo.unroll_length
+
+    @property
+    def privileged_critic(self) -> bool:
+        """Whether the learner's critic reads the privileged inputs (its section's ``privileged_critic``)."""
+        return getattr(self, self.run.learner).privileged_critic
 
 
 def _env_from(data: Any) -> EnvConfig:
@@ -194,6 +207,7 @@ def from_dict(data: Mapping[str, Any] | None) -> TrainConfig:
             "randomization_curriculum",
         ),
         ppo=build_section(PPOConfig, data.get("ppo") or {}, "ppo"),
+        td3=build_section(TD3Config, data.get("td3") or {}, "td3"),
         run=build_section(RunConfig, data.get("run") or {}, "run"),
     )
 
@@ -202,10 +216,11 @@ def validate(config: TrainConfig) -> TrainConfig:
     """Check the config's internal consistency (``TrainConfig`` runs it when built); return it or raise ValueError."""
     _validate_curricula(config)
     _validate_ppo(config.ppo)
+    td3_config.validate(config.td3)
     _validate_run(config.run)
     _validate_ranges(config)
     ppo, run = config.ppo, config.run
-    if (ppo.batch_size * ppo.num_minibatches) % run.num_envs:
+    if run.learner == "ppo" and (ppo.batch_size * ppo.num_minibatches) % run.num_envs:
         raise ValueError(
             f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
             f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)"
@@ -214,7 +229,7 @@ def validate(config: TrainConfig) -> TrainConfig:
     if run.steps_per_epoch and run.steps_per_epoch % config.env_steps_per_iteration:
         raise ValueError(
             f"run.steps_per_epoch = {run.steps_per_epoch} must be a multiple of the env steps per "
-            f"PPO iteration ({config.env_steps_per_iteration})"
+            f"{run.learner} iteration ({config.env_steps_per_iteration})"
         )
     return config
 
@@ -276,6 +291,8 @@ def _validate_run(run: RunConfig) -> None:
     for key in ("num_timesteps", "num_envs", "epochs_per_log", "checkpoint_every", "keep_checkpoints"):
         if getattr(run, key) < 1:
             raise ValueError(f"config key 'run.{key}' must be >= 1, got {getattr(run, key)}")
+    if not run.max_training_s >= 0:
+        raise ValueError(f"config key 'run.max_training_s' must be >= 0 (0: off), got {run.max_training_s}")
     if run.checkpoint_every_s < 0:
         raise ValueError(f"config key 'run.checkpoint_every_s' must be >= 0 (0: off), got {run.checkpoint_every_s}")
     if run.init_normalizer_count < 0:
@@ -283,8 +300,12 @@ def _validate_run(run: RunConfig) -> None:
             f"config key 'run.init_normalizer_count' must be >= 0 (0: keep the source's), "
             f"got {run.init_normalizer_count}"
         )
+    if run.learner not in LEARNERS:
+        raise ValueError(f"config key 'run.learner' = {run.learner!r}; choose one of {list(LEARNERS)}")
     if run.collection not in COLLECTIONS:
         raise ValueError(f"config key 'run.collection' = {run.collection!r}; choose one of {list(COLLECTIONS)}")
+    if run.collection == "thread_per_device" and run.learner != "ppo":
+        raise ValueError(f"run.collection thread_per_device trains PPO only; run.learner {run.learner!r} runs on pmap")
 
 
 # (section, key): (lowest, highest, whether the ends are allowed), checked before anything compiles
@@ -322,52 +343,11 @@ def validate_devices(config: TrainConfig, devices: int) -> TrainConfig:
         raise ValueError(f"run.collection one_device runs on one device, but {devices} are in use (run.num_devices)")
     if config.run.num_envs % devices:
         raise ValueError(f"run.num_envs = {config.run.num_envs} must be divisible by the {devices} devices in use")
-    if config.ppo.batch_size % devices:
-        raise ValueError(f"ppo.batch_size = {config.ppo.batch_size} must be divisible by the {devices} devices in use")
+    section = config.run.learner
+    if getattr(config, section).batch_size % devices:
+        batch = getattr(config, section).batch_size
+        raise ValueError(f"{section}.batch_size = {batch} must be divisible by the {devices} devices in use")
     return config
-
-
-def apply_overrides(data: dict, assignments: list[str]) -> dict:
-    """Apply ``section.key=value`` strings (values parsed as YAML) to nested config data (its older keys
-    mapped first, so that an override and the file's key meet under one name); ``data`` is left as it is."""
-    data = copy.deepcopy(dict(migrations.training_keys(data)))
-    for item in assignments:
-        dotted, value = parse_assignment(item)
-        parts = dotted.split(".")
-        parts[0] = migrations.SECTION_NAMES.get(parts[0], parts[0])
-        if len(parts) < 2 or parts[0] not in SECTIONS:
-            raise ValueError(
-                f"--set key {dotted!r} must start with one of {list(SECTIONS)}, e.g. ppo.learning_rate=1e-4"
-            )
-        node = data.setdefault(parts[0], {})
-        for part in parts[1:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = value
-    return data
-
-
-def parse_assignment(item: str) -> tuple[str, Any]:
-    """(dotted key, value) of one ``section.key=value`` string, the value parsed as YAML."""
-    if "=" not in item:
-        raise ValueError(f"--set expects section.key=value, got {item!r}")
-    dotted, raw = item.split("=", 1)
-    return dotted.strip(), _parse_value(raw)
-
-
-def assignments(values: Mapping[str, Any]) -> list[str]:
-    """``section.key=value`` strings of a mapping of dotted keys to values (:func:`apply_overrides`'s input)."""
-    return [f"{key}={json.dumps(value)}" for key, value in values.items()]
-
-
-def _parse_value(raw: str) -> Any:
-    """A --set value as YAML, with numbers like ``2e-4`` (YAML 1.1 reads them as strings) as floats."""
-    value = yaml.safe_load(raw)
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
 
 
 def read_yaml(path: str | Path) -> dict:
