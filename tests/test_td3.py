@@ -58,6 +58,9 @@ def test_an_n_step_sample_sums_rewards_to_the_episodes_end_and_bootstraps_there(
         2.0: (4.0, 102.0, 0.0),
     }
     buffer = replay.add(buffer, row([[5.0]], [32.0], [0.0], [0.0]))
+    buffer = replay.add(buffer, row([[6.0]], [64.0], [0.0], [0.0]))
+    buffer = replay.end_newest(replay.end_newest(buffer, jnp.array([False])), jnp.array([True]))  # a re-draw cut
+    assert buffer.rows.ended[:, 0].tolist() == [0, 0, 1, 0, 1, 0, 1, 0]  # the newest row (6) ended, no other
     s = replay.sample(buffer, jax.random.PRNGKey(0), 64, 3, 0.5)
     truncated = np.asarray(s.obs[:, 0]) == 3.0
     assert truncated.any()  # a truncation ends the sum but bootstraps from its own next input

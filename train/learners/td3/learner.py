@@ -194,10 +194,13 @@ class TD3Learner:
         (ts, state, _), metrics = jax.lax.scan(
             self._iteration, (ts, state, key), None, length=self.iterations_per_epoch
         )
+        steps = state.envs.env.pipeline_state.task.step_count
         envs = self.batch_env.tick(
             state.envs, jax.random.fold_in(key, REGENERATION_SALT), self.rules.params(state.curricula)
         )
-        state, totals = self.drain(state.replace(envs=envs))
+        cut = (envs.env.pipeline_state.task.step_count == 0) & (steps > 0)  # episodes a terrain re-draw restarted
+        state = state.replace(envs=envs, buffer=replay.end_newest(state.buffer, cut))
+        state, totals = self.drain(state)
         losses = {k: jnp.nanmean(v) for k, v in metrics.items()}
         losses["buffer_size"] = self._sum_over_devices(state.buffer.filled * self.env.num_envs).astype(jnp.float32)
         losses["noise_std_mean"] = jnp.mean(state.noise)

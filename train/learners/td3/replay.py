@@ -66,6 +66,14 @@ def add(buffer: ReplayBuffer, step: Transition) -> ReplayBuffer:
     )
 
 
+def end_newest(buffer: ReplayBuffer, cut: jax.Array) -> ReplayBuffer:
+    """``buffer`` with the newest step of the envs where ``cut`` (envs,) marked as an episode's end by
+    truncation (their episode was cut after it, e.g. by a terrain re-draw: no window runs past it)."""
+    newest = (buffer.position - 1) % buffer.rows.reward.shape[0]
+    ended = buffer.rows.ended.at[newest].max(cut.astype(buffer.rows.ended.dtype))
+    return buffer.replace(rows=buffer.rows.replace(ended=ended))
+
+
 def sample(buffer: ReplayBuffer, key: jax.Array, batch: int, n_step: int, discounting: float) -> NStep:
     """``batch`` n-step samples, envs and start rows uniform among the windows the buffer holds whole
     (``filled`` >= ``n_step`` is the caller's to ensure). The window stops at the first episode end in it:
