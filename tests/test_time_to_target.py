@@ -97,3 +97,29 @@ def test_bad_folders_are_refused(tmp_path, capsys):
     )
     with pytest.raises(ValueError, match="no log rows"):
         benchmarks.scaling.time_to_target.read_run(_run(tmp_path, []))
+
+
+def test_the_evaluated_target_is_the_first_evaluated_checkpoint_at_the_success_with_its_clocks(tmp_path):
+    """Read from the run's evaluated checkpoints (the sweep's every_checkpoint), not the logged success; a TD3
+    run's iteration is one step of every env."""
+    td3 = {**CONFIG, "run": {**CONFIG["run"], "learner": "td3"}}
+    run = _run(tmp_path, [_row(640, 10.0, 4.5, 0.99), _row(1280, 20.0, 4.5, 0.99)], td3)
+    for step, clock, rate in ((640, 10.0, 0.6), (1280, 20.0, 0.93)):
+        folder = run / "sweep_checkpoints" / f"step_{step:012d}"
+        folder.mkdir(parents=True)
+        (folder / "eval.json").write_text(json.dumps({"episodes": 100, "success_rate": rate}))
+        (folder / "clock.json").write_text(json.dumps({"step": step, "training_walltime_s": clock}))
+    startup = {"first_update_since_launch_s": 30.0, "first_update_s": 12.0, "cold_caches": True}
+    (run / "summary.json").write_text(json.dumps({"startup": startup}))
+    out = tmp_path / "out"
+    assert benchmarks.scaling.time_to_target.main([str(run), "--out-dir", str(out)]) == 0
+    row = json.loads((out / "time_to_target_runs.json").read_text())[run.name]
+    assert row["learner"] == "td3" and row["iteration_env_steps"] == 64 and row["reached"]["env_steps"] == 640
+    assert row["evaluated"]["checkpoints_evaluated"] == 2
+    assert row["evaluated"]["reached"] == {
+        "training_s": 20.0,
+        "env_steps": 1280,
+        "success_rate": 0.93,
+        "since_launch_s": 38.0,
+    }
+    assert "| 20, 38.0, 1,280 |" in (out / "time_to_target_runs.md").read_text()

@@ -1,7 +1,7 @@
 """Time to a training target, read from the logs of finished runs.
 
     python -m benchmarks.scaling.time_to_target RUN_DIR [RUN_DIR ...] [--success 0.9 | --at-env-steps N]
-        [--out-dir DIR --tag NAME]
+        [--evaluate-episodes N] [--out-dir DIR --tag NAME]
 
 For each run (a folder ``python -m train`` wrote, or a copy under ``benchmarks/results/training/``)
 it reads ``config.yaml`` and ``metrics.jsonl`` and reports the first log at which the goal
@@ -23,6 +23,13 @@ first log's wall-clock (the compile and the first epoch) is given too: it depend
 update and its compile, and whether the caches were cold) go into its JSON row; the table shows the
 first update's time from launch and ``cold caches``.
 
+The logged success rate is the training episodes': read from evaluations instead, the target is the
+first of the run's evaluated checkpoints at ``--success`` (its mean action, ``RUN/sweep_checkpoints/``,
+``benchmarks.sweeps.checkpoints``: what a sweep with ``evaluate.every_checkpoint`` leaves), with its
+training clock and, from the start-up record, its time from launch. ``--evaluate-episodes N`` first
+evaluates the checkpoints not yet evaluated, N episodes each over the goal curriculum's full range. Both
+learners' runs are read alike (an iteration: PPO's collection, or TD3's one step of every env).
+
 Why PPO iterations: with weak scaling (the one-GPU batch on every GPU) an iteration of k GPUs
 takes about the wall-clock of one GPU's and holds k times the samples, so comparing iterations says
 whether the larger batch learns more per iteration, which is what decides the time to the target.
@@ -32,12 +39,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 import hsa_mjx.migrations
+from benchmarks.sweeps import checkpoints
 from train.run.logger import read_jsonl
 
 SUCCESS = "episode/success_rate"
@@ -91,7 +101,10 @@ def cumulative_walltime(rows: list[dict[str, Any]], key: str = WALL) -> list[flo
 
 
 def iteration_steps(config: dict[str, Any]) -> int:
-    """Env steps of one PPO iteration: every device's sequences of all minibatches, each ``unroll_length`` long."""
+    """Env steps of one iteration: PPO's (every device's sequences of all minibatches, each ``unroll_length``
+    long), or TD3's (one step of every env)."""
+    if config["run"].get("learner", "ppo") == "td3":
+        return int(config["run"]["num_envs"])
     ppo = config["ppo"]
     return int(ppo["batch_size"]) * int(ppo["num_minibatches"]) * int(ppo["unroll_length"])
 
@@ -134,6 +147,7 @@ def time_to_target(
             break
     run = config["run"]
     return {
+        "learner": run.get("learner", "ppo"),
         "num_envs": run["num_envs"],
         "num_devices": run.get("num_devices"),
         "physics_backend": config["env"]["physics"].get("backend"),
@@ -149,9 +163,9 @@ def markdown(results: dict[str, dict[str, Any]]) -> str:
     """One table row per run: time to the target, and the last log."""
     lines = [
         "| run | envs | devices | first update from launch (s) | cold caches | first log (s) | target reached at (s) | "
-        "from launch (s) | env steps | PPO iterations | last log (s) | env steps | iterations | success | goal max (m) "
-        "| mean terrain level |",
-        "|" + "---|" * 16,
+        "from launch (s) | env steps | iterations | last log (s) | env steps | iterations | success | goal max (m) "
+        "| mean terrain level | evaluated target at (training s, from launch s, env steps) |",
+        "|" + "---|" * 17,
     ]
     for name, r in results.items():
         hit, last, startup = r["reached"] or {}, r["last"], r.get("startup") or {}
@@ -172,9 +186,43 @@ def markdown(results: dict[str, dict[str, Any]]) -> str:
             _round(last["success_rate"]),
             _round(last["goal_max_m"]),
             _round(last["mean_terrain_level"]),
+            _evaluated_cell(r.get("evaluated")),
         ]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def evaluated_target(run_dir: Path, success: float, startup: dict[str, Any] | None) -> dict[str, Any]:
+    """The first evaluated checkpoint at ``success`` (None when none is) and how many were evaluated; its
+    time from launch: the start-up before the training loop (one call's) and the training clock."""
+    curve = checkpoints.curve(run_dir)
+    hit = checkpoints.time_to_target(curve, success)
+    if hit and startup and startup.get("first_update_since_launch_s") is not None:
+        before = startup["first_update_since_launch_s"] - startup["first_update_s"]
+        hit = {**hit, "since_launch_s": round(before + hit["training_s"], 1)}
+    return {"success": success, "checkpoints_evaluated": len(curve), "reached": hit}
+
+
+def _evaluated_cell(evaluated: dict[str, Any] | None) -> str:
+    if not evaluated or not evaluated["checkpoints_evaluated"]:
+        return "-"
+    hit = evaluated["reached"]
+    if not hit:
+        return f"not reached ({evaluated['checkpoints_evaluated']} checkpoints)"
+    return f"{hit['training_s']:.0f}, {hit.get('since_launch_s', '-')}, {hit['env_steps']:,}"
+
+
+def evaluate_checkpoints(run_dir: Path, episodes: int) -> None:
+    """Evaluate the run's checkpoints not yet evaluated (``train.evaluate``, its mean action, ``episodes``
+    goals over the goal curriculum's full range), each beside its training clock."""
+    config = read_run(run_dir)[0]
+    curriculum = hsa_mjx.migrations.training_keys(config).get("goal_curriculum", {})
+    goals = curriculum["target_range"] if curriculum.get("enabled") else config["env"]["goal"]["radial_range"]
+    base = ["-m", "train.evaluate", str(run_dir), "--out", "", "--episodes", str(episodes), "--seed", "1000"]
+    base += ["--goal-range", *(str(g) for g in goals)]
+    for path in checkpoints.pending(run_dir):
+        subprocess.run([sys.executable, *checkpoints.command(base, path, run_dir)], check=True)
+        checkpoints.write_clock(path, run_dir)
 
 
 def _round(value: float | None) -> str:
@@ -194,6 +242,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--at-env-steps", type=int, default=None, help="the target is the first log at this many env steps instead"
     )
+    parser.add_argument(
+        "--evaluate-episodes",
+        type=int,
+        default=0,
+        help="first evaluate each checkpoint not yet evaluated with this many goals (0: read what is there)",
+    )
     parser.add_argument("--out-dir", default=None, help="write time_to_target_<tag>.{json,md} here")
     parser.add_argument("--tag", default="runs")
     args = parser.parse_args(argv)
@@ -202,13 +256,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.at_env_steps is not None and args.at_env_steps < 1:
         parser.error(f"--at-env-steps must be a positive number of env steps, got {args.at_env_steps}")
     try:
-        results = {
-            Path(d).name: {
+        for d in args.run_dirs if args.evaluate_episodes > 0 else ():
+            evaluate_checkpoints(Path(d), args.evaluate_episodes)
+        results = {}
+        for d in args.run_dirs:
+            startup = read_startup(Path(d))
+            results[Path(d).name] = {
                 **time_to_target(*read_run(Path(d)), args.success, args.at_env_steps),
-                "startup": read_startup(Path(d)),
+                "startup": startup,
+                "evaluated": evaluated_target(Path(d), args.success, startup),
             }
-            for d in args.run_dirs
-        }
     except (FileNotFoundError, ValueError, KeyError) as err:
         print(f"error: {err}")
         return 2
