@@ -101,7 +101,8 @@ class Run:
 def train(
     config: TrainConfig, run_dir: str | Path, resume: bool = False, quiet: bool = False, overwrite: bool = False
 ) -> dict:
-    """Train PPO with the curricula; checkpoints, logs and plots go to ``run_dir``. Returns a summary.
+    """Train the learner ``run.learner`` names (PPO or TD3) with the curricula; checkpoints, logs and plots go
+    to ``run_dir``. Returns a summary.
 
     ``resume`` continues the run in ``run_dir`` from its newest readable checkpoint; ``overwrite``
     replaces a run already there (otherwise a run dir holding one is refused).

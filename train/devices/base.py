@@ -11,6 +11,7 @@ import jax
 
 from ..config import TrainConfig
 from ..learners.ppo.learner import AXIS, PPOLearner
+from ..learners.td3.learner import TD3Learner
 from .replicas import first_copy, replicate
 
 
@@ -31,7 +32,7 @@ class DeviceStrategy:
     name = ""
     axis: str | None = AXIS  # the learner's device axis this strategy needs (None: no collective)
 
-    def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
+    def __init__(self, learner: PPOLearner | TD3Learner, devices: Sequence[jax.Device]):
         if learner.axis != self.axis:
             needs = "without a device axis (axis=None)" if self.axis is None else f"with the device axis {self.axis!r}"
             raise ValueError(f"run.collection {self.name} needs a learner {needs}")

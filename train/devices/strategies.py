@@ -1,7 +1,7 @@
 """How the devices share a training epoch: the collection strategies of ``run.collection``.
 
-One learner (``train.learners.ppo.learner.PPOLearner``: collect, learn, drain as pure functions) and one
-of these strategies, which place its state and call its functions:
+One learner (``train.learners.ppo.learner.PPOLearner`` or ``train.learners.td3.learner.TD3Learner``: reset,
+epoch, drain as pure functions) and one of these strategies, which place its state and call its functions:
 
 - ``one_device``: the epoch jitted for the one device, no collective at all;
 - ``pmap``: the epoch ``pmap``-ed over this process's devices (and every process's, with several
@@ -43,7 +43,7 @@ class OneDevice(DeviceStrategy):
     name = "one_device"
     axis = None
 
-    def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
+    def __init__(self, learner: PPOLearner | TD3Learner, devices: Sequence[jax.Device]):
         if len(devices) != 1 or jax.process_count() != 1:
             raise ValueError(f"run.collection one_device needs one device, got {len(devices) * jax.process_count()}")
         super().__init__(learner, devices)
@@ -78,7 +78,7 @@ class OneDevice(DeviceStrategy):
         return self._reset(*jax.device_put((env_keys[0], goal, levels), device))
 
     def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
-        """``iterations_per_epoch`` PPO iterations (``keys``: (1, 2)); returns (ts, state, outputs)."""
+        """``iterations_per_epoch`` learner iterations (``keys``: (1, 2)); returns (ts, state, outputs)."""
         return self._epoch(ts, state, keys[0])
 
     def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
@@ -101,7 +101,7 @@ class Pmap(Replicated):
 
     name = "pmap"
 
-    def __init__(self, learner: PPOLearner, devices: Sequence[jax.Device]):
+    def __init__(self, learner: PPOLearner | TD3Learner, devices: Sequence[jax.Device]):
         super().__init__(learner, devices)
         self._reset = PmapWithoutEmpty(learner.reset, axis_name=AXIS)
         self._epoch = PmapWithoutEmpty(learner.epoch, axis_name=AXIS, donate_argnums=(0, 1))
@@ -120,7 +120,7 @@ class Pmap(Replicated):
         return self._reset(jax.device_put(env_keys), compat.device_put_replicated(goal, self.devices), levels)
 
     def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
-        """``iterations_per_epoch`` PPO iterations on every device (one key each); returns (ts, state, outputs)."""
+        """``iterations_per_epoch`` learner iterations on every device (one key each); returns (ts, state, outputs)."""
         return self._epoch(ts, state, keys)
 
     def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
