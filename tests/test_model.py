@@ -58,7 +58,7 @@ def test_robot_collides_with_the_floor_only(robot):
 
 def test_terrain_scene_uses_world_fixed_friction_order():
     m = load_mj_model(EnvConfig(scene="terrain"))  # one flat tile: the atlas is the asset's field itself
-    assert m.nhfield == 1 and tuple(m.hfield_size[0]) == (5, 5, 0.5, 0.01)
+    assert m.nhfield == 1 and tuple(m.hfield_size[0]) == (5, 5, 1.5, 0.01)  # 1.5 m: inclines climb
     assert m.body_mocapid[m.body("terrain_frame").id] >= 0  # the floor moves with its mocap body
     np.testing.assert_allclose(m.pair_friction[:, :2], np.tile([0.1, 0.21], (4, 1)))
 

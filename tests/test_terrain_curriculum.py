@@ -11,7 +11,7 @@ import pytest
 
 import hsa_mjx.config
 from hsa_mjx.curricula import terrain_curriculum
-from hsa_mjx.terrain import TERRAIN_TYPES, Grid, TerrainConfig, generate
+from hsa_mjx.terrain import TERRAIN_TYPES, Grid, PolesParams, TerrainConfig, generate
 from hsa_mjx.terrain.atlas import AtlasLayout, TerrainPool
 from hsa_mjx.terrain.generators import DIFFICULTY_PARAMETER, GENERATORS
 from train import config as train_config
@@ -38,7 +38,11 @@ def test_difficulty_zero_is_level_ground(terrain_type):
 @pytest.mark.parametrize("terrain_type", HARD_TYPES)
 def test_roughness_grows_with_difficulty(terrain_type):
     key = jax.random.PRNGKey(7)
-    measured = [_relief(np.asarray(generate(terrain_type, key, None, GRID, d))) for d in DIFFICULTIES]
+    # the poles' heights grow until the original's 0.5 m top (max_height), reached at about 0.4-0.67: uncapped here
+    params = PolesParams(max_height=10.0) if terrain_type == "poles" else None
+    measured = [_relief(np.asarray(generate(terrain_type, key, params, GRID, d))) for d in DIFFICULTIES]
+    if terrain_type == "poles":
+        assert np.asarray(generate("poles", key, None, GRID, 1.0)).max() == PolesParams().max_height == 0.5
     for name in ("rms", "slope", "step"):
         values = [m[name] for m in measured]
         assert values[0] > 0 and all(a < b for a, b in zip(values, values[1:])), (terrain_type, name, values)

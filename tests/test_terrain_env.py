@@ -175,20 +175,22 @@ def test_track_presets_have_one_tile_every_env_draws(preset):
     shared, _ = _world(hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset(preset), terrain__per_env=False))
     assert world.pool.tiles.shape == shared.pool.tiles.shape == (1, world.grid.size)
     np.testing.assert_allclose(world.pool.tiles[0], shared.pool.tiles[0], atol=1e-5)  # up to float rounding (a micron)
-    assert np.ptp(world.pool.tiles[0]) > 0.4  # a real track, walls and floor
+    assert np.ptp(world.pool.tiles[0]) * world.grid.z_scale > 0.2  # a real track: walls 0.2 m and more above the floor
 
 
 def test_spawn_rests_the_lowest_geom_on_a_step_under_one_block():
     config = hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__per_env=False)
-    x, _ = _world(config)[0].grid.mesh()
-    world, _ = _world(config, np.where(x < -0.05, 0.2, 0.0).reshape(1, -1))  # 0.1 m step under block A
+    grid = _world(config)[0].grid
+    x, _ = grid.mesh()
+    world, _ = _world(config, np.where(x < -0.05, 0.1 / grid.z_scale, 0.0).reshape(1, -1))  # 0.1 m step under block A
     z = float(world.spawn_height(0))
     assert z == pytest.approx(0.1 + REST + world.config.spawn_clearance, abs=1e-5)
 
 
 def test_termination_heights_and_bounds_follow_the_terrain():
     config = hsa_mjx.config.with_overrides(hsa_mjx.config.get_preset("craters"), terrain__per_env=False)
-    world, _ = _world(config, np.full((1, 2500), 0.6, np.float32))  # ground at 0.3 m everywhere
+    z_scale = _world(config)[0].grid.z_scale
+    world, _ = _world(config, np.full((1, 2500), 0.3 / z_scale, np.float32))  # ground at 0.3 m everywhere
     np.testing.assert_allclose(np.asarray(world.ground(0, jnp.zeros((2, 2)))), 0.3, atol=1e-6)
     margin = world.config.edge_margin
     assert bool(world.out_of_bounds(jnp.array([5.0 - margin + 0.05, 0.0])))

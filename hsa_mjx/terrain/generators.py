@@ -177,8 +177,7 @@ def poles(
     ``edge`` is one vertex spacing (or the radius if smaller), so the default 0.2 m poles are the
     original's single-vertex spikes. The difficulty scales their height (``grade: height``) or how many
     of the placed poles stand (``grade: count``: the ``ceil(difficulty x num)`` of highest priority, each
-    at full height). Poles taller than the heightfield's z scale are clipped by
-    :func:`~hsa_mjx.terrain.grid.to_hfield_data`.
+    at full height). No pole is taller than ``max_height``.
     """
     if p.num == 0:
         return flat(key, p, grid, x, y)
@@ -194,7 +193,7 @@ def poles(
     edge = jnp.minimum(radius, min(grid.spacing_x, grid.spacing_y))
     d = _pairwise_distance(x, y, cx, cy)
     profile = jnp.where(present, height * jnp.clip((radius - d) / edge, 0.0, 1.0), 0.0)
-    return scale * jnp.max(profile, axis=-1)
+    return jnp.minimum(scale * jnp.max(profile, axis=-1), p.max_height)
 
 
 def flat_with_incline(

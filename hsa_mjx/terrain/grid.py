@@ -39,7 +39,7 @@ class Grid:
     ncol: int = 50
     half_x: float = 5.0
     half_y: float = 5.0
-    z_scale: float = 0.5
+    z_scale: float = 1.5
     base: float = 0.01
 
     def __post_init__(self) -> None:

@@ -89,9 +89,11 @@ class PolesParams:
 
     num: int = 75
     radius: tuple[float, float] = (0.2, 0.2)  # m (original 1 cell: a single-vertex spike)
-    height: tuple[float, float] = (0.75, 1.25)  # m (original 1.5-2.5 x 0.5 m; clipped to the z scale)
+    height: tuple[float, float] = (0.75, 1.25)  # m (original 1.5-2.5 x 0.5 m), at most max_height
     min_spacing: float = 0.6  # m (original 3 cells)
     grade: str = "height"  # height | count
+    # m: the original's poles end at its height field's top, 0.5 m above the ground (taller ones were cut there)
+    max_height: float = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -316,7 +318,7 @@ def _check_generators(c: TerrainConfig) -> None:
     _check_sign(c.craters, "craters", non_negative=("num",))
     _check_range("craters.radius", c.craters.radius, 0.0, strict_low=True)
     _check_range("craters.depth", c.craters.depth, 0.0)
-    _check_sign(c.poles, "poles", non_negative=("num", "min_spacing"))
+    _check_sign(c.poles, "poles", positive=("max_height",), non_negative=("num", "min_spacing"))
     _check_range("poles.radius", c.poles.radius, 0.0, strict_low=True)
     _check_range("poles.height", c.poles.height, 0.0)
     _check_choice("poles.grade", c.poles.grade, POLE_GRADES)
