@@ -359,8 +359,8 @@ def main(argv: list[str] | None = None) -> int:
         deadline = None if args.time_limit is None else start + args.time_limit
         print(f"sweep {sweep.name}: {len(jobs)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
         Runner(devices, deadline).run(jobs + refs, sweep.env_steps)
-    report = sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs)
-    print(sweep_report.markdown(report))
+    sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs)
+    print((out / "sweep.md").read_text(), end="")  # the report as written: arms, runs, checkpoints, grid
     return 0
 
 
