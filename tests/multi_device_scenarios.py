@@ -299,7 +299,23 @@ def scenario_two_devices(config_path: str, run_dir: str, processes_config: str) 
     flat_dir = str(Path(run_dir).parent / "run_flat")
     facts["rc_processes_config"] = main(["--config", processes_config, "--run-dir", flat_dir, "--quiet"])
     phase("processes_config")
+    facts["td3"] = _td3_on_two_devices(processes_config, str(Path(run_dir).parent / "run_td3"))
+    phase("td3_pmap")
     return {**facts, "phase_s": phases}
+
+
+def _td3_on_two_devices(config_path: str, run_dir: str) -> dict:
+    """The flat tiny config trained by TD3 on the two devices (``auto``: pmap), tiny networks and buffer."""
+    from train.cli import main
+    from train.run.logger import read_jsonl
+
+    tiny_td3 = ["run.learner=td3", "td3.actor_hidden_sizes=[8]", "td3.critic_hidden_sizes=[8]", "td3.batch_size=8"]
+    tiny_td3 += ["td3.buffer_size=32", "td3.num_atoms=11", "td3.learning_starts=3", "run.num_timesteps=80"]
+    rc = main(["--config", config_path, "--run-dir", run_dir, "--quiet", *[f"--set={s}" for s in tiny_td3]])
+    last = read_jsonl(Path(run_dir) / "metrics.jsonl")[-1] if rc == 0 else {}
+    summary = json.loads((Path(run_dir) / "summary.json").read_text()) if rc == 0 else {}
+    keys = ("loss/critic_loss", "loss/q_mean", "loss/buffer_size", "loss/skipped_updates")
+    return {"rc": rc, "collection": summary.get("collection"), **{k: last.get(k) for k in keys}}
 
 
 def scenario_process(config_path: str, run_dir: str, port: str, steps: str, action: str, process_id: str) -> dict:

@@ -408,3 +408,12 @@ def test_two_device_checkpoint_resumes_and_evaluates_on_one_device(two_devices):
     # evaluated on tiles the run's pool was not drawn from, both seeds recorded
     assert table["terrain_seed"] != table["training_terrain_seed"] and "training_seed" in table
     assert table["tiles_per_cell"] == 2
+
+
+def test_td3_trains_on_two_devices_with_a_buffer_on_each(two_devices):
+    facts, _ = two_devices
+    td3 = facts["td3"]
+    assert td3["rc"] == 0 and td3["collection"] == "pmap"  # auto: pmap for TD3
+    assert td3["loss/buffer_size"] == 64  # each device: 4 envs, rings of 32 / 4 = 8 rows, full after 10 steps; summed
+    assert all(v == v and abs(v) < 1e6 for v in (td3["loss/critic_loss"], td3["loss/q_mean"]))
+    assert td3["loss/skipped_updates"] == 0

@@ -209,5 +209,7 @@ def test_td3_settings_are_checked_before_anything_compiles():
         train_config.from_dict({"run": {"learner": "td3", "collection": "thread_per_device"}})
     with pytest.raises(ValueError, match="td3.learning_starts"):
         train_config.from_dict({"td3": {"n_step": 5, "learning_starts": 2}})
+    with pytest.raises(ValueError, match="never learn"):
+        train_config.from_dict({"run": {"learner": "td3", "num_envs": 64}, "td3": {"buffer_size": 512}})
     with pytest.raises(ValueError, match="td3.v_min"):
         train_config.from_dict({"td3": {"v_min": 1.0, "v_max": 0.0}})

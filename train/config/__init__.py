@@ -225,6 +225,12 @@ def validate(config: TrainConfig) -> TrainConfig:
             f"ppo.batch_size x ppo.num_minibatches = {ppo.batch_size * ppo.num_minibatches} must be "
             f"a multiple of run.num_envs = {run.num_envs} (each env contributes whole unrolls)"
         )
+    td3, rows = config.td3, config.td3.buffer_size // run.num_envs
+    if run.learner == "td3" and rows < td3.learning_starts:
+        raise ValueError(
+            f"td3.buffer_size = {td3.buffer_size} holds {rows} steps of each of run.num_envs = {run.num_envs}, "
+            f"fewer than td3.learning_starts = {td3.learning_starts}: it would never learn; raise td3.buffer_size"
+        )
     _validate_regeneration(config)
     if run.steps_per_epoch and run.steps_per_epoch % config.env_steps_per_iteration:
         raise ValueError(
