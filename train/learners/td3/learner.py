@@ -135,20 +135,19 @@ class TD3Learner:
         fresh = self._noise_scales(batch_env.env_keys(stepped))
         noise_scale = jnp.where(ended > 0, fresh, state.noise)
         buffer = replay.add(state.buffer, transition)
-        outcomes = {"ended": ended, "goal_reached": stepped.env.metrics["termination/goal_reached"]}
+        outcomes = {"obs": obs, "ended": ended, "goal_reached": stepped.env.metrics["termination/goal_reached"]}
         return TD3LoopState(envs=envs, curricula=curricula, buffer=buffer, noise=noise_scale), outcomes
 
-    def learn(self, ts: TD3State, state: TD3LoopState, key: jax.Array) -> tuple[TD3State, dict]:
-        """Observation statistics from the newest step, then ``updates_per_step`` updates once every env
+    def learn(self, ts: TD3State, state: TD3LoopState, obs: jax.Array, key: jax.Array) -> tuple[TD3State, dict]:
+        """Observation statistics from the step's inputs ``obs``, then ``updates_per_step`` updates once every env
         has ``learning_starts`` steps in the buffer (before that the state stays, no metrics count)."""
         td3 = self.config.td3
-        newest = state.buffer.rows.obs[(state.buffer.position - 1) % self.capacity]
         normalizer = ts.normalizer
         if td3.normalize_observations:
-            finite = jnp.all(jnp.isfinite(newest), axis=-1)
+            finite = jnp.all(jnp.isfinite(obs), axis=-1)
             normalizer = running_statistics.update(
                 normalizer,
-                jnp.where(finite[:, None], newest, 0.0),
+                jnp.where(finite[:, None], obs, 0.0),
                 weights=finite.astype(jnp.float32),
                 std_min_value=td3.observation_std_min,
                 pmap_axis_name=self.axis,
@@ -174,7 +173,7 @@ class TD3Learner:
         ts, state, key = carry
         key, k_step, k_learn = jax.random.split(key, 3)
         state, outcomes = self.env_step(ts, state, k_step)
-        ts, metrics = self.learn(ts, state, k_learn)
+        ts, metrics = self.learn(ts, state, outcomes["obs"], k_learn)
         if self.config.goal_curriculum.enabled:
             done = self._every_devices_envs(outcomes["ended"][None]) > 0
             success = self._every_devices_envs(outcomes["goal_reached"][None]) > 0
