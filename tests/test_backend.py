@@ -174,3 +174,24 @@ def test_a_shipped_policy_evaluates_on_the_warp_backend(tmp_path):
     assert main(args) == 0
     result = json.loads((out / "eval.json").read_text())
     assert result["physics"] == "mjx_warp" and result["episodes"] == 2 and result["mean_episode_steps"] > 0
+
+
+def test_warp_kernel_modules_are_prebuilt_once_per_device(monkeypatch):
+    """The modules named for building ahead exist in the installed MuJoCo Warp (a renamed one would only
+    lose the head start), and a device's modules are built once: two light ones here, on the CPU."""
+    import importlib.util
+    import types
+    import warnings
+
+    from hsa_mjx.sim import warp_kernels
+
+    for module in warp_kernels.MODULES:
+        assert importlib.util.find_spec(f"{warp_kernels.PACKAGE}.{module}") is not None, module
+    monkeypatch.setattr(warp_kernels, "MODULES", ("support", "constraint"))
+    monkeypatch.setattr(warp_kernels, "_built", set())
+    cpu = jax.devices("cpu")[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warp_kernels.prebuild(cpu, workers=2) > 0.0
+    assert warp_kernels.prebuild(cpu) is None
+    assert warp_kernels.warp_device(types.SimpleNamespace(platform="gpu", local_hardware_id=1)) == "cuda:1"

@@ -131,7 +131,12 @@ def _quiet_warp() -> None:
 
 
 def put_model(mj_model: mujoco.MjModel, backend: str, device: jax.Device) -> mjx.Model:
-    """The MJX model of ``mj_model`` for ``backend`` on ``device`` (iteration-cap warnings off on Warp)."""
+    """The MJX model of ``mj_model`` for ``backend`` on ``device`` (iteration-cap warnings off on Warp;
+    on a GPU, MuJoCo Warp's kernel modules compiled first on parallel threads: :mod:`.warp_kernels`)."""
+    if backend == "warp" and device.platform == "gpu":
+        from hsa_mjx.sim import warp_kernels
+
+        warp_kernels.prebuild(device)
     model = mjx.put_model(mj_model, impl=mjx_impl(backend), device=device)
     if backend == "warp":
         warp_opt = model.opt._impl
