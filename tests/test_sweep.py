@@ -240,11 +240,15 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
         path.mkdir(parents=True)
         meta = {"format": checkpoint.FORMAT_VERSION, "config": {}, "step": (i + 1) * 1000}
         (path / checkpoint.META_FILE).write_text(json.dumps({**meta, "training_walltime_s": seconds}))
-    script = (  # train.evaluate's stand-in: success 0.5, 0.95, 0.97 by checkpoint, into --out
-        "import json, pathlib, sys; a = sys.argv; out = pathlib.Path(a[a.index('--out') + 1]); out.mkdir(parents=True);"
-        "step = int(a[a.index('--checkpoint') + 1][-12:]) if '--checkpoint' in a else 3000;"
-        "rate = {1000: 0.5, 2000: 0.95, 3000: 0.97}[step];"
-        "(out / 'eval.json').write_text(json.dumps({'episodes': 100, 'success_rate': rate, 'step': step}))"
+    script = (  # train.evaluate's stand-in: success 0.5, 0.95, 0.97 by checkpoint, into --out (several: its folders)
+        "import json, pathlib, sys; a = sys.argv; out = pathlib.Path(a[a.index('--out') + 1]);"
+        "ckpts = a[a.index('--checkpoint') + 1 :] if '--checkpoint' in a else [];"
+        "outs = [out / pathlib.Path(c).name for c in ckpts] if len(ckpts) > 1 else [out];"
+        "steps = [int(c[-12:]) for c in ckpts] or [3000];"
+        "rates = {1000: 0.5, 2000: 0.95, 3000: 0.97};"
+        "[o.mkdir(parents=True) for o in outs];"
+        "[(o / 'eval.json').write_text(json.dumps({'episodes': 100, 'success_rate': rates[s], 'step': s})) "
+        "for o, s in zip(outs, steps)]"
     )
     job.evaluate = ["-c", script, "--out", str(job.run_dir / "sweep_eval")]
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
@@ -257,3 +261,13 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
     job.evaluate = ["-c", "raise SystemExit(1)", "--out", "x"]  # evaluated checkpoints are not evaluated again
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
     assert len(sweep_report.write(spec, [job], tmp_path / "out")["runs"][0]["checkpoints"]) == 3
+
+
+def test_runs_sharing_a_gpu_share_its_memory(monkeypatch):
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    runner = sweep.Runner(["0", "0", "0", "1"], deadline=None)
+    assert runner.environment("0")["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.250"
+    assert runner.environment("0")["CUDA_VISIBLE_DEVICES"] == "0"
+    assert "XLA_PYTHON_CLIENT_MEM_FRACTION" not in runner.environment("1")  # alone on its GPU: XLA's default
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.5")  # the user's choice wins
+    assert runner.environment("0")["XLA_PYTHON_CLIENT_MEM_FRACTION"] == "0.5"

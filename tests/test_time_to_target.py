@@ -123,3 +123,11 @@ def test_the_evaluated_target_is_the_first_evaluated_checkpoint_at_the_success_w
         "since_launch_s": 38.0,
     }
     assert "| 20, 38.0, 1,280 |" in (out / "time_to_target_runs.md").read_text()
+
+
+def test_runs_of_the_same_folder_name_keep_a_row_each():
+    names = benchmarks.scaling.time_to_target.run_names(["out/runs/ppo/seed0", "out/runs/td3/seed0", "x/seed1"])
+    assert names == ["ppo/seed0", "td3/seed0", "x/seed1"]
+    assert benchmarks.scaling.time_to_target.run_names(["a/run"]) == ["run"]
+    with pytest.raises(ValueError, match="twice"):
+        benchmarks.scaling.time_to_target.run_names(["a/run", "a/run"])

@@ -120,10 +120,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--checkpoint",
+        nargs="+",
         default=None,
         metavar="STEP_OR_DIR",
         help="a run's checkpoint to evaluate: a step it saved (e.g. 26214400) or a checkpoint directory "
-        "(default: the newest readable one)",
+        "(default: the newest readable one); several: each into --out DIR/<checkpoint folder>/, all played "
+        "in one batch on the same goals (flat, mean action: train/episodes/checkpoint_batch.py)",
     )
     parser.add_argument(
         "--video-cell",
@@ -156,6 +158,7 @@ def spec_from_args(args: argparse.Namespace) -> Any:
     from .episodes.play import EvalSpec
 
     fields = dict(vars(args))
+    fields["checkpoint"] = args.checkpoint[0] if args.checkpoint and len(args.checkpoint) == 1 else None
     fields["goal_range"] = tuple(args.goal_range) if args.goal_range else None
     fields["overrides"] = dict(parse_assignment(item) for item in args.overrides)
     if args.levels is not None:
@@ -196,14 +199,18 @@ def main(argv: list[str] | None = None) -> int:
     """
     gl.choose_platform()
     args = parse_args(argv)
+    from .episodes.checkpoint_batch import evaluate_many
     from .episodes.play import evaluate
 
+    several = args.checkpoint if args.checkpoint and len(args.checkpoint) > 1 else None
     try:
-        result = evaluate(spec_from_args(args))
+        spec = spec_from_args(args)
+        results = evaluate_many(spec, several) if several else [evaluate(spec)]
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    report(result)
+    for result in results:
+        report(result)
     return 0
 
 

@@ -220,14 +220,27 @@ def evaluate_checkpoints(run_dir: Path, episodes: int) -> None:
     goals = curriculum["target_range"] if curriculum.get("enabled") else config["env"]["goal"]["radial_range"]
     base = ["-m", "train.evaluate", str(run_dir), "--out", "", "--episodes", str(episodes), "--seed", "1000"]
     base += ["--goal-range", *(str(g) for g in goals)]
-    for path in checkpoints.pending(run_dir):
-        subprocess.run([sys.executable, *checkpoints.command(base, path, run_dir)], check=True)
+    pending = checkpoints.pending(run_dir)
+    for args in checkpoints.commands(base, pending, run_dir):  # one batch of all of them
+        subprocess.run([sys.executable, *args], check=True)
+    for path in pending:
         checkpoints.write_clock(path, run_dir)
 
 
 def _round(value: float | None) -> str:
     """Two decimals, or "-" when the run did not log it."""
     return "-" if value is None else f"{value:.2f}"
+
+
+def run_names(run_dirs: list[str]) -> list[str]:
+    """Each run's name in the report: the shortest tail of its path that tells the runs apart (a sweep's
+    ``ppo/seed0`` and ``td3/seed0``; a lone run: its folder's name)."""
+    parts = [Path(d).resolve().parts for d in run_dirs]
+    for depth in range(1, max(len(p) for p in parts) + 1):
+        names = ["/".join(p[-depth:]) for p in parts]
+        if len(set(names)) == len(names):
+            return names
+    raise ValueError(f"the same run folder is given twice: {run_dirs}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -259,9 +272,9 @@ def main(argv: list[str] | None = None) -> int:
         for d in args.run_dirs if args.evaluate_episodes > 0 else ():
             evaluate_checkpoints(Path(d), args.evaluate_episodes)
         results = {}
-        for d in args.run_dirs:
+        for name, d in zip(run_names(args.run_dirs), args.run_dirs):
             startup = read_startup(Path(d))
-            results[Path(d).name] = {
+            results[name] = {
                 **time_to_target(*read_run(Path(d)), args.success, args.at_env_steps),
                 "startup": startup,
                 "evaluated": evaluated_target(Path(d), args.success, startup),

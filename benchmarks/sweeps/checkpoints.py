@@ -51,6 +51,16 @@ def command(evaluate: list[str], path: Path, run_dir: Path) -> list[str]:
     return [*args, "--checkpoint", str(path)]
 
 
+def commands(evaluate: list[str], paths: list[Path], run_dir: Path) -> list[list[str]]:
+    """The evaluation commands for ``paths``: on flat ground one for all of them (``train.evaluate
+    --checkpoint A B ...`` plays them in one batch, each into its own folder), on terrain one each."""
+    if len(paths) < 2 or "--terrain-types" in evaluate:
+        return [command(evaluate, path, run_dir) for path in paths]
+    args = list(evaluate)
+    args[args.index("--out") + 1] = str(run_dir / FOLDER)
+    return [[*args, "--checkpoint", *(str(p) for p in paths)]]
+
+
 def write_clock(path: Path, run_dir: Path) -> None:
     """The checkpoint's env steps and training clock beside its evaluation."""
     meta = checkpoint.read_meta(path)
@@ -81,12 +91,23 @@ def markdown(report: dict[str, Any]) -> list[str]:
     runs = [r for r in report["runs"] if r.get("checkpoints")]
     if not runs:
         return []
-    lines = ["", f"| run | target ({report['target_success']:.0%}) reached, evaluated | success at training seconds |"]
-    lines += ["|---|---|---|"]
+    target = f"{report['target_success']:.0%}"
+    header = f"| run | target ({target}) reached, evaluated | success at training seconds | first update from launch |"
+    lines = ["", header]
+    lines += ["|---|---|---|---|"]
     for r in runs:
         hit = r.get("evaluated_time_to_target")
-        reached = f"{hit['training_s']:.0f} s, {hit['env_steps']:,} env steps" if hit else "not reached"
+        last = r["checkpoints"][-1]["training_walltime_s"] or 0.0
+        reached = f"{hit['training_s']:.0f} s, {hit['env_steps']:,} env steps" if hit else f"not by {last:.0f} s"
         clock = [(p["success_rate"], p["training_walltime_s"] or 0.0) for p in r["checkpoints"]]
         points = ", ".join(f"{rate:.0%} at {seconds:.0f} s" for rate, seconds in clock)
-        lines.append(f"| {r['arm']} seed {r['seed']} | {reached} | {points} |")
+        lines.append(f"| {r['arm']} seed {r['seed']} | {reached} | {points} | {_startup(r.get('startup'))} |")
     return lines
+
+
+def _startup(startup: dict[str, Any] | None) -> str:
+    """The run's (last call's) time from launch to its first update and whether its caches were cold."""
+    if not startup or startup.get("first_update_since_launch_s") is None:
+        return "-"
+    caches = "cold caches" if startup.get("cold_caches") else "warm caches"
+    return f"{startup['first_update_since_launch_s']:.0f} s, {caches}"

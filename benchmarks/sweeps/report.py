@@ -97,6 +97,7 @@ def collect(sweep: Any, jobs: list) -> dict[str, Any]:
                 "run_dir": f"runs/{job.arm}/seed{job.seed}",
                 "wall_s": summary.get("wall_s"),
                 "physics_backend": summary.get("physics_backend"),
+                "startup": summary.get("startup"),  # the last call's start-up parts (train/run/startup.py)
                 "learning": learning(job.run_dir, sweep.target_success),
                 "evaluation": evaluation(job.run_dir),
                 "checkpoints": curve,

@@ -7,9 +7,10 @@ trains for, the seeds, the arms (each a list of ``--set`` overrides over the con
 ``{config: PATH, set: [...]}`` for an arm trained from a config of its own) and the evaluation.
 Every (arm, seed) is one run of ``python -m train`` in ``OUT/runs/<arm>/seed<k>``, one run
 per GPU at a time on a host of several (``CUDA_VISIBLE_DEVICES`` per process; in sequence on one GPU
-or a CPU), then one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat
-ground over ``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed
-the run never trained on. With ``evaluate.grid`` each run's policy is also exported and played over a
+or a CPU; a GPU named k times in ``--devices`` runs k at once, each with 1/k of XLA's memory), then
+one ``python -m train.evaluate`` of its final checkpoint with the mean action: on flat ground over
+``evaluate.episodes`` goals, on terrain per type at the given levels over tiles of a seed the run never
+trained on. With ``evaluate.grid`` each run's policy is also exported and played over a
 ``benchmarks.robustness.score`` grid, and so is every ``grid.reference`` policy (a shipped name or a policy
 folder): per cell, each arm pooled over its seeds and its difference to each reference, with intervals
 (``benchmarks.sweeps.grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
@@ -245,10 +246,20 @@ class Runner:
         self.running: list[subprocess.Popen] = []
         self.stopping = False
 
-    def _call(self, args: list[str], device: str | None, log: Path) -> int:
+    def environment(self, device: str | None) -> dict[str, str]:
+        """A run's environment on ``device``: that GPU alone and, where k runs share it (``--devices 0,0``),
+        XLA's preallocation cut to 1/k of its default 75 % (``XLA_PYTHON_CLIENT_MEM_FRACTION``, unless
+        set), so that k runs and their Warp buffers fit beside each other."""
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         if device is not None:
             env["CUDA_VISIBLE_DEVICES"] = device
+            sharing = self.devices.count(device)
+            if sharing > 1 and "XLA_PYTHON_CLIENT_MEM_FRACTION" not in os.environ:
+                env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{0.75 / sharing:.3f}"
+        return env
+
+    def _call(self, args: list[str], device: str | None, log: Path) -> int:
+        env = self.environment(device)
         with self.lock:
             if self.stopping:
                 return -1
@@ -275,10 +286,14 @@ class Runner:
             if self._call(job.evaluate, device, log) != 0:
                 shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
         if job.every_checkpoint and job.evaluate:
-            for path in checkpoints.pending(job.run_dir):
-                print(f"[{device}] evaluate {job.arm} seed {job.seed} {path.name}", flush=True)
-                if self._call(checkpoints.command(job.evaluate, path, job.run_dir), device, log) == 0:
-                    checkpoints.write_clock(path, job.run_dir)
+            pending = checkpoints.pending(job.run_dir)
+            for args in checkpoints.commands(job.evaluate, pending, job.run_dir):
+                names = [Path(a).name for a in args[args.index("--checkpoint") + 1 :]]
+                print(f"[{device}] evaluate {job.arm} seed {job.seed} {', '.join(names)}", flush=True)
+                if self._call(args, device, log) == 0:
+                    for path in pending:
+                        if path.name in names:
+                            checkpoints.write_clock(path, job.run_dir)
         if job.grid and not job.grid_result.is_file():
             print(f"[{device}] grid {job.arm} seed {job.seed}", flush=True)
             for args in job.grid:

@@ -118,7 +118,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = policy_file.locate(args.policy)
         config, env, policy, shipped = load_shipped_policy(
-            directory, args.backend, _episodes(args, True), args.override_items()
+            directory, args.backend, episode_count(args, True), args.override_items()
         )
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {
@@ -133,7 +133,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         checkpoint_of(Path(args.run_dir), args.checkpoint),
         deterministic=not args.stochastic,
         backend=args.backend,
-        num_envs=_episodes(args, False),
+        num_envs=episode_count(args, False),
         overrides=args.override_items(),
     )
     header = {
@@ -184,7 +184,7 @@ def check_goal_range(goal_range: list[float] | None, config: TrainConfig) -> Non
         )
 
 
-def _episodes(args: EvalSpec, shipped: bool) -> int:
+def episode_count(args: EvalSpec, shipped: bool) -> int:
     """Episodes to play: as asked, else 16 for a run and CPU_EPISODES for a shipped policy."""
     return args.episodes or (CPU_EPISODES if shipped else 16)
 
@@ -202,7 +202,7 @@ def evaluate(spec: EvalSpec) -> dict:
     if spec.terrain_types is not None or spec.levels is not None:
         return by_terrain(spec, config, policy, header, out)
     shipped = spec.policy is not None
-    episodes = _episodes(spec, shipped)
+    episodes = episode_count(spec, shipped)
     limit = config.env.termination.max_episode_steps
     steps = spec.steps or (min(CPU_STEPS, limit) if shipped else limit)
     goal_range = spec.goal_range or default_goal_range(config)
@@ -212,6 +212,15 @@ def evaluate(spec: EvalSpec) -> dict:
     else:
         traces = jax.device_get(rollout(env, policy, keys, jnp.asarray(goal_range, jnp.float32), steps))
         traces = {k: np.asarray(v) for k, v in traces.items()}
+    return write_result(spec, config, env, header, traces, (goal_range, steps), out)
+
+
+def write_result(
+    spec: EvalSpec, config: TrainConfig, env: HSAEnv, header: dict, traces: dict, played: tuple, out: Path
+) -> dict:
+    """A flat evaluation's ``eval.json`` and plots in ``out`` from its episodes' ``traces``; ``played``:
+    the (goal range, steps) they were played with. Returns what ``eval.json`` holds."""
+    goal_range, steps = played
     radial = config.env.goal.mode == "radial"  # other goal modes do not use the range
     result = {
         **header,
@@ -233,7 +242,7 @@ def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: P
     (``terrain_eval.json``'s content, with the files written)."""
     types = terrain_eval.resolve_types(args.terrain_types or "all", config.env)
     levels = terrain_eval.check_levels(args.levels or (config.env.terrain.difficulty,))
-    episodes = _episodes(args, args.policy is not None)
+    episodes = episode_count(args, args.policy is not None)
     steps = args.steps or config.env.termination.max_episode_steps
     goal_range = jnp.asarray(args.goal_range or default_goal_range(config), jnp.float32)
     trained_on = config.env.terrain.seed
