@@ -38,7 +38,8 @@ def warp_device(device: jax.Device) -> str:
 def prebuild(device: jax.Device, workers: int | None = None) -> float | None:
     """Compile ``MODULES`` for ``device`` on ``workers`` threads (default: one a module, at most the CPU
     count), once per process and device: the seconds it took, or None when it had been done. A module
-    Warp does not know (another MuJoCo Warp) is skipped with a warning; its kernels build at first use."""
+    not imported (another MuJoCo Warp) is skipped, and a failed build ignored, each with a warning: the
+    first step builds what is missing, as without this."""
     import warp
 
     name = warp_device(device)
@@ -54,5 +55,8 @@ def prebuild(device: jax.Device, workers: int | None = None) -> float | None:
                 continue
             modules.append(warp.get_module(f"{PACKAGE}.{module}"))
         count = workers or min(len(modules), os.cpu_count() or 1)
-        warp.force_load(device=name, modules=modules, max_workers=count)
+        try:
+            warp.force_load(device=name, modules=modules, max_workers=count)
+        except Exception as err:  # the head start is an optimisation: the first step builds what is missing
+            warnings.warn(f"building MuJoCo Warp's kernels ahead failed ({err}); they build at first use", stacklevel=2)
         return time.perf_counter() - start
