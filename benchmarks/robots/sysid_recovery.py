@@ -27,7 +27,7 @@ from hsa_mjx.sysid import fit as fitting
 from hsa_mjx.sysid.rig import synthesize
 from hsa_mjx.sysid.signals import SignalSpec, test_signal
 
-RESULTS = Path(__file__).resolve().parent / "results" / "robots"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "robots"
 ROBOTS = ("dfr05sr", "xl330_m288", "st3215")  # the hardware profiles: both DC-motor servo models
 TRUTH = {  # the true servo: each fitted figure times this (the dead band too, where the profile has one)
     "stall_torque": 1.15,

@@ -48,7 +48,7 @@ from train.episodes.policy_sources import default_goal_range, load_shipped_polic
 from train.episodes.rollout import episode_success, rollout, summarize
 from train.run.folder import portable
 
-RESULTS = Path(__file__).resolve().parent / "results" / "robustness"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "robustness"
 RESOLVING_EPISODES = report.RESOLVING_EPISODES
 
 
