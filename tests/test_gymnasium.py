@@ -155,6 +155,9 @@ def test_packed_state_round_trips_and_refuses_another_layout():
     assert all(isinstance(leaf, np.ndarray) for leaf in jax.tree.leaves(fetched))
     for got in (back, host, fetched):
         assert jax.tree.all(jax.tree.map(lambda x, y: np.array_equal(x, y) and x.dtype == y.dtype, got, tree))
+    scalars = layout.unpack_host(to_host(jax.jit(layout.pack)(tree)))  # 0-d leaves as Python scalars
+    assert scalars["b"][0] == 4 and type(scalars["b"][0]) is int and type(scalars["c"]) is float
+    np.testing.assert_array_equal(scalars["a"], tree["a"])
     with pytest.raises(ValueError, match="shape"):
         layout.pack({**tree, "a": jnp.zeros(3)})
 

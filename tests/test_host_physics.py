@@ -96,6 +96,28 @@ def test_host_physics_follows_mjx_within_the_bound(preset):
     np.testing.assert_allclose(_scan(env, a), _scan(env, b), atol=0.03)  # the two robots stand about alike
 
 
+def test_state_crosses_to_c_mujoco_and_back_in_one_vector_unchanged():
+    """The state vector's order is C MuJoCo's own (``mj_setState``): an idle call returns every state
+    field it was given, bit for bit, and the C data holds them."""
+    env = hsa_mjx.make_env("flat", physics__backend="jax")
+    host = HostPhysics(env.robot.mj_model, env.index)
+    data = jax.jit(env.reset)(jax.random.PRNGKey(1)).pipeline_state.physics
+    rng = np.random.default_rng(0)
+    data = data.replace(
+        **{
+            n: getattr(data, n) + rng.normal(size=getattr(data, n).shape).astype(np.float32)
+            for n in ("qpos", "qvel", "qacc_warmstart", "ctrl", "time")
+        }
+    )
+    targets = jnp.zeros((env.config.control.frame_skip, 8))
+    out = host.run(True, host.layout(targets, {}), np.asarray(host.inputs(data, targets, {})))
+    back, _ = host.outputs(data, jnp.asarray(out))
+    for name in ("qpos", "qvel", "qacc_warmstart", "ctrl", "time"):
+        np.testing.assert_array_equal(np.asarray(getattr(back, name)), np.asarray(getattr(data, name)), err_msg=name)
+        np.testing.assert_allclose(getattr(host.data, name), np.asarray(getattr(data, name)), rtol=1e-7)
+    np.testing.assert_array_equal(host.data.mocap_pos, np.asarray(data.mocap_pos))
+
+
 def test_a_diverging_c_state_terminates_as_non_finite():
     env = hsa_mjx.make_env("flat", physics__backend="jax")
     host = jax.jit(functools.partial(env.step_with, HostPhysics(env.robot.mj_model, env.index)))

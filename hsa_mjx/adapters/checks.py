@@ -20,6 +20,9 @@ def check_actions(actions: Any, shape: tuple[int, ...], check_finite: bool = Tru
     its finiteness costs one device-to-host read of a single bool (``check_finite=False`` skips
     it: the env then zeroes non-finite entries and counts them in ``nonfinite_action``).
     """
+    if type(actions) is np.ndarray and actions.dtype == np.float32 and actions.shape == tuple(shape):
+        if not check_finite or np.isfinite(actions).all():  # a learner's usual action, checked in ~2 us
+            return actions.copy()
     expected = _expected(shape)
     on_device = isinstance(actions, jax.Array)
     if not on_device:

@@ -160,7 +160,7 @@ class HSAGymEnv(gymnasium.Env):
         if goal is not None:
             buffers, out = self._goal_fn(buffers, jnp.asarray(goal))
         self._buffers = buffers
-        out = self._outputs.unpack(to_host(out))
+        out = self._outputs.unpack_host(to_host(out))
         if self.render_mode == "human":
             self.render()
         return np.array(out["obs"], np.float32), self._info(out)
@@ -171,9 +171,9 @@ class HSAGymEnv(gymnasium.Env):
             raise RuntimeError("call reset() before step()")
         action = check_actions(action, self.action_space.shape)
         self._buffers, out = self._step_fn(self._buffers, action)
-        out = self._outputs.unpack(to_host(out))  # one transfer per dtype for everything returned
-        truncated = bool(out["truncation"] > 0)
-        terminated = bool(out["done"] > 0) and not truncated
+        out = self._outputs.unpack_host(to_host(out))  # one transfer per dtype for everything returned
+        truncated = out["truncation"] > 0
+        terminated = out["done"] > 0 and not truncated
         if self.render_mode == "human":
             self.render()
         return np.array(out["obs"], np.float32), float(out["reward"]), terminated, truncated, self._info(out)
@@ -236,43 +236,36 @@ class HostStep:
 
     The env's ``step`` runs the substeps through a ``jax.pure_callback``, which costs more than the
     substeps themselves for one env. Here the first half (``HSAEnv.before_physics``) returns what the
-    substeps read, the host runs them (``HostPhysics.run``) and the second half
-    (``HSAEnv.after_physics``) takes what they return: the same code as ``step``, no callback.
+    substeps read as one vector, the host runs them (``HostPhysics.run``) and the second half
+    (``HSAEnv.after_physics``) takes the one vector they return: the same code as ``step``, no callback.
+    What else passes between the halves stays in JAX arrays, never fetched.
     """
 
     def __init__(self, env: HSAEnv, layout: Packing, shapes: EnvState, packed: Any):
-        host, data = env.host_physics, shapes.pipeline_state.physics
-        self._run, self._shapes = host.run, host.output_shapes(data)
+        host = env.host_physics
+        self._run = host.run
 
         def first(buffers: tuple, action: jax.Array) -> tuple:
             state, call = env.before_physics(layout.unpack(buffers), action)
-            return layout.pack(state), self._middle.pack(self._mid(host, call))
+            middle = self._middle.pack(call.replace(data=None))
+            return layout.pack(state), middle, host.inputs(call.data, call.targets, call.fields)
 
-        def second(buffers: tuple, middle: tuple, out: tuple) -> tuple:
+        def second(buffers: tuple, middle: tuple, out: jax.Array) -> tuple:
             state = layout.unpack(buffers)
-            call, _ = self._middle.unpack(middle)
-            call = call.replace(data=state.pipeline_state.physics)
-            return packed(env.after_physics(state, call, *host.outputs(call.data, self._out.unpack(out))))
+            call = self._middle.unpack(middle).replace(data=state.pipeline_state.physics)
+            return packed(env.after_physics(state, call, *host.outputs(call.data, out)))
 
         action = jax.ShapeDtypeStruct((env.action_size,), jnp.float32)
         call = jax.eval_shape(env.before_physics, shapes, action)[1]
-        self._middle = Packing(jax.eval_shape(lambda c: self._mid(host, c), call))
-        self._names = tuple(call.fields)
-        self._out = Packing(self._shapes)
+        self._middle = Packing(call.replace(data=None))
+        self._layout = host.layout(call.targets, call.fields)
         self._first, self._second = jax.jit(first), jax.jit(second)
-
-    @staticmethod
-    def _mid(host: Any, call: Any) -> tuple:
-        """What passes between the halves: the call without its data (the state holds it) and the
-        substeps' inputs."""
-        return call.replace(data=None), host.inputs(call.data, call.targets, call.fields)
 
     def __call__(self, buffers: tuple, action: jax.Array) -> tuple:
         """(the packed state after one step, the packed outputs), as the env's jitted ``step`` gives them."""
-        buffers, middle = self._first(buffers, action)
-        _, inputs = self._middle.unpack(to_host(middle))
-        out = self._run(False, self._names, self._shapes, *inputs)
-        return self._second(buffers, middle, self._out.pack(out, np))
+        buffers, middle, inputs = self._first(buffers, action)
+        out = self._run(False, self._layout, np.asarray(inputs))
+        return self._second(buffers, middle, out)
 
 
 from_registry.metadata = HSAGymEnv.metadata  # what gymnasium.make reads from an entry point (render modes)

@@ -70,6 +70,21 @@ class Packing:
         leaves = [buffers[s.buffer][s.offset : s.offset + s.size].reshape(s.shape) for s in self.slots]
         return jax.tree_util.tree_unflatten(self.treedef, leaves)
 
+    def unpack_host(self, buffers: tuple[np.ndarray, ...]) -> Any:
+        """The tree back from numpy buffers with each 0-d leaf a Python scalar (``tolist``) and the
+        others numpy views: what a host reads field by field, at a fraction of :meth:`unpack`'s cost
+        (one small array per 0-d leaf there)."""
+        if len(buffers) != len(self.dtypes):
+            return self.unpack(buffers)  # raises, naming the layout
+        lists = [buffer.tolist() for buffer in buffers]
+        leaves = [
+            lists[s.buffer][s.offset]
+            if not s.shape
+            else buffers[s.buffer][s.offset : s.offset + s.size].reshape(s.shape)
+            for s in self.slots
+        ]
+        return jax.tree_util.tree_unflatten(self.treedef, leaves)
+
 
 def to_host(buffers: tuple[Any, ...]) -> tuple[np.ndarray, ...]:
     """Fetched buffers as numpy arrays (read-only; on a CPU, views of the jax arrays' buffers: copy what

@@ -9,6 +9,10 @@ per-op cost on every substep, and C MuJoCo steps the same compiled model several
 public ``mjx.Data`` fields (``qpos``, ``qvel``, ``act``, ``ctrl``, ``mocap_*``, the solver warm start,
 ``time``) and comes back through the fields the env reads (positions, orientations, ``qacc``,
 ``sensordata``), so the control law, observation, reward and termination are exactly the env's.
+Both directions travel as one float32 vector laid out as C MuJoCo's own state vector
+(``mj_setState`` / ``mj_getState``: one C call each way) followed by the targets, the model fields and,
+coming back, the other fields and the substeps' stats: one array each way costs a few microseconds
+where one per field cost about 60 per env step.
 
 It differs from MJX only in arithmetic: float64 C MuJoCo with its own solver (the same settings)
 against float32 MJX; ``tests/test_host_physics.py`` bounds the difference over a gait. C MuJoCo
@@ -19,6 +23,8 @@ be. ``physics.backend: c`` steps an env with it; the Gymnasium single env and ev
 from __future__ import annotations
 
 import copy
+import math
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -31,21 +37,46 @@ from hsa_mjx.sim.backend import mjx
 from hsa_mjx.sim.model import RobotIndex
 from hsa_mjx.sim.physics import SubstepStats
 
-STATE_IN = ("qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat", "qacc_warmstart", "time")
-STATE_OUT = (
-    "qpos",
-    "qvel",
-    "act",
-    "ctrl",
-    "qacc",
-    "qacc_warmstart",
-    "time",
-    "xpos",
-    "xquat",
-    "sensordata",
-    "actuator_force",
-)
-_BAD = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+STATE_IN = ("time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl", "mocap_pos", "mocap_quat")
+STATE_OUT = ("time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl")
+EXTRA_OUT = ("qacc", "xpos", "xquat", "sensordata", "actuator_force")
+STATS = 4  # max |qvel| and max |qacc| over the substeps, non-finite, |qacc| after the last substep
+# the flag of each field in C MuJoCo's state vector; fields lie in the order of these flags
+_FLAG = {
+    "time": mujoco.mjtState.mjSTATE_TIME,
+    "qpos": mujoco.mjtState.mjSTATE_QPOS,
+    "qvel": mujoco.mjtState.mjSTATE_QVEL,
+    "act": mujoco.mjtState.mjSTATE_ACT,
+    "qacc_warmstart": mujoco.mjtState.mjSTATE_WARMSTART,
+    "ctrl": mujoco.mjtState.mjSTATE_CTRL,
+    "mocap_pos": mujoco.mjtState.mjSTATE_MOCAP_POS,
+    "mocap_quat": mujoco.mjtState.mjSTATE_MOCAP_QUAT,
+}
+# C MuJoCo's warnings of a state it reset (their counts in ``MjData.warning.number``)
+_BAD = [
+    int(w)
+    for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)
+]
+
+
+class Layout(NamedTuple):
+    """What follows the state in the input vector (static): the servo targets of shape ``targets``
+    (substeps, servos), then the model fields ``fields`` as (name, shape) pairs."""
+
+    targets: tuple[int, int]
+    fields: tuple[tuple[str, tuple[int, ...]], ...]
+
+
+def state_spec(names: tuple[str, ...]) -> int:
+    """The ``mjtState`` bits of these fields (their order in the vector is the bits' order)."""
+    flags = [int(_FLAG[n]) for n in names]
+    if flags != sorted(flags):
+        raise ValueError(f"fields {names} are not in C MuJoCo's state order")
+    return sum(flags)
+
+
+def _flat(array: jax.Array) -> jax.Array:
+    return jnp.ravel(array).astype(jnp.float32)
 
 
 class HostPhysics:
@@ -62,6 +93,12 @@ class HostPhysics:
         # its own copy: per-env model fields are written into it before each env's substeps
         self.model, self.index, self.motors = copy.copy(mj_model), index, motors
         self.data = mujoco.MjData(self.model)
+        self._spec_in, self._spec_out = state_spec(STATE_IN), state_spec(STATE_OUT)
+        self._size_in = mujoco.mj_stateSize(self.model, self._spec_in)
+        self._size_out = mujoco.mj_stateSize(self.model, self._spec_out)
+        extra = [getattr(self.data, n).size for n in EXTRA_OUT]
+        self._extra = tuple(zip(EXTRA_OUT, np.cumsum([self._size_out] + extra[:-1]).tolist(), extra))
+        self._out = np.zeros(self._size_out + sum(extra) + STATS)  # reused: run returns a float32 copy
 
     def __call__(
         self,
@@ -79,60 +116,79 @@ class HostPhysics:
         longest one's."""
         fields = fields or {}
         idle = jnp.zeros((), bool) if idle is None else jnp.asarray(idle, bool)
-        names, shapes = tuple(fields), self.output_shapes(data)
+        layout = self.layout(targets, fields)
         out = jax.pure_callback(
-            lambda i, *a: self.run(bool(i), names, shapes, *a),
-            shapes,
+            lambda i, vector: self.run(bool(i), layout, vector),
+            self.output_shape(),
             idle,
-            *self.inputs(data, targets, fields),
+            self.inputs(data, targets, fields),
             vmap_method="sequential",
         )
         return self.outputs(data, out)
 
     @staticmethod
-    def inputs(data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array]) -> tuple[jax.Array, ...]:
-        """What the substeps read (traceable): the state fields ``STATE_IN``, the targets, the model fields."""
-        return tuple(getattr(data, name) for name in STATE_IN) + (targets,) + tuple(fields.values())
+    def layout(targets: Any, fields: dict[str, Any]) -> Layout:
+        """The static layout of :meth:`inputs` beyond the state, from shapes alone (arrays, tracers or
+        ``jax.ShapeDtypeStruct``)."""
+        return Layout(tuple(targets.shape), tuple((name, tuple(value.shape)) for name, value in fields.items()))
 
     @staticmethod
-    def output_shapes(data: mjx.Data) -> tuple[jax.ShapeDtypeStruct, ...]:
-        """Shapes and dtypes of what :meth:`run` returns: the fields ``STATE_OUT`` of ``data``, then the stats."""
-        fields = tuple(jax.ShapeDtypeStruct(getattr(data, n).shape, getattr(data, n).dtype) for n in STATE_OUT)
-        return fields + (jax.ShapeDtypeStruct((4,), jnp.float32),)
+    def inputs(data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array]) -> jax.Array:
+        """What the substeps read as one float32 vector (traceable): the state fields ``STATE_IN`` in C
+        MuJoCo's state order, the targets, the model fields (:meth:`layout`)."""
+        parts = [getattr(data, name) for name in STATE_IN] + [targets, *fields.values()]
+        return jnp.concatenate([_flat(part) for part in parts])
+
+    def output_shape(self) -> jax.ShapeDtypeStruct:
+        """The shape and dtype of what :meth:`run` returns."""
+        return jax.ShapeDtypeStruct(self._out.shape, jnp.float32)
 
     @staticmethod
-    def outputs(data: mjx.Data, out: tuple[jax.Array, ...]) -> tuple[mjx.Data, SubstepStats]:
-        """The new data and stats from what :meth:`run` returned (traceable)."""
-        *fields, stats = out
-        new = data.replace(**dict(zip(STATE_OUT, fields)))
-        return new, SubstepStats(
+    def outputs(data: mjx.Data, out: jax.Array) -> tuple[mjx.Data, SubstepStats]:
+        """The new data and stats from what :meth:`run` returned (traceable): the fields ``STATE_OUT``
+        and ``EXTRA_OUT`` of ``data`` in that order, then the stats."""
+        new, offset = {}, 0
+        for name in STATE_OUT + EXTRA_OUT:
+            like = getattr(data, name)
+            new[name] = out[offset : offset + like.size].reshape(like.shape).astype(like.dtype)
+            offset += like.size
+        stats = out[offset : offset + STATS]
+        return data.replace(**new), SubstepStats(
             max_abs_qvel=stats[0], max_abs_qacc=stats[1], non_finite=stats[2] > 0, final_abs_qacc=stats[3]
         )
 
-    def run(self, idle: bool, names: tuple[str, ...], shapes: tuple, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-        """Host side: load the model fields ``names`` and the state (:meth:`inputs`), step (unless idle),
-        return the fields ``STATE_OUT`` and the stats in ``shapes`` (:meth:`output_shapes`)."""
-        state, targets, values = arrays[: len(STATE_IN)], arrays[len(STATE_IN)], arrays[len(STATE_IN) + 1 :]
-        for name, value in zip(names, values):
-            np.copyto(getattr(self.model, name), np.asarray(value, np.float64))
-        d = self.data
-        for name, value in zip(STATE_IN, state):
-            if name == "time":
-                d.time = float(value)
-            else:
-                np.copyto(getattr(d, name), np.asarray(value, np.float64).reshape(getattr(d, name).shape))
-        counts = [d.warning[w].number for w in _BAD]
-        targets = np.asarray(targets, np.float64)[: 0 if idle else len(targets)]
-        qvel, qacc = np.zeros((max(len(targets), 1), self.model.nv)), np.zeros((max(len(targets), 1), self.model.nv))
-        for i, target in enumerate(targets):
-            servo.write_controls(self.model, d, self.index, self.motors, target)
-            mujoco.mj_step(self.model, d)
-            qvel[i], qacc[i] = d.qvel, d.qacc
-        qvel, qacc = np.abs(qvel).max(axis=1), np.abs(qacc).max(axis=1)  # per substep; a NaN stays a NaN
-        reset = any(d.warning[w].number > c for w, c in zip(_BAD, counts))  # C MuJoCo reset a bad state
-        bad = reset or not (np.isfinite(qvel).all() and np.isfinite(qacc).all() and np.isfinite(d.qpos).all())
+    def run(self, idle: bool, layout: Layout, vector: np.ndarray) -> np.ndarray:
+        """Host side: load the state, targets and model fields of ``vector`` (:meth:`inputs`), step
+        once per row of targets (none when ``idle``), return the float32 vector :meth:`outputs` reads."""
+        m, d = self.model, self.data
+        vector = np.asarray(vector, np.float64)
+        mujoco.mj_setState(m, d, vector[: self._size_in], self._spec_in)
+        offset = self._size_in + math.prod(layout.targets)
+        targets = vector[self._size_in : offset].reshape(layout.targets)
+        for name, shape in layout.fields:
+            size = math.prod(shape)
+            np.copyto(getattr(m, name), vector[offset : offset + size].reshape(shape))
+            offset += size
+        warnings = d.warning.number[_BAD].copy()
+        steps = 0 if idle else layout.targets[0]
+        rows = np.zeros((max(steps, 1), 2, m.nv))  # each substep's qvel and qacc
+        qvel, qacc = d.qvel, d.qacc  # views of the C arrays, fetched once
+        for row, target in zip(rows, targets[:steps]):
+            servo.write_controls(m, d, self.index, self.motors, target)
+            mujoco.mj_step(m, d)
+            row[0], row[1] = qvel, qacc
+        return self._collect(d, rows, bool((d.warning.number[_BAD] > warnings).any()))
+
+    def _collect(self, d: mujoco.MjData, rows: np.ndarray, reset: bool) -> np.ndarray:
+        """The output vector: the state, the other fields, the stats of the substeps' ``rows`` of qvel and
+        qacc (``reset``: C MuJoCo reset a bad state during them)."""
+        out = self._out
+        mujoco.mj_getState(self.model, d, out[: self._size_out], self._spec_out)
+        for name, offset, size in self._extra:
+            out[offset : offset + size] = getattr(d, name).ravel()
+        peaks = np.abs(rows).max(axis=2)  # (substeps, 2); a NaN stays a NaN
+        bad = reset or not (np.isfinite(peaks).all() and np.isfinite(d.qpos).all())
         if bad:  # finite stats for the termination rules (the state is discarded)
-            qvel, qacc = np.nan_to_num(qvel), np.nan_to_num(qacc)
-        stats = np.array([qvel.max(), qacc.max(), float(bad), qacc[-1]], np.float32)
-        outs = tuple(np.asarray(getattr(d, n), s.dtype).reshape(s.shape) for n, s in zip(STATE_OUT, shapes))
-        return outs + (stats,)
+            peaks = np.nan_to_num(peaks)
+        out[-STATS:] = peaks[:, 0].max(), peaks[:, 1].max(), float(bad), peaks[-1, 1]
+        return out.astype(np.float32)
