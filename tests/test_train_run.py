@@ -61,6 +61,9 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     before = startup["imports_s"] + startup["build_s"] + startup["init_s"] + startup["reset_s"]
     assert 0.0 < before < startup["first_update_since_launch_s"] <= recs[0]["training/since_launch"]
     assert 0.0 <= startup["compile_s"] <= startup["first_update_s"] and isinstance(startup["cold_caches"], bool)
+    xla = startup["xla"]  # each program JAX compiled, by name: the training epoch's among the largest
+    assert xla["programs"] >= 2 and 0.0 < max(xla["largest"].values()) <= xla["compile_s"]
+    assert xla["trace_s"] > 0.0 and startup["warp_prebuild_s"] is None  # no Warp build ahead on a CPU
     with_episodes = [r for r in recs if r["episodes"] > 0]
     assert with_episodes and "episode/reward/forward" in with_episodes[0]
     assert "termination/goal_reached" in with_episodes[0]

@@ -9,7 +9,13 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
 - ``reset_s``: every env's first state (its program compiled);
 - ``first_update_s``: the first epoch: the training program compiled, then one epoch of collection and
   updates; ``compile_s`` estimates the compile as that minus the second epoch's time;
-- ``first_update_since_launch_s``: the process's age when the first update is done.
+- ``first_update_since_launch_s``: the process's age when the first update is done;
+- ``xla``: what JAX reported compiling from the start to the record (``jax.monitoring`` events):
+  tracing, lowering and XLA compile totals, the number of programs, and the compile seconds of the
+  largest ones by name (a compile served by the persistent cache counts its load);
+- ``warp_prebuild_s``: MuJoCo Warp's kernel modules built ahead on threads
+  (``hsa_mjx.sim.warp_kernels``; None where none were: no Warp on a GPU); the kernels made per model
+  still build at the first step, inside ``first_update_s``.
 
 A cache is cold when it is not set or holds nothing at the start: JAX's persistent compilation cache
 (``jax_compilation_cache_dir``) and Warp's kernel cache (``WARP_CACHE_PATH``, else ``~/.cache/warp``,
@@ -25,7 +31,17 @@ from pathlib import Path
 
 import jax
 
+from hsa_mjx.sim import warp_kernels
+
 from .logger import process_age_s
+
+# jax.monitoring's events of one compile: tracing to a jaxpr, lowering to MLIR, XLA's compile (or cache load)
+EVENTS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "compile_s",
+}
+LARGEST = 6  # programs named in the record
 
 
 def cache_entries(path: str | Path | None) -> int | None:
@@ -42,12 +58,42 @@ def warp_cache_dir() -> Path | None:
     return Path(os.environ.get("WARP_CACHE_PATH") or Path.home() / ".cache" / "warp")
 
 
+class CompileLog:
+    """A ``jax.monitoring`` listener: the seconds of each compile event, by kind and by program."""
+
+    def __init__(self):
+        self.totals = dict.fromkeys(EVENTS.values(), 0.0)
+        self.programs: dict[str, float] = {}
+
+    def __call__(self, event: str, seconds: float, **kwargs) -> None:
+        kind = EVENTS.get(event)
+        if kind is None:
+            return
+        self.totals[kind] += seconds
+        if kind == "compile_s":
+            name = str(kwargs.get("fun_name", "?"))
+            self.programs[name] = self.programs.get(name, 0.0) + seconds
+
+    def record(self) -> dict:
+        """The totals, the number of programs and the largest ones' compile seconds."""
+        largest = sorted(self.programs.items(), key=lambda item: -item[1])[:LARGEST]
+        return {
+            **{k: round(v, 2) for k, v in self.totals.items()},
+            "programs": len(self.programs),
+            "largest": {name: round(v, 2) for name, v in largest},
+        }
+
+
 class Startup:
     """The start-up parts of one training call (seconds), marked in order, and the caches it found."""
 
     def __init__(self):
         self.parts: dict[str, float] = {"imports_s": process_age_s()}
         self._last = time.perf_counter()
+        self.compiles = CompileLog()
+        jax.monitoring.register_event_duration_secs_listener(self.compiles)
+        self._listening = True
+        self._prebuilt = dict(warp_kernels.build_seconds)
         warp = warp_cache_dir()
         self.caches = {
             "jax_compilation_cache": cache_entries(jax.config.jax_compilation_cache_dir),
@@ -68,6 +114,16 @@ class Startup:
             self.parts["compile_s"] = max(self.parts["first_update_s"] - seconds, 0.0)
 
     def record(self) -> dict:
-        """The ``startup`` block of ``summary.json``."""
+        """The ``startup`` block of ``summary.json`` (compiles counted until now; the listener stops)."""
+        if self._listening:
+            jax.monitoring.unregister_event_duration_listener(self.compiles)
+            self._listening = False
         parts = {k: round(v, 3) for k, v in self.parts.items()}
-        return {**parts, "caches": self.caches, "cold_caches": all(not n for n in self.caches.values())}
+        built = [v for k, v in warp_kernels.build_seconds.items() if k not in self._prebuilt]
+        return {
+            **parts,
+            "xla": self.compiles.record(),
+            "warp_prebuild_s": round(sum(built), 2) if built else None,
+            "caches": self.caches,
+            "cold_caches": all(not n for n in self.caches.values()),
+        }
