@@ -34,7 +34,7 @@ import numpy as np
 
 import hsa_mjx
 from benchmarks.fidelity.guard import SETTINGS
-from benchmarks.speed.throughput import c_loop
+from benchmarks.speed.c_loop import c_loop
 from benchmarks.speed.vector_env import write_results
 
 MODES = {"host_physics": {"physics__backend": "c"}, "mjx": {"physics__backend": "jax"}}

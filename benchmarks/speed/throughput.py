@@ -44,14 +44,13 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import mujoco
-import numpy as np
 
 import benchmarks.speed.report
 import hsa_mjx
 import hsa_mjx.sim.backend
 from benchmarks.fidelity.guard import SETTINGS, SHIPPED_BY_SCENE
 from benchmarks.run_info import row_provenance, run_info
+from benchmarks.speed.c_loop import cpu_baseline
 from benchmarks.speed.loops import (
     CEILING_FIELDS,
     Timed,
@@ -63,7 +62,6 @@ from benchmarks.speed.loops import (
     tree_bytes,
 )
 from hsa_mjx.resources import config_path, read_yaml
-from hsa_mjx.sim import servo
 from hsa_mjx.terrain import TERRAIN_TYPES
 
 HEIGHTFIELD_TYPES = [t for t in TERRAIN_TYPES if t != "spiral"]  # the spiral needs spiral goals
@@ -181,48 +179,6 @@ def batch_wrapper(env: hsa_mjx.HSAEnv, regenerate_every: int = 0) -> tuple[Any |
         return AutoResetEnv(env, regenerate_every), "AutoResetEnv"
     except (ImportError, AttributeError, TypeError, ValueError) as err:  # API not there (yet)
         return None, f"no AutoResetEnv ({type(err).__name__}: {err}); timed jit(vmap(env.step))"
-
-
-def c_loop(env: hsa_mjx.HSAEnv, seed: int = 0) -> Callable[[int], float]:
-    """The bare single-env C MuJoCo loop of the env's model and settings (random increments through the
-    env's control law and servo model, no observation, reward or reset): ``run(n)`` plays ``n`` env
-    steps and returns the seconds they took."""
-    model, servos, ctl = env.robot.mj_model, env.index.servo_ids, env.config.control
-    data = mujoco.MjData(model)
-    data.qpos[env.index.block_z] = env.config.spawn_height
-    mujoco.mj_forward(model, data)
-    rng = np.random.default_rng(seed)
-    ramp = np.arange(1, ctl.frame_skip + 1)[:, None] / ctl.frame_skip
-    ramp = ramp if ctl.smooth_positions else np.ones_like(ramp)  # the env's control law
-
-    def run(n: int) -> float:
-        tic = time.perf_counter()
-        for _ in range(n):
-            start = data.ctrl[servos].copy()
-            end = np.clip(
-                start + ctl.max_increment * rng.uniform(-1, 1, len(servos)),
-                -ctl.servo_target_limit,
-                ctl.servo_target_limit,
-            )
-            for target in start + ramp * (end - start):
-                servo.write_controls(model, data, env.index, env.motors, target)  # the env's servo model
-                mujoco.mj_step(model, data)
-        return time.perf_counter() - tic
-
-    return run
-
-
-def cpu_baseline(env: hsa_mjx.HSAEnv, seconds: float, seed: int = 0) -> dict[str, float]:
-    """Single-env C MuJoCo on the host CPU (:func:`c_loop`) for about ``seconds``."""
-    run, steps, spent = c_loop(env, seed), 0, 0.0
-    while steps < 10 or spent < seconds:
-        spent += run(10)
-        steps += 10
-    rate = steps / spent
-    return {
-        "cpu_mujoco_env_steps_per_s": round(rate, 1),
-        "cpu_mujoco_physics_steps_per_s": round(rate * env.config.control.frame_skip, 1),
-    }
 
 
 def measure(
