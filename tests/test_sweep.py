@@ -24,6 +24,13 @@ SWEEP = {
 }
 
 
+@pytest.mark.parametrize("path", sorted(Path("benchmarks/sweeps").glob("*.yaml")), ids=lambda p: p.stem)
+def test_every_shipped_sweep_file_loads(path):
+    """Each sweep file in the repository passes the checks its run makes first (keys, arms' configs)."""
+    loaded = sweep.load(path)
+    assert loaded.arms and loaded.env_steps > 0 and loaded.name == path.stem
+
+
 def _write(tmp_path: Path, **changes) -> Path:
     path = tmp_path / "sweep.yaml"
     path.write_text(yaml.safe_dump({**SWEEP, **changes}))
