@@ -64,6 +64,7 @@ def test_run_leaves_checkpoints_logs_and_plots(run_dir):
     xla = startup["xla"]  # each program JAX compiled, by name: the training epoch's among the largest
     assert xla["programs"] >= 2 and 0.0 < max(xla["largest"].values()) <= xla["compile_s"]
     assert xla["trace_s"] > 0.0 and startup["warp_prebuild_s"] is None  # no Warp build ahead on a CPU
+    assert startup["epoch_compile_s"] > 0.0 and "warp_warm_up_s" not in startup  # compiled ahead; no Warp here
     with_episodes = [r for r in recs if r["episodes"] > 0]
     assert with_episodes and "episode/reward/forward" in with_episodes[0]
     assert "termination/goal_reached" in with_episodes[0]

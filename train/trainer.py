@@ -133,9 +133,26 @@ def train(
     jax.block_until_ready(state)
     startup.mark("reset_s")
     if distributed.is_main() and not quiet:
-        backend = run.extra["physics_backend"]
-        print(f"compiling the training epoch on the {backend} backend (the first epoch includes it)...", flush=True)
-    return run_epochs(run, strategy.place(ts), state, key, step, resumed=meta is not None)
+        print(f"compiling the training epoch on the {run.extra['physics_backend']} backend...", flush=True)
+    ts = strategy.place(ts)
+    compile_ahead(run, ts, state)
+    return run_epochs(run, ts, state, key, step, resumed=meta is not None)
+
+
+def compile_ahead(run: Run, ts: Any, state: Any) -> None:
+    """The training epoch compiled before the first one runs where the strategy can (one device), with the
+    env's physics warmed up on a thread meanwhile (MuJoCo Warp's kernels for this model); the start-up
+    parts ``epoch_compile_s`` and ``warp_warm_up_s``. Elsewhere the first epoch compiles it."""
+    strategy, seconds = run.strategy, {}
+
+    def warm_up() -> None:
+        seconds["warp_warm_up_s"] = strategy.learner.env.warm_up_physics()
+
+    keys = distributed.epoch_keys(jax.random.PRNGKey(0), strategy.devices)  # shaped as every epoch's keys
+    if strategy.compile_ahead(ts, state, keys, during=warm_up):
+        run.startup.mark("epoch_compile_s")
+        if seconds.get("warp_warm_up_s") is not None:
+            run.startup.parts["warp_warm_up_s"] = seconds["warp_warm_up_s"]
 
 
 def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:

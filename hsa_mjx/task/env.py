@@ -158,6 +158,16 @@ class HSAEnv(BraxEnv):
         """The physics this env steps with: ``"jax"`` or ``"warp"`` (MJX) or ``"c"`` (C MuJoCo substeps)."""
         return self.robot.backend
 
+    def warm_up_physics(self) -> float | None:
+        """On MJX's Warp backend on a GPU, one physics step of one env, so the kernels MuJoCo Warp makes
+        for this model's sizes build now (``hsa_mjx.sim.warp_kernels.warm_up``): its seconds. None
+        elsewhere (nothing to build)."""
+        if self.robot.backend != "warp" or self._data0.qpos.devices().pop().platform != "gpu":
+            return None
+        from hsa_mjx.sim import warp_kernels
+
+        return warp_kernels.warm_up(self.robot.mjx_model, self._data0)
+
     @property
     def spawn_xy(self) -> jax.Array:
         """Where the robot starts an episode (its position at the spawn pose), (2,): goal distances count from here."""

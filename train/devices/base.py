@@ -4,7 +4,7 @@ one place that divides ``run.num_envs``)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -44,6 +44,12 @@ class DeviceStrategy:
                 f"HSAEnv(config.env, num_envs={per_device}) (train.devices.strategies.build does)"
             )
         self.learner, self.devices = learner, list(devices)
+
+    def compile_ahead(self, ts: Any, state: Any, keys: jax.Array, during: Callable[[], Any] | None = None) -> bool:
+        """Compile the epoch for these arguments before the first one runs, calling ``during`` on a thread
+        meanwhile: True when it did. This strategy compiles at its first epoch (False; ``during`` not
+        called)."""
+        return False
 
 
 class Replicated(DeviceStrategy):

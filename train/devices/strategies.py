@@ -18,6 +18,7 @@ copies of the curricula. Why several: docs/scaling.md.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 
 import jax
@@ -80,6 +81,20 @@ class OneDevice(DeviceStrategy):
     def epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
         """``iterations_per_epoch`` learner iterations (``keys``: (1, 2)); returns (ts, state, outputs)."""
         return self._epoch(ts, state, keys[0])
+
+    def compile_ahead(self, ts: TrainingState, state: LoopState, keys: jax.Array, during=None) -> bool:
+        """Compile the epoch for these arguments now (``jit(...).lower(...).compile()``: the first epoch then
+        only runs), calling ``during`` on a thread meanwhile and waiting for it: work that overlaps XLA's
+        compile but must not overlap a running program (MuJoCo Warp's kernels built by a warm-up step)."""
+        worker = threading.Thread(target=during, name="compile-ahead", daemon=True) if during else None
+        if worker is not None:
+            worker.start()
+        try:
+            self._epoch = self._epoch.lower(ts, state, keys[0]).compile()
+        finally:
+            if worker is not None:
+                worker.join()
+        return True
 
     def collect_epoch(self, ts: TrainingState, state: LoopState, keys: jax.Array):
         """The epoch's collections alone, no learning (for timing the update's share)."""

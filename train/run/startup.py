@@ -7,8 +7,11 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
 - ``build_s``: the env and the learner built (the model, the terrain, the collection strategy);
 - ``init_s``: the learner's first state (its program compiled) or the checkpoint restored;
 - ``reset_s``: every env's first state (its program compiled);
-- ``first_update_s``: the first epoch: the training program compiled, then one epoch of collection and
-  updates; ``compile_s`` estimates the compile as that minus the second epoch's time;
+- ``epoch_compile_s``: where the strategy compiles the training epoch ahead (one device), that compile,
+  with ``warp_warm_up_s`` (MuJoCo Warp's kernels for the model built by one step on a thread meanwhile);
+- ``first_update_s``: the first epoch: one epoch of collection and updates (and the training program's
+  compile where it was not compiled ahead); ``compile_s`` estimates what the first epoch did beyond a
+  later one's work (that compile, kernels built at first launch) as its excess over the second epoch;
 - ``first_update_since_launch_s``: the process's age when the first update is done;
 - ``xla``: what JAX reported compiling from the start to the record (``jax.monitoring`` events):
   tracing, lowering and XLA compile totals, the number of programs, and the compile seconds of the
