@@ -149,6 +149,7 @@ def compile_ahead(run: Run, ts: Any, state: Any) -> None:
         seconds["warp_warm_up_s"] = strategy.learner.env.warm_up_physics()
 
     keys = distributed.epoch_keys(jax.random.PRNGKey(0), strategy.devices)  # shaped as every epoch's keys
+    jax.block_until_ready((ts, state))  # nothing runs on the device while the warm-up does
     if strategy.compile_ahead(ts, state, keys, during=warm_up):
         run.startup.mark("epoch_compile_s")
         if seconds.get("warp_warm_up_s") is not None:
