@@ -134,9 +134,9 @@ def train(
     startup.mark("reset_s")
     if distributed.is_main() and not quiet:
         print(f"compiling the training epoch on the {run.extra['physics_backend']} backend...", flush=True)
-    ts = strategy.place(ts)
+    ts, started = strategy.place(ts), time.perf_counter()
     compile_ahead(run, ts, state)
-    return run_epochs(run, ts, state, key, step, resumed=meta is not None)
+    return run_epochs(run, ts, state, key, step, resumed=meta is not None, started=started)
 
 
 def compile_ahead(run: Run, ts: Any, state: Any) -> None:
@@ -190,13 +190,18 @@ def final_step(step: int, num_timesteps: int, steps_per_epoch: int) -> int:
     return step + max(0, -(-(num_timesteps - step) // steps_per_epoch)) * steps_per_epoch
 
 
-def run_epochs(run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed: bool = False) -> dict:
-    """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval."""
+def run_epochs(
+    run: Run, ts: Any, state: Any, key: jax.Array, step: int, resumed: bool = False, started: float | None = None
+) -> dict:
+    """Run epochs until ``num_timesteps``; log every ``epochs_per_log``; checkpoint on the interval. The
+    training clock counts from ``started`` (``time.perf_counter``; default now): from before the epoch's
+    compile ahead, so it holds that compile as it holds a first epoch's that compiles."""
     config, strategy, main = run.config, run.strategy, distributed.is_main()
     logger = MetricsLogger(run.run_dir, resume_step=step if resumed else None) if main else _NoLogger()
     steps_per_epoch = strategy.learner.env_steps_per_epoch
     bar = ProgressBar(final_step(step, config.run.num_timesteps, steps_per_epoch), start=step)
-    t_start, last_ckpt, epoch, latest = time.perf_counter(), step, 0, {}  # latest: each headline key's last value
+    t_start = time.perf_counter() if started is None else started
+    last_ckpt, epoch, latest = step, 0, {}  # latest: each headline key's last value
     last_ckpt_t = t_start
     first_epoch_s, stopped, totals, budget_spent = None, False, {}, False
     with StopFlag() as stop:
