@@ -62,11 +62,15 @@ class Packing:
             xp.concatenate(p).astype(d, copy=False) if p else xp.zeros((0,), d) for p, d in zip(parts, self.dtypes)
         )
 
-    def unpack(self, buffers: tuple[Any, ...]) -> Any:
-        """The tree back from its buffers: jax arrays inside ``jit``, numpy views of numpy buffers."""
+    def _check_count(self, buffers: tuple[Any, ...]) -> None:
+        """Raise ValueError naming the layout's buffers when ``buffers`` has another count."""
         if len(buffers) != len(self.dtypes):
             names = [str(d) for d in self.dtypes]
             raise ValueError(f"expected {len(self.dtypes)} buffers ({names}), got {len(buffers)}")
+
+    def unpack(self, buffers: tuple[Any, ...]) -> Any:
+        """The tree back from its buffers: jax arrays inside ``jit``, numpy views of numpy buffers."""
+        self._check_count(buffers)
         leaves = [buffers[s.buffer][s.offset : s.offset + s.size].reshape(s.shape) for s in self.slots]
         return jax.tree_util.tree_unflatten(self.treedef, leaves)
 
@@ -74,8 +78,7 @@ class Packing:
         """The tree back from numpy buffers with each 0-d leaf a Python scalar (``tolist``) and the
         others numpy views: what a host reads field by field, at a fraction of :meth:`unpack`'s cost
         (one small array per 0-d leaf there)."""
-        if len(buffers) != len(self.dtypes):
-            return self.unpack(buffers)  # raises, naming the layout
+        self._check_count(buffers)
         lists = [buffer.tolist() for buffer in buffers]
         leaves = [
             lists[s.buffer][s.offset]
