@@ -195,3 +195,16 @@ def test_warp_kernel_modules_are_prebuilt_once_per_device(monkeypatch):
         assert warp_kernels.prebuild(cpu, workers=2) > 0.0
     assert warp_kernels.prebuild(cpu) is None
     assert warp_kernels.warp_device(types.SimpleNamespace(platform="gpu", local_hardware_id=1)) == "cuda:1"
+
+
+def test_warp_warm_up_steps_one_world_of_the_training_data():
+    """The warm-up that builds MuJoCo Warp's per-model kernels ahead steps one env's data as a batch of one
+    (Warp's shared buffers left unbatched, as a vmapped reset leaves them): it runs without a warning."""
+    import warnings
+
+    from hsa_mjx.sim import warp_kernels
+
+    env = hsa_mjx.make_env("mixed", num_envs=ENVS, **{**SETTINGS, "physics.backend": "warp"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warp_kernels.warm_up(env.robot.mjx_model, env._data0) > 0.0

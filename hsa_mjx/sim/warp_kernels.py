@@ -24,6 +24,7 @@ import time
 import warnings
 
 import jax
+import jax.numpy as jnp
 
 from hsa_mjx.sim.backend import mjx
 
@@ -76,9 +77,17 @@ def warm_up(model: mjx.Model, data: mjx.Data) -> float | None:
     warning when it failed (the first training step then builds what is missing, as without this)."""
     start = time.perf_counter()
     try:
-        batch = jax.tree.map(lambda x: x[None], data)
-        jax.block_until_ready(jax.jit(jax.vmap(mjx.step, in_axes=(None, 0)))(model, batch))
+        jax.block_until_ready(_step_one_world(model, data))
     except Exception as err:  # a head start only
         warnings.warn(f"stepping MuJoCo Warp ahead failed ({err}); its kernels build at first use", stacklevel=2)
         return None
     return time.perf_counter() - start
+
+
+@jax.jit
+def _step_one_world(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """``data`` as a batch of one world (made by ``vmap``, as a vmapped reset makes the training's batch:
+    Warp's buffers shared by all worlds, the contacts among them, stay unbatched, which a plain
+    ``x[None]`` on every leaf would break) stepped once under ``vmap``."""
+    batch = jax.vmap(lambda _: data)(jnp.zeros(1))
+    return jax.vmap(mjx.step, in_axes=(None, 0))(model, batch)
