@@ -208,3 +208,35 @@ def test_warp_warm_up_steps_one_world_of_the_training_data():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warp_kernels.warm_up(env.robot.mjx_model, env._data0) > 0.0
+
+
+def test_the_warp_kernel_helper_builds_the_env_in_its_own_process_and_a_failure_is_a_warning():
+    """The helper a Warp training start launches builds the env from its config and steps it once in a
+    process of its own (on the CPU here), reporting its seconds; a helper that fails is a warning naming
+    its exit and last output, never an error."""
+    from hsa_mjx.adapters.original_args import build_config
+    from hsa_mjx.config import to_dict
+    from hsa_mjx.task import warp_builder
+
+    config = to_dict(build_config("mixed", **{**SETTINGS, "physics.backend": "warp"}))
+    good, bad = warp_builder.spawn(config, ENVS), warp_builder.spawn({"no_such_key": 1}, ENVS)
+    report = good.wait()
+    assert report["warm_up_s"] > 0.0 and report["done_s"] >= report["warm_up_s"] and report["waited_s"] >= 0.0
+    with pytest.warns(UserWarning, match="exit 1.*no_such_key"):
+        assert bad.wait() is None
+
+
+def test_the_warp_kernel_helper_runs_on_the_training_gpu_and_only_for_warp_on_a_gpu(monkeypatch):
+    """The helper sees the training device by its CUDA ordinal, mapped through a CUDA_VISIBLE_DEVICES the
+    trainer was given; nothing is launched for the JAX backend or a CPU."""
+    import types
+
+    from hsa_mjx.task import warp_builder
+
+    gpu = types.SimpleNamespace(platform="gpu", local_hardware_id=1)
+    monkeypatch.delenv("CUDA_VISIBLE_DEVICES", raising=False)
+    assert warp_builder._visible_devices(gpu) == "1"
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "4,6")
+    assert warp_builder._visible_devices(gpu) == "6" and warp_builder._visible_devices(None) is None
+    assert warp_builder.start({}, 1, "jax", gpu) is None
+    assert warp_builder.start({}, 1, "warp", jax.devices("cpu")[0]) is None

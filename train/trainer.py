@@ -20,11 +20,14 @@ import jax
 import numpy as np
 
 from hsa_mjx.batch.auto_reset import summarize
+from hsa_mjx.config import to_dict as env_to_dict
 from hsa_mjx.curricula import goal_curriculum
+from hsa_mjx.sim import backend
+from hsa_mjx.task import warp_builder
 
 from .config import TrainConfig, to_dict, validate_devices
 from .devices import distributed, strategies
-from .devices.base import envs_per_process
+from .devices.base import envs_per_device, envs_per_process
 from .run import checkpoint, plots, saved
 from .run.folder import portable, prepare_run_dir
 from .run.logger import HEADLINE, MetricsLogger, ProgressBar, process_age_s
@@ -116,6 +119,7 @@ def train(
         init = read_init_from(config)
     if distributed.is_main() and not quiet:
         print(_announce(config, run_dir, devices), flush=True)
+    builder = start_warp_builder(config, devices)  # first: it builds beside the env, state and compile
     strategy = strategies.build(config, devices)
     startup.mark("build_s")
     extra = {
@@ -135,25 +139,40 @@ def train(
     if distributed.is_main() and not quiet:
         print(f"compiling the training epoch on the {run.extra['physics_backend']} backend...", flush=True)
     ts, started = strategy.place(ts), time.perf_counter()
-    compile_ahead(run, ts, state)
+    compile_ahead(run, ts, state, builder)
     return run_epochs(run, ts, state, key, step, resumed=meta is not None, started=started)
 
 
-def compile_ahead(run: Run, ts: Any, state: Any) -> None:
-    """The training epoch compiled before the first one runs where the strategy can (one device), with the
-    env's physics warmed up on a thread meanwhile (MuJoCo Warp's kernels for this model); the start-up
-    parts ``epoch_compile_s`` and ``warp_warm_up_s``. Elsewhere the first epoch compiles it."""
+def start_warp_builder(config: TrainConfig, devices: list) -> warp_builder.Builder | None:
+    """On MJX's Warp backend on a GPU, the helper process that builds MuJoCo Warp's kernels for this run's
+    env (``hsa_mjx.task.warp_builder``); None elsewhere."""
+    if devices[0].platform != "gpu":
+        return None
+    physics = backend.resolve(config.env.physics.backend, devices[0])
+    return warp_builder.start(env_to_dict(config.env), envs_per_device(config, devices), physics, devices[0])
+
+
+def compile_ahead(run: Run, ts: Any, state: Any, builder: warp_builder.Builder | None = None) -> None:
+    """The training epoch compiled before the first one runs where the strategy can (one device); meanwhile
+    the Warp kernel helper is waited for or, without one, the env's physics warmed up on a thread (MuJoCo
+    Warp's kernels for this model). The start-up parts ``epoch_compile_s`` and ``warp_warm_up_s`` or the
+    helper's report. Elsewhere the first epoch compiles it, after the helper is done."""
     strategy, seconds = run.strategy, {}
 
-    def warm_up() -> None:
-        seconds["warp_warm_up_s"] = strategy.learner.env.warm_up_physics()
+    def physics_ready() -> None:
+        if builder is not None:
+            run.startup.warp_builder = builder.wait()
+        else:
+            seconds["warp_warm_up_s"] = strategy.learner.env.warm_up_physics()
 
     keys = distributed.epoch_keys(jax.random.PRNGKey(0), strategy.devices)  # shaped as every epoch's keys
     jax.block_until_ready((ts, state))  # nothing runs on the device while the warm-up does
-    if strategy.compile_ahead(ts, state, keys, during=warm_up):
+    if strategy.compile_ahead(ts, state, keys, during=physics_ready):
         run.startup.mark("epoch_compile_s")
         if seconds.get("warp_warm_up_s") is not None:
             run.startup.parts["warp_warm_up_s"] = seconds["warp_warm_up_s"]
+    elif builder is not None:
+        run.startup.warp_builder = builder.wait()
 
 
 def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:

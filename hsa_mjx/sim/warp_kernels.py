@@ -11,8 +11,9 @@ With a warm cache every module loads from disk in milliseconds and this costs no
 
 :func:`warm_up` steps one env of a model once, which builds the kernels MuJoCo Warp makes for the model's
 sizes (the Cholesky tiles, the height-field collision: on one H200 about 25 s for the plane scene and 78 s
-for the terrain scene, one after another). The trainer runs it on a thread while XLA compiles the
-training epoch ahead (``train.devices.strategies.OneDevice.compile_ahead``), never while a program runs.
+for the terrain scene, one after another). A training start on a GPU runs it in a helper process
+(``hsa_mjx.task.warp_builder``); without one, on a thread while XLA compiles the training epoch ahead
+(``train.devices.strategies.OneDevice.compile_ahead``), never while a program runs.
 """
 
 from __future__ import annotations

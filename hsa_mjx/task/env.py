@@ -159,10 +159,10 @@ class HSAEnv(BraxEnv):
         return self.robot.backend
 
     def warm_up_physics(self) -> float | None:
-        """On MJX's Warp backend on a GPU, one physics step of one env, so the kernels MuJoCo Warp makes
-        for this model's sizes build now (``hsa_mjx.sim.warp_kernels.warm_up``): its seconds. None
-        elsewhere (nothing to build)."""
-        if self.robot.backend != "warp" or self._data0.qpos.devices().pop().platform != "gpu":
+        """On MJX's Warp backend, one physics step of one env, so the kernels MuJoCo Warp makes for this
+        model's sizes build now (``hsa_mjx.sim.warp_kernels.warm_up``): its seconds. None on the other
+        backends (nothing to build)."""
+        if self.robot.backend != "warp":
             return None
         from hsa_mjx.sim import warp_kernels
 

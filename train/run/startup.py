@@ -7,8 +7,9 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
 - ``build_s``: the env and the learner built (the model, the terrain, the collection strategy);
 - ``init_s``: the learner's first state (its program compiled) or the checkpoint restored;
 - ``reset_s``: every env's first state (its program compiled);
-- ``epoch_compile_s``: where the strategy compiles the training epoch ahead (one device), that compile,
-  with ``warp_warm_up_s`` (MuJoCo Warp's kernels for the model built by one step on a thread meanwhile);
+- ``epoch_compile_s``: where the strategy compiles the training epoch ahead (one device), that compile
+  and the wait for the Warp kernel helper beside it (or, without a helper, ``warp_warm_up_s``: MuJoCo
+  Warp's kernels for the model built by one step on a thread meanwhile);
 - ``first_update_s``: the first epoch: one epoch of collection and updates (and the training program's
   compile where it was not compiled ahead); ``compile_s`` estimates what the first epoch did beyond a
   later one's work (that compile, kernels built at first launch) as its excess over the second epoch;
@@ -17,8 +18,10 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
   tracing, lowering and XLA compile totals, the number of programs, and the compile seconds of the
   largest ones by name (a compile served by the persistent cache counts its load);
 - ``warp_prebuild_s``: MuJoCo Warp's kernel modules built ahead on threads
-  (``hsa_mjx.sim.warp_kernels``; None where none were: no Warp on a GPU); the kernels made per model
-  still build at the first step, inside ``first_update_s``.
+  (``hsa_mjx.sim.warp_kernels``; None where none were: no Warp on a GPU);
+- ``warp_builder``: on Warp on a GPU, the report of the helper process that built the kernels for the
+  env (``hsa_mjx.task.warp_builder``): its ``prebuild_s`` and ``warm_up_s``, ``done_s`` from its launch,
+  ``waited_s`` that training waited for it (None: no helper, or it failed and the first epoch built them).
 
 A cache is cold when it is not set or holds nothing at the start: JAX's persistent compilation cache
 (``jax_compilation_cache_dir``) and Warp's kernel cache (``WARP_CACHE_PATH``, else ``~/.cache/warp``,
@@ -97,6 +100,7 @@ class Startup:
         jax.monitoring.register_event_duration_secs_listener(self.compiles)
         self._listening = True
         self._prebuilt = dict(warp_kernels.build_seconds)
+        self.warp_builder: dict | None = None  # the Warp kernel helper's report, where one ran
         warp = warp_cache_dir()
         self.caches = {
             "jax_compilation_cache": cache_entries(jax.config.jax_compilation_cache_dir),
@@ -127,6 +131,7 @@ class Startup:
             **parts,
             "xla": self.compiles.record(),
             "warp_prebuild_s": round(sum(built), 2) if built else None,
+            "warp_builder": self.warp_builder,
             "caches": self.caches,
             "cold_caches": all(not n for n in self.caches.values()),
         }

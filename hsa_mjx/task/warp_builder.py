@@ -1,0 +1,137 @@
+"""MuJoCo Warp's kernels for an env built in a helper process, beside a training start's XLA compile.
+
+A cold start on the Warp backend builds two sets of kernels: the modules :func:`hsa_mjx.sim.warp_kernels.prebuild`
+compiles ahead, and the kernels MuJoCo Warp makes for the model's sizes at their first launch (Cholesky
+tiles, height-field collision: 25 s on the plane and 78 s on terrain on one H200, one after another).
+Stepped on a thread of the training process while XLA compiled the epoch, the second set took 35 s and
+the compile three times its time alone: the two overlap little in one process.
+
+:func:`start` launches ``python -m hsa_mjx.task.warp_builder`` on the same GPU with the env's config: it
+builds the env (the model, the data, the prebuild) and steps one env once (:func:`hsa_mjx.sim.warp_kernels.warm_up`),
+which writes every kernel to Warp's kernel cache on disk, and reports its seconds as one JSON line. The
+training process meanwhile builds its env, its first state and the epoch's program, then waits for the
+helper (:meth:`Builder.wait`) before the first epoch, whose kernels then load from the cache in
+milliseconds. The helper allocates GPU memory as it needs it (no preallocation). A failure is a warning:
+the first epoch then builds what is missing, as without the helper.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass
+from typing import IO, Any
+
+import jax
+
+
+@dataclass
+class Builder:
+    """A running helper process and where its output goes."""
+
+    process: subprocess.Popen
+    output: IO[str]
+    launched_at: float  # wall clock (time.time(): the helper's report uses the same clock)
+
+    def wait(self, timeout_s: float = 900.0) -> dict[str, Any] | None:
+        """Wait for the helper: its report (``prebuild_s`` and ``warm_up_s`` in it, ``done_s`` from its
+        launch to its report, ``waited_s`` in this call), or None with a warning (its output's tail) when
+        it failed."""
+        start = time.perf_counter()
+        try:
+            code = self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            code = self.process.wait()
+        self.output.seek(0)
+        text = self.output.read()
+        self.output.close()
+        report = _last_report(text)
+        if code != 0 or report is None:
+            tail = " | ".join(text.strip().splitlines()[-4:])
+            warnings.warn(f"the Warp kernel helper failed (exit {code}: {tail}); they build at first use", stacklevel=2)
+            return None
+        done_s = report.pop("finished_at") - self.launched_at
+        return {**report, "done_s": round(done_s, 3), "waited_s": round(time.perf_counter() - start, 3)}
+
+
+def _last_report(text: str) -> dict | None:
+    """The helper's report: its output's last line that is a JSON object."""
+    for line in reversed(text.strip().splitlines()):
+        if line.startswith("{"):
+            try:
+                return json.loads(line)
+            except json.JSONDecodeError:
+                return None
+    return None
+
+
+def _visible_devices(device: jax.Device | None) -> str | None:
+    """``CUDA_VISIBLE_DEVICES`` for a helper on ``device`` (its CUDA ordinal in this process's view), or
+    None to inherit this process's (no device given)."""
+    if device is None:
+        return None
+    seen = os.environ.get("CUDA_VISIBLE_DEVICES")
+    ordinal = device.local_hardware_id
+    if seen:
+        names = [name.strip() for name in seen.split(",") if name.strip()]
+        return names[ordinal] if ordinal < len(names) else None
+    return str(ordinal)
+
+
+def spawn(env_config: dict, num_envs: int, device: jax.Device | None = None) -> Builder:
+    """Launch the helper for the env ``env_config`` (``hsa_mjx.config.to_dict``) sized for ``num_envs``,
+    on ``device`` (None: wherever this process's defaults put it)."""
+    env = {**os.environ, "XLA_PYTHON_CLIENT_PREALLOCATE": "false", "PYTHONUNBUFFERED": "1"}
+    visible = _visible_devices(device)
+    if visible is not None:
+        env["CUDA_VISIBLE_DEVICES"] = visible
+    output, launched = tempfile.TemporaryFile("w+"), time.time()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "hsa_mjx.task.warp_builder"],
+        stdin=subprocess.PIPE,
+        stdout=output,
+        stderr=subprocess.STDOUT,
+        env=env,
+        text=True,
+    )
+    process.stdin.write(json.dumps({"env": env_config, "num_envs": num_envs}))
+    process.stdin.close()
+    return Builder(process, output, launched)
+
+
+def start(env_config: dict, num_envs: int, physics: str, device: jax.Device) -> Builder | None:
+    """The helper for a training start whose env runs on ``physics`` (resolved) on ``device``: launched
+    only for MJX's Warp backend on a GPU (None elsewhere: nothing worth a process)."""
+    if physics != "warp" or device.platform != "gpu":
+        return None
+    try:
+        return spawn(env_config, num_envs, device)
+    except OSError as err:
+        warnings.warn(f"the Warp kernel helper did not start ({err}); the kernels build in this process", stacklevel=2)
+        return None
+
+
+def main() -> int:
+    """The helper: read ``{"env": ..., "num_envs": ...}`` from stdin, build that env, step one env once,
+    print the seconds as one JSON line."""
+    request = json.loads(sys.stdin.read())
+    from hsa_mjx.config import from_dict
+    from hsa_mjx.sim import warp_kernels
+    from hsa_mjx.task.env import HSAEnv
+
+    env = HSAEnv(from_dict(request["env"]), num_envs=int(request["num_envs"]))
+    warm_up_s = env.warm_up_physics()
+    prebuilt = sum(warp_kernels.build_seconds.values())
+    report = {"prebuild_s": round(prebuilt, 3), "warm_up_s": warm_up_s, "finished_at": time.time()}
+    print(json.dumps(report), flush=True)
+    return 0 if warm_up_s is not None else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
