@@ -38,10 +38,10 @@ class Builder:
     output: IO[str]
     launched_at: float  # wall clock (time.time(): the helper's report uses the same clock)
 
-    def wait(self, timeout_s: float = 900.0) -> dict[str, Any] | None:
-        """Wait for the helper: its report (``prebuild_s`` and ``warm_up_s`` in it, ``done_s`` from its
-        launch to its report, ``waited_s`` in this call), or None with a warning (its output's tail) when
-        it failed."""
+    def wait(self, timeout_s: float = 600.0) -> dict[str, Any] | None:
+        """Wait for the helper (killed past ``timeout_s``, several times a cold terrain build's 2 min):
+        its report (``prebuild_s`` and ``warm_up_s`` in it, ``done_s`` from its launch to its report,
+        ``waited_s`` in this call), or None with a warning (its output's tail) when it failed."""
         start = time.perf_counter()
         try:
             code = self.process.wait(timeout=timeout_s)
