@@ -21,7 +21,8 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
   (``hsa_mjx.sim.warp_kernels``; None where none were: no Warp on a GPU);
 - ``warp_builder``: on Warp on a GPU, the report of the helper process that built the kernels for the
   env (``hsa_mjx.task.warp_builder``): its ``prebuild_s`` and ``warm_up_s``, ``done_s`` from its launch,
-  ``waited_s`` that training waited for it (None: no helper, or it failed and the first epoch built them).
+  ``waited_s`` the wait for it, on one device on a thread beside the epoch's compile (None: no helper,
+  or it failed and the first epoch built them).
 
 A cache is cold when it is not set or holds nothing at the start: JAX's persistent compilation cache
 (``jax_compilation_cache_dir``) and Warp's kernel cache (``WARP_CACHE_PATH``, else ``~/.cache/warp``,
