@@ -172,7 +172,7 @@ def compile_ahead(run: Run, ts: Any, state: Any, builder: warp_builder.Builder |
         if seconds.get("warp_warm_up_s") is not None:
             run.startup.parts["warp_warm_up_s"] = seconds["warp_warm_up_s"]
     elif builder is not None:
-        run.startup.warp_builder = builder.wait()
+        physics_ready()
 
 
 def _start(run: Run, meta: dict | None, init: dict | None) -> tuple:
