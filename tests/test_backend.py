@@ -210,6 +210,28 @@ def test_warp_warm_up_steps_one_world_of_the_training_data():
         assert warp_kernels.warm_up(env.robot.mjx_model, env._data0) > 0.0
 
 
+def test_recorded_warp_launches_run_nothing_and_name_the_module_each_would_load():
+    """A dry run's launches record (module, block size, device) and leave their outputs alone; an empty
+    launch records nothing; a captured loop's body and both branches of a captured ``if`` run once each;
+    on leaving, Warp's own launch is back."""
+    warp = pytest.importorskip("warp")
+    from hsa_mjx.sim import warp_kernels
+
+    @warp.kernel(module="unique")
+    def ones(out: warp.array(dtype=float)):
+        out[warp.tid()] = 1.0
+
+    out, calls, launch = warp.zeros(4, dtype=float, device="cpu"), [], warp.launch
+    with warp_kernels.recording_launches() as launches:
+        warp.launch(ones, dim=4, inputs=[out], device="cpu")
+        warp.launch(ones, dim=0, inputs=[out], device="cpu")
+        warp.launch_tiled(ones, dim=[2], inputs=[out], device="cpu", block_dim=64)
+        warp.capture_while(None, while_body=lambda tag: calls.append(tag), tag="loop")
+        warp.capture_if(None, on_true=lambda: calls.append("yes"), on_false=lambda: calls.append("no"))
+    assert [(module, block, str(device)) for module, block, device in launches.values()] == [(ones.module, 1, "cpu")]
+    assert calls == ["loop", "yes", "no"] and out.numpy().tolist() == [0.0] * 4 and warp.launch is launch
+
+
 def test_the_warp_kernel_helper_builds_the_env_in_its_own_process_and_a_failure_is_a_warning():
     """The helper a Warp training start launches builds the env from its config and steps it once in a
     process of its own (on the CPU here), reporting its seconds; a helper that fails is a warning naming
@@ -222,6 +244,7 @@ def test_the_warp_kernel_helper_builds_the_env_in_its_own_process_and_a_failure_
     good, bad = warp_builder.spawn(config, ENVS), warp_builder.spawn({"no_such_key": 1}, ENVS)
     report = good.wait()
     assert report["warm_up_s"] > 0.0 and report["done_s"] >= report["warm_up_s"] and report["waited_s"] >= 0.0
+    assert report["modules"] >= 20  # a dry run of the step named its kernel modules (the flat task: 44 on a CPU)
     with pytest.warns(UserWarning, match="exit 1.*no_such_key"):
         assert bad.wait() is None
 

@@ -158,15 +158,19 @@ class HSAEnv(BraxEnv):
         """The physics this env steps with: ``"jax"`` or ``"warp"`` (MJX) or ``"c"`` (C MuJoCo substeps)."""
         return self.robot.backend
 
-    def warm_up_physics(self) -> float | None:
+    def warm_up_physics(self, all_at_once: bool = False) -> float | None:
         """On MJX's Warp backend, one physics step of one env, so the kernels MuJoCo Warp makes for this
-        model's sizes build now (``hsa_mjx.sim.warp_kernels.warm_up``): its seconds. None on the other
-        backends (nothing to build)."""
+        model's sizes build now (``hsa_mjx.sim.warp_kernels.warm_up``): its seconds. ``all_at_once``: a dry
+        run of the step names them and threads build them together (``warp_kernels.build_for_model``;
+        only in a process that discards its results). None on the other backends (nothing to build)."""
         if self.robot.backend != "warp":
             return None
         from hsa_mjx.sim import warp_kernels
 
-        return warp_kernels.warm_up(self.robot.mjx_model, self._data0)
+        if not all_at_once:
+            return warp_kernels.warm_up(self.robot.mjx_model, self._data0)
+        built = warp_kernels.build_for_model(self.robot.mjx_model, self._data0)
+        return None if built is None else built[0]
 
     @property
     def spawn_xy(self) -> jax.Array:

@@ -20,7 +20,8 @@ holds the result under ``startup`` (``benchmarks.scaling.time_to_target`` report
 - ``warp_prebuild_s``: MuJoCo Warp's kernel modules built ahead on threads
   (``hsa_mjx.sim.warp_kernels``; None where none were: no Warp on a GPU);
 - ``warp_builder``: on Warp on a GPU, the report of the helper process that built the kernels for the
-  env (``hsa_mjx.task.warp_builder``): its ``prebuild_s`` and ``warm_up_s``, ``done_s`` from its launch,
+  env (``hsa_mjx.task.warp_builder``): its ``prebuild_s``, ``warm_up_s`` (every module of a step built at
+  once) and ``modules``, ``done_s`` from its launch,
   ``waited_s`` the wait for it, on one device on a thread beside the epoch's compile (None: no helper,
   or it failed and the first epoch built them).
 
