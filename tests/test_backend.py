@@ -249,6 +249,27 @@ def test_the_warp_kernel_helper_builds_the_env_in_its_own_process_and_a_failure_
         assert bad.wait() is None
 
 
+def test_the_warp_kernel_helper_is_done_at_its_report_not_at_its_exit():
+    """The training start goes on once the helper's report line comes, while the helper still tears down;
+    a JSON line that is no report does not end the wait."""
+    import time
+
+    from hsa_mjx.task import warp_builder
+
+    script = (
+        "import json, time; print(json.dumps({'other': 1}), flush=True); time.sleep(1); "
+        "print(json.dumps({'warm_up_s': 2.0, 'finished_at': time.time()}), flush=True); time.sleep(60)"
+    )
+    process = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    started = time.perf_counter()
+    try:
+        report = warp_builder.watch(process, time.time()).wait()
+        assert report["warm_up_s"] == 2.0 and 1.0 <= time.perf_counter() - started < 30.0
+        assert process.poll() is None  # still running: its exit was not waited for
+    finally:
+        process.kill()
+
+
 def test_the_warp_kernel_helper_runs_on_the_training_gpu_and_only_for_warp_on_a_gpu(monkeypatch):
     """The helper sees the training device by its CUDA ordinal, mapped through a CUDA_VISIBLE_DEVICES the
     trainer was given; nothing is launched for the JAX backend or a CPU."""

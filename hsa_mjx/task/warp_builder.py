@@ -13,7 +13,7 @@ dry run of the step names them and threads compile them together
 another in 46 s on an H200). It writes every kernel to Warp's kernel cache on disk and reports its seconds
 as one JSON line. The
 training process meanwhile builds its env, its first state and the epoch's program, then waits for the
-helper (:meth:`Builder.wait`) before the first epoch, whose kernels then load from the cache in
+helper's report (:meth:`Builder.wait`) before the first epoch, whose kernels then load from the cache in
 milliseconds. The helper allocates GPU memory as it needs it (no preallocation). A failure is a warning:
 the first epoch then builds what is missing, as without the helper.
 """
@@ -24,54 +24,73 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
+import threading
 import time
 import warnings
-from dataclasses import dataclass
-from typing import IO, Any
+from dataclasses import dataclass, field
+from typing import Any
 
 import jax
 
 
 @dataclass
 class Builder:
-    """A running helper process and where its output goes."""
+    """A running helper process and its output, read as it comes by :meth:`follow` on a thread."""
 
     process: subprocess.Popen
-    output: IO[str]
     launched_at: float  # wall clock (time.time(): the helper's report uses the same clock)
+    lines: list[str] = field(default_factory=list)
+    reported: threading.Event = field(default_factory=threading.Event)  # its report came, or its output ended
+
+    def follow(self) -> None:
+        """Read the helper's output to its end, flag its report as soon as it comes, then reap it."""
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+            if _report(line) is not None:
+                self.reported.set()
+        self.reported.set()
+        self.process.wait()
 
     def wait(self, timeout_s: float = 600.0) -> dict[str, Any] | None:
-        """Wait for the helper (killed past ``timeout_s``, several times a cold terrain build's 2 min):
-        its report (``prebuild_s``, ``warm_up_s`` and ``modules`` in it, ``done_s`` from its launch to its report,
-        ``waited_s`` in this call), or None with a warning (its output's tail) when it failed."""
+        """Wait for the helper's report, not its exit (killed past ``timeout_s``, several times a cold
+        terrain build's 2 min): the report (``prebuild_s``, ``warm_up_s`` and ``modules`` in it, ``done_s``
+        from its launch to its report, ``waited_s`` in this call), or None with a warning (its output's
+        tail) when it failed."""
         start = time.perf_counter()
-        try:
-            code = self.process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
+        if not self.reported.wait(timeout_s):
             self.process.kill()
+        report = _last_report(self.lines)
+        if report is None or report.get("warm_up_s") is None:
             code = self.process.wait()
-        self.output.seek(0)
-        text = self.output.read()
-        self.output.close()
-        report = _last_report(text)
-        if code != 0 or report is None:
-            tail = " | ".join(text.strip().splitlines()[-4:])
+            tail = " | ".join(self.lines[-4:])
             warnings.warn(f"the Warp kernel helper failed (exit {code}: {tail}); they build at first use", stacklevel=2)
             return None
         done_s = report.pop("finished_at") - self.launched_at
         return {**report, "done_s": round(done_s, 3), "waited_s": round(time.perf_counter() - start, 3)}
 
 
-def _last_report(text: str) -> dict | None:
-    """The helper's report: its output's last line that is a JSON object."""
-    for line in reversed(text.strip().splitlines()):
-        if line.startswith("{"):
-            try:
-                return json.loads(line)
-            except json.JSONDecodeError:
-                return None
-    return None
+def watch(process: subprocess.Popen, launched_at: float) -> Builder:
+    """A :class:`Builder` for a helper launched with its output on a text pipe, read on a daemon thread."""
+    builder = Builder(process, launched_at)
+    threading.Thread(target=builder.follow, name="warp-helper-output", daemon=True).start()
+    return builder
+
+
+def _last_report(lines: list[str]) -> dict | None:
+    """The helper's report: its output's last report line."""
+    reports = [report for report in map(_report, lines) if report is not None]
+    return reports[-1] if reports else None
+
+
+def _report(line: str) -> dict | None:
+    """A line of the helper's output as its report (a JSON object with ``finished_at``), else None."""
+    if not line.startswith("{"):
+        return None
+    try:
+        report = json.loads(line)
+    except json.JSONDecodeError:
+        return None
+    return report if isinstance(report, dict) and "finished_at" in report else None
 
 
 def _visible_devices(device: jax.Device | None) -> str | None:
@@ -94,18 +113,18 @@ def spawn(env_config: dict, num_envs: int, device: jax.Device | None = None) -> 
     visible = _visible_devices(device)
     if visible is not None:
         env["CUDA_VISIBLE_DEVICES"] = visible
-    output, launched = tempfile.TemporaryFile("w+"), time.time()
+    launched = time.time()
     process = subprocess.Popen(
         [sys.executable, "-m", "hsa_mjx.task.warp_builder"],
         stdin=subprocess.PIPE,
-        stdout=output,
+        stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         env=env,
         text=True,
     )
     process.stdin.write(json.dumps({"env": env_config, "num_envs": num_envs}))
     process.stdin.close()
-    return Builder(process, output, launched)
+    return watch(process, launched)
 
 
 def start(env_config: dict, num_envs: int, physics: str, device: jax.Device) -> Builder | None:
