@@ -107,11 +107,11 @@ def _step_one_world(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     return jax.vmap(mjx.step, in_axes=(None, 0))(model, batch)
 
 
-def build_for_model(model: mjx.Model, data: mjx.Data, workers: int | None = None) -> tuple[float, int] | None:
+def build_for_model(model: mjx.Model, data: mjx.Data, workers: int | None = None) -> float | None:
     """Every kernel module one step of ``model`` loads, named by a dry run of the step on one env
     (``data``, unbatched) and compiled at once on ``workers`` threads (default: one a module, at most the
-    CPU count): (seconds, modules), or None with a warning when it failed. Only in a process that
-    discards its results (the step computes nothing; the Warp graph it captures is empty)."""
+    CPU count): the seconds (the count in ``model_modules``), or None with a warning when it failed. Only
+    in a process that discards its results (the step computes nothing; the Warp graph it captures is empty)."""
     start = time.perf_counter()
     try:
         with recording_launches() as launches:
@@ -120,12 +120,12 @@ def build_for_model(model: mjx.Model, data: mjx.Data, workers: int | None = None
         count = workers or max(1, min(len(loads), os.cpu_count() or 1))
         with ThreadPoolExecutor(count) as pool:  # Warp's compiler runs outside Python's lock
             list(pool.map(lambda load: load[0].load(load[2], load[1]), loads))
-        for _, _, device in loads:
-            model_modules[str(device)] = model_modules.get(str(device), 0) + 1
     except Exception as err:  # a head start only
         warnings.warn(f"building MuJoCo Warp's model kernels failed ({err}); they build at first use", stacklevel=2)
         return None
-    return time.perf_counter() - start, len(loads)
+    for _, _, device in loads:
+        model_modules[str(device)] = model_modules.get(str(device), 0) + 1
+    return time.perf_counter() - start
 
 
 @contextlib.contextmanager

@@ -167,10 +167,8 @@ class HSAEnv(BraxEnv):
             return None
         from hsa_mjx.sim import warp_kernels
 
-        if not all_at_once:
-            return warp_kernels.warm_up(self.robot.mjx_model, self._data0)
-        built = warp_kernels.build_for_model(self.robot.mjx_model, self._data0)
-        return None if built is None else built[0]
+        build = warp_kernels.build_for_model if all_at_once else warp_kernels.warm_up
+        return build(self.robot.mjx_model, self._data0)
 
     @property
     def spawn_xy(self) -> jax.Array:

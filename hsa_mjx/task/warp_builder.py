@@ -41,6 +41,7 @@ class Builder:
     launched_at: float  # wall clock (time.time(): the helper's report uses the same clock)
     lines: list[str] = field(default_factory=list)
     reported: threading.Event = field(default_factory=threading.Event)  # its report came, or its output ended
+    reader: threading.Thread | None = None  # runs follow
 
     def follow(self) -> None:
         """Read the helper's output to its end, flag its report as soon as it comes, then reap it."""
@@ -61,7 +62,8 @@ class Builder:
             self.process.kill()
         report = _last_report(self.lines)
         if report is None or report.get("warm_up_s") is None:
-            code = self.process.wait()
+            self.reader.join()  # its whole output read and the process reaped
+            code = self.process.returncode
             tail = " | ".join(self.lines[-4:])
             warnings.warn(f"the Warp kernel helper failed (exit {code}: {tail}); they build at first use", stacklevel=2)
             return None
@@ -72,7 +74,8 @@ class Builder:
 def watch(process: subprocess.Popen, launched_at: float) -> Builder:
     """A :class:`Builder` for a helper launched with its output on a text pipe, read on a daemon thread."""
     builder = Builder(process, launched_at)
-    threading.Thread(target=builder.follow, name="warp-helper-output", daemon=True).start()
+    builder.reader = threading.Thread(target=builder.follow, name="warp-helper-output", daemon=True)
+    builder.reader.start()
     return builder
 
 
