@@ -15,6 +15,7 @@ LAYERS = (
     (
         "hsa_mjx.resources",
         "hsa_mjx.config",
+        "hsa_mjx.config_checks",
         "hsa_mjx.config_schema",
         "hsa_mjx.migrations",
         "hsa_mjx.randomization_config",

@@ -309,11 +309,11 @@ def test_the_stability_check_runs_every_env_on_one_stress_corner():
     """``benchmarks.speed.throughput --observations stress_cornerN``: each corner of the stress grid as one fixed
     model (ranges collapsed to its values), without the qacc rule, so the NaN check alone guards the state."""
     import hsa_mjx
-    from benchmarks.speed import throughput
+    from benchmarks.speed import cases
 
     corners = robustness_grids.stress_grid()[-4:]
     for number, corner in enumerate(corners, start=1):
-        overrides = throughput.OBSERVATIONS[f"stress_corner{number}"]()
+        overrides = cases.OBSERVATIONS[f"stress_corner{number}"]()
         config = hsa_mjx.build_config("flat", **{k.replace(".", "__"): v for k, v in overrides.items()})
         drawn = config.randomization
         assert all(getattr(drawn, k) == (corner[k], corner[k]) for k in robustness_grids.SCALES)

@@ -28,7 +28,8 @@ import numpy as np
 
 from benchmarks.fidelity.guard import SHIPPED_BY_SCENE
 from benchmarks.run_info import run_info
-from benchmarks.speed.throughput import TERRAINS, bench_env
+from benchmarks.speed.cases import TERRAINS
+from benchmarks.speed.throughput import bench_env
 
 SCENES = {"flat": "flat", "heightfield": "terrain"}
 
