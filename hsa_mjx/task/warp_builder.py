@@ -40,6 +40,7 @@ class Builder:
     process: subprocess.Popen
     launched_at: float  # wall clock (time.time(): the helper's report uses the same clock)
     lines: list[str] = field(default_factory=list)
+    report: dict[str, Any] | None = None  # its output's last report line, parsed
     reported: threading.Event = field(default_factory=threading.Event)  # its report came, or its output ended
     reader: threading.Thread | None = None  # runs follow
 
@@ -47,7 +48,9 @@ class Builder:
         """Read the helper's output to its end, flag its report as soon as it comes, then reap it."""
         for line in self.process.stdout:
             self.lines.append(line.rstrip("\n"))
-            if _report(line) is not None:
+            report = _report(line)
+            if report is not None:
+                self.report = report
                 self.reported.set()
         self.reported.set()
         self.process.wait()
@@ -60,7 +63,7 @@ class Builder:
         start = time.perf_counter()
         if not self.reported.wait(timeout_s):
             self.process.kill()
-        report = _last_report(self.lines)
+        report = dict(self.report) if self.report is not None else None
         if report is None or report.get("warm_up_s") is None:
             self.reader.join()  # its whole output read and the process reaped
             code = self.process.returncode
@@ -77,12 +80,6 @@ def watch(process: subprocess.Popen, launched_at: float) -> Builder:
     builder.reader = threading.Thread(target=builder.follow, name="warp-helper-output", daemon=True)
     builder.reader.start()
     return builder
-
-
-def _last_report(lines: list[str]) -> dict | None:
-    """The helper's report: its output's last report line."""
-    reports = [report for report in map(_report, lines) if report is not None]
-    return reports[-1] if reports else None
 
 
 def _report(line: str) -> dict | None:
