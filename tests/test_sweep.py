@@ -124,6 +124,37 @@ def test_the_report_pools_seeds_with_intervals_and_compares_to_the_first_arm(tmp
     assert "not separated" in sweep_report.write(spec, jobs, out)["arms"]["b"]["vs_first"]["verdict"]
 
 
+def test_on_terrain_the_report_pools_failure_modes_per_type_and_counts_episodes_cut_by_redraws(tmp_path):
+    spec = sweep.load(_write(tmp_path))
+    jobs = sweep.plan(spec, tmp_path / "out")
+    for job in jobs:
+        _fake_run(job.run_dir, 0.5, v_loss=1.0)
+        stuck = 0.5 if job.seed == 0 else 0.25  # one type each: poles reached 50 %, the rest stuck or lost
+        rows = [
+            {"type": "flat", "episodes": 10, "success_rate": 1.0, "modes": {"reached": 1.0}},
+            {
+                "type": "poles",
+                "episodes": 30,
+                "success_rate": 0.5,
+                "modes": {"reached": 0.5, "stuck": stuck, "lost": 0.5 - stuck},
+            },
+        ]
+        (job.run_dir / "sweep_eval" / "terrain_eval.json").write_text(json.dumps({"rows": rows}))
+        metrics = [
+            {"step": 655_360, "training/walltime": 10.0, "episodes": 30.0, "terrain/redraw_truncations": 10.0},
+            {"step": 1_966_080, "training/walltime": 30.0, "episodes": 60.0},
+        ]
+        (job.run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in metrics))
+    report = sweep_report.write(spec, jobs, tmp_path / "out")
+    a = report["arms"]["a"]
+    assert a["per_type"] == pytest.approx({"flat": 1.0, "poles": 0.5})
+    assert a["modes"]["stuck"] == pytest.approx((15 + 7.5) / 80) and a["modes"]["reached"] == pytest.approx(50 / 80)
+    assert report["runs"][0]["learning"]["redraw_truncated_share"] == pytest.approx(10 / 100)
+    assert report["runs"][0]["evaluation"]["per_type_modes"]["poles"]["stuck"] == pytest.approx(0.5)
+    text = (tmp_path / "out" / "sweep.md").read_text()
+    assert "| a | 62.5% | 28.1% | 9.4% | 0.0% | 0.0% |" in text and "| poles | 50.0% | 50.0% |" in text
+
+
 def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path):
     """The runner takes the next job as a device frees; a run whose summary says it is done only evaluates."""
     spec = sweep.load(_write(tmp_path))

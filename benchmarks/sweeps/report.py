@@ -27,6 +27,7 @@ from benchmarks.sweeps.grid import read_json
 from train.run.logger import read_jsonl
 
 _JAX_KEYS = ("backend", "device", "device_count")  # this process keeps JAX on the CPU: its device says nothing
+MODES = ("reached", "stuck", "lost", "slow", "terminated")  # train.evaluate's failure modes (docs/training.md)
 
 
 def is_current(folder: Path, run_dir: Path) -> bool:
@@ -39,8 +40,9 @@ def is_current(folder: Path, run_dir: Path) -> bool:
 
 
 def evaluation(run_dir: Path) -> dict[str, Any] | None:
-    """A run's evaluation: successes, episodes, rate, interval (and per type on terrain); None before one
-    (or when it evaluated an earlier checkpoint than the run's final one)."""
+    """A run's evaluation: successes, episodes, rate, interval (on terrain also each type's success and how
+    the episodes ended, overall and per type); None before one (or when it evaluated an earlier checkpoint
+    than the run's final one)."""
     if not is_current(run_dir / "sweep_eval", run_dir):
         return None
     flat, terrain = (
@@ -56,6 +58,8 @@ def evaluation(run_dir: Path) -> dict[str, Any] | None:
             per_type.setdefault(r["type"], []).append(r["success_rate"])
         extra = {
             "per_type": {t: float(np.mean(v)) for t, v in per_type.items()},
+            "modes": _modes(rows),
+            "per_type_modes": {t: _modes([r for r in rows if r["type"] == t]) for t in per_type},
             "terrain_seed": terrain.get("terrain_seed"),
             "training_terrain_seed": terrain.get("training_terrain_seed"),
         }
@@ -67,6 +71,22 @@ def evaluation(run_dir: Path) -> dict[str, Any] | None:
     low, high = wilson_interval(successes, episodes)
     rate = successes / episodes
     return {"successes": successes, "episodes": episodes, "success_rate": rate, "ci95": [low, high], **extra}
+
+
+def _modes(rows: list[dict]) -> dict[str, float] | None:
+    """How a terrain evaluation's episodes ended (``train.evaluate``'s failure modes: reached, stuck, lost,
+    slow, terminated), each a share of all its episodes; None for an evaluation without them."""
+    if not all(r.get("modes") for r in rows):
+        return None
+    episodes = sum(r["episodes"] for r in rows)
+    return {m: sum(r["modes"].get(m, 0.0) * r["episodes"] for r in rows) / episodes for m in MODES}
+
+
+def _redraw_truncated_share(rows: list[dict]) -> float | None:
+    """The share of a run's ended episodes that terrain re-draws cut short (None: nothing logged them)."""
+    cut = sum(r.get("terrain/redraw_truncations", 0.0) for r in rows)
+    ended = sum(r.get("episodes", 0.0) for r in rows)
+    return cut / (cut + ended) if cut + ended > 0 else None
 
 
 def learning(run_dir: Path, target_success: float) -> dict[str, Any] | None:
@@ -81,6 +101,7 @@ def learning(run_dir: Path, target_success: float) -> dict[str, Any] | None:
         "max_v_loss": max(v_loss) if v_loss else None,
         "time_to_target": time_to_target.time_to_target(config, rows, target_success),
         "env_steps": int(rows[-1]["step"]),
+        "redraw_truncated_share": _redraw_truncated_share(rows),
     }
 
 
@@ -125,6 +146,13 @@ def _pooled(runs: list[dict]) -> dict[str, Any] | None:
     successes = sum(r["evaluation"]["successes"] for r in done)
     episodes = sum(r["evaluation"]["episodes"] for r in done)
     seeds = {r["seed"]: r["evaluation"]["success_rate"] for r in done}
+    pooled = {}  # on terrain: each type's success and the failure modes, weighted by the runs' episodes
+    for key in ("per_type", "modes"):
+        if all(r["evaluation"].get(key) for r in done):
+            names = done[0]["evaluation"][key]
+            pooled[key] = {
+                k: sum(r["evaluation"][key][k] * r["evaluation"]["episodes"] for r in done) / episodes for k in names
+            }
     return {
         "seeds_evaluated": len(done),
         "successes": successes,
@@ -133,6 +161,7 @@ def _pooled(runs: list[dict]) -> dict[str, Any] | None:
         "ci95": list(wilson_interval(successes, episodes)),
         "per_seed": seeds,
         "seed_spread": max(seeds.values()) - min(seeds.values()),
+        **pooled,
     }
 
 
@@ -161,19 +190,38 @@ def markdown(report: dict[str, Any]) -> str:
             f"| {arm} | {a['seeds_evaluated']} | {a['success_rate']:.1%} ({a['successes']}/{a['episodes']}) | "
             f"{a['ci95'][0]:.1%}-{a['ci95'][1]:.1%} | {seeds} | {versus} |"
         )
+    lines += _pooled_tables(report["arms"])
     lines += ["", "| run | success (95 %) | first value loss | largest value loss | target reached at (s, env steps) |"]
-    lines += ["|---|---|---|---|---|"]
+    lines[-1] += " episodes cut by re-draws |"
+    lines += ["|---|---|---|---|---|---|"]
     for r in report["runs"]:
         ev, le = r["evaluation"], r["learning"] or {}
         hit = (le.get("time_to_target") or {}).get("reached")
+        cut = le.get("redraw_truncated_share")
         lines.append(
             f"| {r['arm']} seed {r['seed']} | "
             + (f"{ev['success_rate']:.1%} ({ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})" if ev else "not evaluated")
             + f" | {_g(le.get('first_v_loss'))} | {_g(le.get('max_v_loss'))} | "
             + (f"{hit['wall_s']} s, {hit['env_steps']:,}" if hit else "not reached")
-            + " |"
+            + f" | {'-' if cut is None else f'{cut:.1%}'} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _pooled_tables(arms: dict[str, Any]) -> list[str]:
+    """On terrain: how each arm's episodes ended, and each type's success, pooled over its seeds."""
+    done = {arm: a for arm, a in arms.items() if a}
+    lines: list[str] = []
+    if done and all(a.get("modes") for a in done.values()):
+        lines += ["", "| arm | " + " | ".join(MODES) + " |", "|---" * (len(MODES) + 1) + "|"]
+        lines += [f"| {arm} | " + " | ".join(f"{a['modes'][m]:.1%}" for m in MODES) + " |" for arm, a in done.items()]
+    if done and all(a.get("per_type") for a in done.values()):
+        lines += ["", "| type | " + " | ".join(done) + " |", "|---" * (len(done) + 1) + "|"]
+        for t in next(iter(done.values()))["per_type"]:
+            lines.append(
+                f"| {t} | " + " | ".join(f"{a['per_type'].get(t, float('nan')):.1%}" for a in done.values()) + " |"
+            )
+    return lines
 
 
 def _g(value: float | None) -> str:
