@@ -111,6 +111,7 @@ def test_the_report_pools_seeds_with_intervals_and_compares_to_the_first_arm(tmp
     assert run["learning"]["time_to_target"]["reached"]["env_steps"] == 655_360
     for name in ("sweep.json", "sweep.md", "sweep.png", "arm_a.png", "arm_b.png"):
         assert (out / name).stat().st_size > 0
+    assert "cut by re-draws" not in (out / "sweep.md").read_text()  # no terrain re-draws: no such column
     # a difference inside the seeds' spread is not read as a win
     for job in jobs:
         (job.run_dir / "sweep_eval" / "eval.json").write_text(
@@ -153,6 +154,7 @@ def test_on_terrain_the_report_pools_failure_modes_per_type_and_counts_episodes_
     assert report["runs"][0]["evaluation"]["per_type_modes"]["poles"]["stuck"] == pytest.approx(0.5)
     text = (tmp_path / "out" / "sweep.md").read_text()
     assert "| a | 62.5% | 28.1% | 9.4% | 0.0% | 0.0% |" in text and "| poles | 50.0% | 50.0% |" in text
+    assert "| a seed 0 | 62.5% (47%-76%) | - | - | not reached | 10.0% |" in text
 
 
 def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path):

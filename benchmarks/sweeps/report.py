@@ -83,10 +83,10 @@ def _modes(rows: list[dict]) -> dict[str, float] | None:
 
 
 def _redraw_truncated_share(rows: list[dict]) -> float | None:
-    """The share of a run's ended episodes that terrain re-draws cut short (None: nothing logged them)."""
+    """The share of a run's ended episodes that terrain re-draws cut short (None: the run logged no cut)."""
     cut = sum(r.get("terrain/redraw_truncations", 0.0) for r in rows)
     ended = sum(r.get("episodes", 0.0) for r in rows)
-    return cut / (cut + ended) if cut + ended > 0 else None
+    return cut / (cut + ended) if cut > 0 else None
 
 
 def learning(run_dir: Path, target_success: float) -> dict[str, Any] | None:
@@ -191,9 +191,10 @@ def markdown(report: dict[str, Any]) -> str:
             f"{a['ci95'][0]:.1%}-{a['ci95'][1]:.1%} | {seeds} | {versus} |"
         )
     lines += _pooled_tables(report["arms"])
-    lines += ["", "| run | success (95 %) | first value loss | largest value loss | target reached at (s, env steps) |"]
-    lines[-1] += " episodes cut by re-draws |"
-    lines += ["|---|---|---|---|---|---|"]
+    cuts = any((r["learning"] or {}).get("redraw_truncated_share") for r in report["runs"])  # re-draws cut episodes
+    header = ["run", "success (95 %)", "first value loss", "largest value loss", "target reached at (s, env steps)"]
+    header += ["episodes cut by re-draws"] if cuts else []
+    lines += ["", "| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
     for r in report["runs"]:
         ev, le = r["evaluation"], r["learning"] or {}
         hit = (le.get("time_to_target") or {}).get("reached")
@@ -203,7 +204,8 @@ def markdown(report: dict[str, Any]) -> str:
             + (f"{ev['success_rate']:.1%} ({ev['ci95'][0]:.0%}-{ev['ci95'][1]:.0%})" if ev else "not evaluated")
             + f" | {_g(le.get('first_v_loss'))} | {_g(le.get('max_v_loss'))} | "
             + (f"{hit['wall_s']} s, {hit['env_steps']:,}" if hit else "not reached")
-            + f" | {'-' if cut is None else f'{cut:.1%}'} |"
+            + (f" | {'none' if cut is None else f'{cut:.1%}'}" if cuts else "")
+            + " |"
         )
     return "\n".join(lines) + "\n"
 
