@@ -146,7 +146,7 @@ def test_on_terrain_the_report_pools_failure_modes_per_type_and_counts_episodes_
             {"step": 1_966_080, "training/walltime": 30.0, "episodes": 60.0},
         ]
         (job.run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in metrics))
-    report = sweep_report.write(spec, jobs, tmp_path / "out")
+    report = sweep_report.write(spec, jobs, tmp_path / "out", devices=["0", "0"])
     a = report["arms"]["a"]
     assert a["per_type"] == pytest.approx({"flat": 1.0, "poles": 0.5})
     assert a["modes"]["stuck"] == pytest.approx((15 + 7.5) / 80) and a["modes"]["reached"] == pytest.approx(50 / 80)
@@ -155,6 +155,7 @@ def test_on_terrain_the_report_pools_failure_modes_per_type_and_counts_episodes_
     text = (tmp_path / "out" / "sweep.md").read_text()
     assert "| a | 62.5% | 28.1% | 9.4% | 0.0% | 0.0% |" in text and "| poles | 50.0% | 50.0% |" in text
     assert "| a seed 0 | 62.5% (47%-76%) | - | - | not reached | 10.0% |" in text
+    assert "2 runs at once on 1 GPU(s) (`--devices 0,0`)" in text  # their seconds are not one run's alone
 
 
 def test_runs_share_the_devices_and_a_finished_run_is_not_trained_again(tmp_path):

@@ -175,6 +175,13 @@ def _verdict(difference: float, low: float, high: float, spread: float) -> str:
 def markdown(report: dict[str, Any]) -> str:
     """The arms' table, then the runs' table."""
     lines = [f"# sweep {report['name']}", "", report.get("question", ""), ""]
+    devices = report.get("devices") or []
+    if len(set(devices)) < len(devices):  # a GPU named twice ran two runs at once
+        lines += [
+            f"{len(devices)} runs at once on {len(set(devices))} GPU(s) (`--devices {','.join(map(str, devices))}`): "
+            "seconds are each run's clock as it ran beside the others, not one run's alone on a GPU.",
+            "",
+        ]
     lines += [
         "| arm | seeds | success (pooled) | 95 % interval | per seed | vs first arm (95 %) |",
         "|---|---|---|---|---|---|",
@@ -286,9 +293,11 @@ def write(
     gpus: list[str] | None = None,
     rewrite: bool = False,
     references: list | None = None,
+    devices: list[str | None] | None = None,
 ) -> dict[str, Any]:
     """``sweep.json``, ``sweep.md``, ``sweep.png`` and one ``arm_<arm>.png`` per arm into ``out`` (``gpus``: the
-    host's GPUs, recorded). ``rewrite``: a report written again from the runs keeps the host and date its
+    host's GPUs, recorded; ``devices``: the runs' devices, one entry a worker, so a GPU named k times ran k runs
+    at once). ``rewrite``: a report written again from the runs keeps the host and date its
     runs were recorded with (the ``sweep.json`` already there), not this machine's. ``references``: the
     grid evaluation's reference policies (``benchmarks.sweeps.run.references``)."""
     out.mkdir(parents=True, exist_ok=True)
@@ -308,6 +317,7 @@ def write(
         **collect(sweep, jobs),
         "grid": sweep_grid.collect(list(sweep.arms), jobs, references or []),
         "gpus": before.get("gpus") or gpus or [],
+        "devices": devices or before.get("devices") or [],
         "run_info": before.get("run_info") or {k: v for k, v in run_info().items() if k not in _JAX_KEYS},
     }
     (out / "sweep.json").write_text(json.dumps(report, indent=1))

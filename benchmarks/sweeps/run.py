@@ -352,7 +352,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("sweep", help="a sweep file (benchmarks/sweeps/*.yaml)")
     parser.add_argument("--out", default=None, help="output folder (default runs/sweeps/<name>)")
-    parser.add_argument("--devices", default=None, help="GPU ids to use, e.g. 0,1 (default: every GPU listed)")
+    parser.add_argument(
+        "--devices",
+        default=None,
+        help="GPU ids to use, e.g. 0,1 or 0,0,1,1 for two runs a GPU (default: every GPU listed); with "
+        "--report-only, the devices the runs ran on, for the report",
+    )
     parser.add_argument("--time-limit", type=float, default=None, help="seconds; stop the runs cleanly before it")
     parser.add_argument(
         "--report-only",
@@ -369,12 +374,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = Path(args.out or Path("runs") / "sweeps" / sweep.name)
     jobs, refs = plan(sweep, out), references(sweep, out)
+    devices = [d.strip() for d in args.devices.split(",")] if args.devices else None
     if not args.report_only:
-        devices = [d.strip() for d in args.devices.split(",")] if args.devices else local_gpus()
+        devices = devices or local_gpus()
         deadline = None if args.time_limit is None else start + args.time_limit
         print(f"sweep {sweep.name}: {len(jobs)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
         Runner(devices, deadline).run(jobs + refs, sweep.env_steps)
-    sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs)
+    sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs, devices=devices)
     print((out / "sweep.md").read_text(), end="")  # the report as written: arms, runs, checkpoints, grid
     return 0
 
