@@ -65,6 +65,9 @@ def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_pa
         ev = job.evaluate
         assert ev[ev.index("--terrain-seed") + 1] == "1000" and ev[ev.index("--tiles") + 1] == "8"
         assert str(job.run_dir) in ev and "--stochastic" not in ev  # the mean action
+    assert [(j.arm, j.seed) for j in sweep.select(jobs, "b:1, a:0")] == [("a", 0), ("b", 1)]  # --only
+    with pytest.raises(ValueError, match="no run c:0 in this sweep; valid: a:0, b:0, a:1, b:1"):
+        sweep.select(jobs, "a:0,c:0")
     # an arm with a config of its own trains from it, with its overrides
     own = {"config": "configs/train_flat_st3215.yaml", "set": ["ppo.value_targets=per_iteration"]}
     spec = sweep.load(_write(tmp_path, arms={"a": [], "st3215": own}))
@@ -266,8 +269,8 @@ def test_a_reference_is_played_once_and_never_trained(tmp_path):
 
 def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to_target_read_from_them(tmp_path):
     """``budget_s`` stops each run on its training clock (a run so stopped is done); with
-    ``evaluate.every_checkpoint`` each checkpoint is evaluated once and the time to the target is the
-    first evaluated checkpoint at the target, with its training seconds."""
+    ``evaluate.every_checkpoint`` each checkpoint is evaluated once (the newest by the final evaluation)
+    and the time to the target is the first evaluated checkpoint at the target, with its training seconds."""
     from train.run import checkpoint
 
     spec = sweep.load(_write(tmp_path, budget_s=120, evaluate={"episodes": 100, "every_checkpoint": True}))
@@ -288,8 +291,8 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
         "steps = [int(c[-12:]) for c in ckpts] or [3000];"
         "rates = {1000: 0.5, 2000: 0.95, 3000: 0.97};"
         "[o.mkdir(parents=True) for o in outs];"
-        "[(o / 'eval.json').write_text(json.dumps({'episodes': 100, 'success_rate': rates[s], 'step': s})) "
-        "for o, s in zip(outs, steps)]"
+        "[(o / 'eval.json').write_text(json.dumps({'episodes': 100, 'success_rate': rates[s], 'step': s, "
+        "'played': 'final' if not ckpts else 'checkpoint'})) for o, s in zip(outs, steps)]"
     )
     job.evaluate = ["-c", script, "--out", str(job.run_dir / "sweep_eval")]
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
@@ -299,6 +302,8 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
     assert [p["training_walltime_s"] for p in run["checkpoints"]] == [40.0, 80.0, 120.0]
     assert run["evaluated_time_to_target"] == {"training_s": 80.0, "env_steps": 2000, "success_rate": 0.95}
     assert "80 s, 2,000 env steps" in (tmp_path / "out" / "sweep.md").read_text()
+    newest = json.loads((job.run_dir / "sweep_checkpoints" / "step_000000003000" / "eval.json").read_text())
+    assert newest["played"] == "final"  # the final evaluation is the newest checkpoint's: not played again
     job.evaluate = ["-c", "raise SystemExit(1)", "--out", "x"]  # evaluated checkpoints are not evaluated again
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
     assert len(sweep_report.write(spec, [job], tmp_path / "out")["runs"][0]["checkpoints"]) == 3

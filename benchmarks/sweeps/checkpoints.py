@@ -11,6 +11,7 @@ once written stays valid; keep the checkpoints (``run.keep_checkpoints``) until 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +67,20 @@ def write_clock(path: Path, run_dir: Path) -> None:
     meta = checkpoint.read_meta(path)
     clock = {"step": int(meta["step"]), "training_walltime_s": meta.get("training_walltime_s")}
     (run_dir / FOLDER / path.name / "clock.json").write_text(json.dumps(clock))
+
+
+def adopt(final: Path, run_dir: Path) -> None:
+    """The run's final evaluation (``final``: of its newest checkpoint, with the same arguments) taken as
+    that checkpoint's too, so it is not played a second time (on terrain a process and an env build each)."""
+    result = read_json(final / "eval.json") or read_json(final / "terrain_eval.json")
+    found = checkpoint.list_checkpoints(run_dir)
+    if not found or evaluated(final) is None:
+        return
+    newest = found[-1]
+    if result.get("step") is not None and int(result["step"]) != int(checkpoint.read_meta(newest)["step"]):
+        return
+    shutil.copytree(final, run_dir / FOLDER / newest.name, dirs_exist_ok=True)
+    write_clock(newest, run_dir)
 
 
 def curve(run_dir: Path) -> list[dict[str, Any]]:

@@ -1,6 +1,7 @@
 """Compare training recipes honestly: arms x seeds at equal env steps, each run evaluated, with intervals.
 
-    python -m benchmarks.sweeps.run SWEEP.yaml [--out DIR] [--devices 0,1] [--time-limit S] [--report-only]
+    python -m benchmarks.sweeps.run SWEEP.yaml [--out DIR] [--devices 0,1] [--only ARM:SEED] [--time-limit S]
+        [--report-only]
 
 A sweep file (``benchmarks/sweeps/*.yaml``) names a question, a training config, the env steps every run
 trains for, the seeds, the arms (each a list of ``--set`` overrides over the config, or a mapping
@@ -15,13 +16,12 @@ trained on. With ``evaluate.grid`` each run's policy is also exported and played
 folder): per cell, each arm pooled over its seeds and its difference to each reference, with intervals
 (``benchmarks.sweeps.grid``). ``--time-limit`` sends SIGTERM to the runs still training when the time is
 nearly spent (each writes a checkpoint); running the same command again resumes them and skips what
-is done. Raising ``env_steps`` continues every run from its checkpoint and evaluates it again (an
-evaluation of an earlier checkpoint is never reported). The report (``benchmarks.sweeps.report``):
-``sweep.json``, ``sweep.md`` and one plot per arm plus ``sweep.png`` in ``OUT``; every figure with its
-95 % interval, the arms against the first.
+is done; ``--only`` trains the named runs alone. Raising ``env_steps`` continues every run from its
+checkpoint and evaluates it again (an evaluation of an earlier checkpoint is never reported). The report
+(``benchmarks.sweeps.report``): ``sweep.json``, ``sweep.md`` and one plot per arm plus ``sweep.png`` in
+``OUT``; every figure with its 95 % interval, the arms against the first.
 
-The sweep file is checked before anything runs: unknown keys, an arm whose config does not build,
-a missing config file are refused with a ValueError naming them.
+The sweep file is checked before anything runs (``benchmarks.sweeps.spec``).
 """
 
 from __future__ import annotations
@@ -36,123 +36,15 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import jax
-import yaml
 
-from benchmarks.robustness import grids
 from benchmarks.sweeps import checkpoints
 from benchmarks.sweeps import report as sweep_report
-from hsa_mjx.deploy import policy_file
-from train import config as train_config
+from benchmarks.sweeps.spec import Sweep, load
 
-KEYS = ("name", "question", "config", "env_steps", "seeds", "set", "arms", "evaluate", "target_success", "budget_s")
-EVALUATE_KEYS = ("episodes", "steps", "goal_range", "seed", "backend", "terrain", "grid", "every_checkpoint")
-GRID_KEYS = ("name", "episodes", "reference")
-ARM_KEYS = ("config", "set")  # an arm given as a mapping: its own training config, its overrides
-TERRAIN_KEYS = ("types", "levels", "tiles", "terrain_seed")
 GRID_TAG = "grid"  # robustness_grid.json in each run's sweep_grid/
 GRACE_S = 90  # --time-limit: SIGTERM this long before the limit (the epoch in flight ends, a checkpoint is written)
-
-
-@dataclasses.dataclass(frozen=True)
-class Sweep:
-    """A sweep file, checked."""
-
-    name: str
-    question: str
-    config: str
-    env_steps: int
-    seeds: tuple[int, ...]
-    common: tuple[str, ...]
-    arms: dict[str, tuple[str, ...]]
-    evaluate: dict[str, Any]
-    target_success: float = 0.9
-    arm_configs: dict[str, str] = dataclasses.field(default_factory=dict)  # arms trained from another config
-    budget_s: float = 0.0  # > 0: every run trains this many seconds of its training clock (run.max_training_s)
-
-    def config_of(self, arm: str) -> str:
-        """The training config of one arm: its own, or the sweep's."""
-        return self.arm_configs.get(arm, self.config)
-
-    def overrides(self, arm: str, seed: int) -> list[str]:
-        """The ``--set`` overrides of one run: the common ones, the arm's, its seed and length (and budget)."""
-        budget = [f"run.max_training_s={self.budget_s}"] if self.budget_s > 0 else []
-        return [*self.common, *self.arms[arm], f"run.seed={seed}", f"run.num_timesteps={self.env_steps}", *budget]
-
-
-def _unknown(data: dict, valid: tuple[str, ...], where: str) -> None:
-    unknown = sorted(set(data) - set(valid))
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; valid keys: {list(valid)}")
-
-
-def _check_grid(grid: Any, where: str) -> None:
-    """ValueError (or FileNotFoundError for a reference policy) unless ``grid`` is None or a valid grid."""
-    if grid is None:
-        return
-    if not isinstance(grid, dict):
-        raise ValueError(f"{where}: a mapping with keys {list(GRID_KEYS)}, got {grid!r}")
-    _unknown(grid, GRID_KEYS, where)
-    if grid.get("name") not in grids.GRIDS:
-        raise ValueError(f"{where}.name: {grid.get('name')!r}; grids: {sorted(grids.GRIDS)}")
-    if int(grid.get("episodes", 1)) < 1:
-        raise ValueError(f"{where}.episodes must be >= 1, got {grid['episodes']!r}")
-    for policy in grid.get("reference") or ():
-        policy_file.locate(policy)
-
-
-def _arms(data: dict, path: Path) -> tuple[dict[str, tuple[str, ...]], dict[str, str]]:
-    """Each arm's overrides, and the config of each arm given as ``{config: PATH, set: [...]}``."""
-    arms, configs = {}, {}
-    for name, value in data.items():
-        if isinstance(value, dict):
-            _unknown(value, ARM_KEYS, f"{path}: arm {name!r}")
-            if "config" in value:
-                configs[str(name)] = str(value["config"])
-            value = value.get("set")
-        arms[str(name)] = tuple(value or ())
-    return arms, configs
-
-
-def load(path: str | Path) -> Sweep:
-    """Read and check a sweep file: every arm's config is built (and so validated) here, before any run."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"sweep file not found: {path}")
-    data = yaml.safe_load(path.read_text()) or {}
-    _unknown(data, KEYS, str(path))
-    missing = [k for k in ("name", "config", "env_steps", "seeds", "arms", "evaluate") if k not in data]
-    if missing:
-        raise ValueError(f"{path}: missing key(s) {missing}")
-    evaluate = dict(data["evaluate"] or {})
-    _unknown(evaluate, EVALUATE_KEYS, f"{path}: evaluate")
-    _unknown(evaluate.get("terrain") or {}, TERRAIN_KEYS, f"{path}: evaluate.terrain")
-    _check_grid(evaluate.get("grid"), f"{path}: evaluate.grid")
-    arms, arm_configs = _arms(data["arms"] or {}, path)
-    seeds = tuple(int(s) for s in data["seeds"])
-    if len(arms) < 1 or len(seeds) < 1 or len(set(seeds)) != len(seeds):
-        raise ValueError(f"{path}: need at least one arm and distinct seeds, got arms {list(arms)}, seeds {seeds}")
-    sweep = Sweep(
-        name=str(data["name"]),
-        question=str(data.get("question", "")),
-        config=str(data["config"]),
-        env_steps=int(data["env_steps"]),
-        seeds=seeds,
-        common=tuple(data.get("set") or ()),
-        arms=arms,
-        evaluate=evaluate,
-        target_success=float(data.get("target_success", 0.9)),
-        arm_configs=arm_configs,
-        budget_s=float(data.get("budget_s", 0.0)),
-    )
-    for arm in arms:
-        try:
-            train_config.load(sweep.config_of(arm), sweep.overrides(arm, seeds[0]))
-        except (ValueError, TypeError) as err:
-            raise ValueError(f"{path}: arm {arm!r} does not build: {err}") from err
-    return sweep
 
 
 @dataclasses.dataclass
@@ -230,6 +122,19 @@ def plan(sweep: Sweep, out: Path) -> list[Job]:
     return jobs
 
 
+def select(jobs: list[Job], only: str | None) -> list[Job]:
+    """The jobs named by ``--only`` (``ARM:SEED`` items, comma-separated), in plan order; all without it.
+    A sweep split over calls or hosts trains a part at a time, and its report covers every run present."""
+    if not only:
+        return jobs
+    known = {f"{j.arm}:{j.seed}": j for j in jobs}
+    wanted = [item.strip() for item in only.split(",") if item.strip()]
+    unknown = [w for w in wanted if w not in known]
+    if unknown:
+        raise ValueError(f"--only: no run {', '.join(unknown)} in this sweep; valid: {', '.join(known)}")
+    return [j for name, j in known.items() if name in wanted]
+
+
 def trained(job: Job, env_steps: int) -> bool:
     """Whether the run finished: its env steps, or its training clock's budget (its summary says so)."""
     summary = sweep_report.read_json(job.run_dir / "summary.json")
@@ -286,6 +191,7 @@ class Runner:
             if self._call(job.evaluate, device, log) != 0:
                 shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
         if job.every_checkpoint and job.evaluate:
+            checkpoints.adopt(job.run_dir / "sweep_eval", job.run_dir)
             pending = checkpoints.pending(job.run_dir)
             for args in checkpoints.commands(job.evaluate, pending, job.run_dir):
                 names = [Path(a).name for a in args[args.index("--checkpoint") + 1 :]]
@@ -358,6 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         help="GPU ids to use, e.g. 0,1 or 0,0,1,1 for two runs a GPU (default: every GPU listed); with "
         "--report-only, the devices the runs ran on, for the report",
     )
+    parser.add_argument("--only", default=None, help="train only these runs now, ARM:SEED[,ARM:SEED...]")
     parser.add_argument("--time-limit", type=float, default=None, help="seconds; stop the runs cleanly before it")
     parser.add_argument(
         "--report-only",
@@ -369,17 +276,18 @@ def main(argv: list[str] | None = None) -> int:
     start = time.monotonic()
     try:
         sweep = load(args.sweep)
+        out = Path(args.out or Path("runs") / "sweeps" / sweep.name)
+        jobs, refs = plan(sweep, out), references(sweep, out)
+        now = select(jobs, args.only) + ([] if args.only else refs)
     except (ValueError, FileNotFoundError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    out = Path(args.out or Path("runs") / "sweeps" / sweep.name)
-    jobs, refs = plan(sweep, out), references(sweep, out)
     devices = [d.strip() for d in args.devices.split(",")] if args.devices else None
     if not args.report_only:
         devices = devices or local_gpus()
         deadline = None if args.time_limit is None else start + args.time_limit
-        print(f"sweep {sweep.name}: {len(jobs)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
-        Runner(devices, deadline).run(jobs + refs, sweep.env_steps)
+        print(f"sweep {sweep.name}: {len(now)} runs of {sweep.env_steps:,} env steps on devices {devices}", flush=True)
+        Runner(devices, deadline).run(now, sweep.env_steps)
     sweep_report.write(sweep, jobs, out, gpu_names(), rewrite=args.report_only, references=refs, devices=devices)
     print((out / "sweep.md").read_text(), end="")  # the report as written: arms, runs, checkpoints, grid
     return 0
