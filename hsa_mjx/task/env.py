@@ -32,9 +32,8 @@ from hsa_mjx.task import (
     progress,
     randomization,
     reward,
-    termination,
 )
-from hsa_mjx.task.metrics import step_metrics
+from hsa_mjx.task.metrics import reset_metrics, step_metrics
 from hsa_mjx.task.observer import Observer
 from hsa_mjx.task.params import EnvParams
 from hsa_mjx.task.types import EnvState, PhysicsCall, SimState, TaskState
@@ -230,35 +229,22 @@ class HSAEnv(BraxEnv):
             goal_xy = goals.initial_goal(goal_key, self.config, params.goal_range, self._checkpoints, terrain_id)
         site, goal_xy = self.progress.place_goal(goal_key, tile, terrain_id, params.goal_range, index, goal_xy)
         data = self._with_goal_marker(self._spawn(tile, move), goal_xy, tile)
-        window = self.config.reward.stagnation_window
-        task = TaskState(
+        task = TaskState.start(
+            self.action_size,
+            self.config.reward.stagnation_window,
             goal_xy=goal_xy,
             checkpoints=self._checkpoints,
             checkpoint_index=index,
-            prev_action=jnp.zeros(self.action_size),
-            prev_joint_vel=jnp.zeros(self.action_size),
-            prev_distance=jnp.zeros(()),
-            start_distance=jnp.zeros(()),
-            com_history=jnp.zeros((window, 2)),
-            history_count=jnp.zeros((), jnp.int32),
-            step_count=jnp.zeros((), jnp.int32),
             rng=rng,
             tile=tile,
             terrain_id=terrain_id,
             site=site,
             randomization=drawn,
-            tracker=jnp.zeros((2, 3)),
         )
         distance, direction = self.progress.measure(task, observation.robot_xy(data, self.index))
         task = task.replace(prev_distance=distance, start_distance=distance)
         obs, critic, task = self.observer.at_reset(data, task, direction)
-        metrics = step_metrics(
-            {name: jnp.zeros(()) for name in reward.TERM_NAMES},
-            {name: jnp.zeros((), bool) for name in termination.REASONS},
-            jnp.zeros((), bool),
-            distance,
-            task.checkpoint_index,
-        )
+        metrics = reset_metrics(distance, task.checkpoint_index)
         info = {"truncation": jnp.zeros(()), **({} if critic is None else {"privileged_obs": critic})}
         return EnvState(
             pipeline_state=SimState(data, task),

@@ -7,7 +7,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from hsa_mjx.task import termination
+from hsa_mjx.task import reward, termination
 
 
 def step_metrics(
@@ -21,3 +21,10 @@ def step_metrics(
     metrics["distance_to_goal"] = jnp.where(jnp.isfinite(distance), distance, 0.0).astype(jnp.float32)
     metrics["checkpoint_index"] = checkpoint_index.astype(jnp.float32)
     return metrics
+
+
+def reset_metrics(distance: jax.Array, checkpoint_index: jax.Array) -> dict[str, jax.Array]:
+    """``EnvState.metrics`` at reset: the same keys as a step's, every reward term and reason zero."""
+    components = {name: jnp.zeros(()) for name in reward.TERM_NAMES}
+    reasons = {name: jnp.zeros((), bool) for name in termination.REASONS}
+    return step_metrics(components, reasons, jnp.zeros((), bool), distance, checkpoint_index)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 from brax.envs.base import State as BraxState
 from flax import struct
 
@@ -31,6 +32,23 @@ class TaskState:
     site: jax.Array  # () int32, the goal's site on the tile (its distance field; -1: none, straight line)
     randomization: RandomizationState  # this episode's physical scales, latency and next push
     tracker: jax.Array  # (2, 3) the position tracker's last two readings of the robot (observation.velocity)
+
+    @classmethod
+    def start(cls, action_size: int, window: int, **drawn: jax.Array) -> TaskState:
+        """An episode's first task state: ``drawn`` gives its goal, checkpoints and index, key, tile,
+        terrain type, site and randomisation; actions, distances, histories and counters start at zero."""
+        zero = jnp.zeros(())
+        return cls(
+            prev_action=jnp.zeros(action_size),
+            prev_joint_vel=jnp.zeros(action_size),
+            prev_distance=zero,
+            start_distance=zero,
+            com_history=jnp.zeros((window, 2)),
+            history_count=jnp.zeros((), jnp.int32),
+            step_count=jnp.zeros((), jnp.int32),
+            tracker=jnp.zeros((2, 3)),
+            **drawn,
+        )
 
 
 @struct.dataclass
