@@ -269,15 +269,16 @@ def test_a_reference_is_played_once_and_never_trained(tmp_path):
 
 def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to_target_read_from_them(tmp_path):
     """``budget_s`` stops each run on its training clock (a run so stopped is done); with
-    ``evaluate.every_checkpoint`` each checkpoint is evaluated once (the newest by the final evaluation)
-    and the time to the target is the first evaluated checkpoint at the target, with its training seconds."""
+    ``evaluate.every_checkpoint`` each checkpoint is evaluated once (in one batch; the newest's is the
+    run's final evaluation) and the time to the target is the first evaluated checkpoint at the target,
+    with its training seconds."""
     from train.run import checkpoint
 
     spec = sweep.load(_write(tmp_path, budget_s=120, evaluate={"episodes": 100, "every_checkpoint": True}))
     job = sweep.plan(spec, tmp_path / "out")[0]
     assert train_config.load(spec.config, spec.overrides("a", 0)).run.max_training_s == 120
     job.run_dir.mkdir(parents=True)
-    stopped = json.dumps({"env_steps": 655_360, "interrupted": False, "stopped_by": "max_training_s"})
+    stopped = json.dumps({"env_steps": 3000, "interrupted": False, "stopped_by": "max_training_s"})
     job.train = ["-c", f"import pathlib; pathlib.Path({str(job.run_dir / 'summary.json')!r}).write_text({stopped!r})"]
     for i, seconds in enumerate((40.0, 80.0, 120.0)):  # three checkpoints at a steady clock
         path = checkpoint.checkpoint_dir(job.run_dir) / f"step_{(i + 1) * 1000:012d}"
@@ -302,8 +303,9 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
     assert [p["training_walltime_s"] for p in run["checkpoints"]] == [40.0, 80.0, 120.0]
     assert run["evaluated_time_to_target"] == {"training_s": 80.0, "env_steps": 2000, "success_rate": 0.95}
     assert "80 s, 2,000 env steps" in (tmp_path / "out" / "sweep.md").read_text()
-    newest = json.loads((job.run_dir / "sweep_checkpoints" / "step_000000003000" / "eval.json").read_text())
-    assert newest["played"] == "final"  # the final evaluation is the newest checkpoint's: not played again
+    final = json.loads((job.run_dir / "sweep_eval" / "eval.json").read_text())
+    assert final["played"] == "checkpoint" and final["step"] == 3000  # the newest's, not played again
+    assert run["evaluation"]["success_rate"] == 0.97
     job.evaluate = ["-c", "raise SystemExit(1)", "--out", "x"]  # evaluated checkpoints are not evaluated again
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
     assert len(sweep_report.write(spec, [job], tmp_path / "out")["runs"][0]["checkpoints"]) == 3

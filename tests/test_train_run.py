@@ -268,6 +268,27 @@ def test_several_checkpoints_are_evaluated_in_one_batch_as_each_alone(run_dir, t
     assert main([str(run_dir), *common, "--out", str(tmp_path), "--stochastic", "--checkpoint", *steps]) == 2
 
 
+def test_several_checkpoints_on_terrain_are_one_batch_as_each_alone(run_dir, tmp_path):
+    """On terrain too: one rollout on the same cells, tiles and goals, each checkpoint in its own block
+    (the order given changes nothing), each one's terrain_eval.json as its own evaluation writes it (the
+    policy's forward is the flat batch's, checked against single evaluations above)."""
+    from train.evaluate import main
+
+    saved = checkpoint.list_checkpoints(run_dir)
+    common = ["--episodes", "2", "--steps", "12", "--backend", "jax", "--terrain-types", "flat", "--levels", "1"]
+    for order, out in ((saved, tmp_path), (saved[::-1], tmp_path / "reversed")):
+        assert main([str(run_dir), *common, "--out", str(out), "--checkpoint", *(str(p) for p in order)]) == 0
+    rows = {p.name: json.loads((tmp_path / p.name / "terrain_eval.json").read_text())["rows"][0] for p in saved}
+    for path in saved:
+        again = json.loads((tmp_path / "reversed" / path.name / "terrain_eval.json").read_text())["rows"][0]
+        assert again == rows[path.name]  # each block plays its own checkpoint, wherever it stands
+    first, last = rows[saved[0].name], rows[saved[-1].name]
+    assert first["mean_final_distance"] != last["mean_final_distance"]  # two policies
+    header = json.loads((tmp_path / saved[-1].name / "terrain_eval.json").read_text())
+    assert header["step"] == int(saved[-1].name[-12:]) and header["episodes_per_cell"] == last["episodes"] == 2
+    assert header["checkpoint"].endswith(saved[-1].name) and header["policy"] == "deterministic"
+
+
 def test_auto_reset_draws_fresh_goals_from_curriculum():
     """The batch env resets finished envs with the parameters the curricula give; it holds no curriculum."""
     import dataclasses

@@ -125,7 +125,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         metavar="STEP_OR_DIR",
         help="a run's checkpoint to evaluate: a step it saved (e.g. 26214400) or a checkpoint directory "
         "(default: the newest readable one); several: each into --out DIR/<checkpoint folder>/, all played "
-        "in one batch on the same goals (flat, mean action: train/episodes/checkpoint_batch.py)",
+        "in one batch on the same goals and tiles (mean action: train/episodes/checkpoint_batch.py)",
     )
     parser.add_argument(
         "--video-cell",

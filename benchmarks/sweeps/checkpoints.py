@@ -53,9 +53,9 @@ def command(evaluate: list[str], path: Path, run_dir: Path) -> list[str]:
 
 
 def commands(evaluate: list[str], paths: list[Path], run_dir: Path) -> list[list[str]]:
-    """The evaluation commands for ``paths``: on flat ground one for all of them (``train.evaluate
-    --checkpoint A B ...`` plays them in one batch, each into its own folder), on terrain one each."""
-    if len(paths) < 2 or "--terrain-types" in evaluate:
+    """The evaluation commands for ``paths``: one for all of them (``train.evaluate --checkpoint A B ...``
+    plays them in one batch, each into its own folder)."""
+    if len(paths) < 2:
         return [command(evaluate, path, run_dir) for path in paths]
     args = list(evaluate)
     args[args.index("--out") + 1] = str(run_dir / FOLDER)
@@ -69,18 +69,18 @@ def write_clock(path: Path, run_dir: Path) -> None:
     (run_dir / FOLDER / path.name / "clock.json").write_text(json.dumps(clock))
 
 
-def adopt(final: Path, run_dir: Path) -> None:
-    """The run's final evaluation (``final``: of its newest checkpoint, with the same arguments) taken as
-    that checkpoint's too, so it is not played a second time (on terrain a process and an env build each)."""
-    result = read_json(final / "eval.json") or read_json(final / "terrain_eval.json")
+def as_final(run_dir: Path, final: Path) -> None:
+    """The newest checkpoint's evaluation, once written, taken as the run's final one (``final``: the
+    same arguments played on the same checkpoint) when that checkpoint is where the run ended: the run's
+    checkpoints are played in one batch and the last is not played a second time."""
     found = checkpoint.list_checkpoints(run_dir)
-    if not found or evaluated(final) is None:
+    if not found or evaluated(run_dir / FOLDER / found[-1].name) is None:
         return
-    newest = found[-1]
-    if result.get("step") is not None and int(result["step"]) != int(checkpoint.read_meta(newest)["step"]):
+    ended = read_json(run_dir / "summary.json").get("env_steps")
+    if ended is None or int(checkpoint.read_meta(found[-1])["step"]) != int(ended):
         return
-    shutil.copytree(final, run_dir / FOLDER / newest.name, dirs_exist_ok=True)
-    write_clock(newest, run_dir)
+    shutil.rmtree(final, ignore_errors=True)
+    shutil.copytree(run_dir / FOLDER / found[-1].name, final, ignore=shutil.ignore_patterns("clock.json"))
 
 
 def curve(run_dir: Path) -> list[dict[str, Any]]:

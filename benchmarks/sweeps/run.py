@@ -186,12 +186,7 @@ class Runner:
                 return
             for stale in ("sweep_eval", "sweep_grid", "export_npz"):  # of an earlier checkpoint, if any
                 shutil.rmtree(job.run_dir / stale, ignore_errors=True)
-        if job.evaluate and not sweep_report.is_current(job.run_dir / "sweep_eval", job.run_dir):
-            print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
-            if self._call(job.evaluate, device, log) != 0:
-                shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
         if job.every_checkpoint and job.evaluate:
-            checkpoints.adopt(job.run_dir / "sweep_eval", job.run_dir)
             pending = checkpoints.pending(job.run_dir)
             for args in checkpoints.commands(job.evaluate, pending, job.run_dir):
                 names = [Path(a).name for a in args[args.index("--checkpoint") + 1 :]]
@@ -200,6 +195,12 @@ class Runner:
                     for path in pending:
                         if path.name in names:
                             checkpoints.write_clock(path, job.run_dir)
+            if not sweep_report.is_current(job.run_dir / "sweep_eval", job.run_dir):
+                checkpoints.as_final(job.run_dir, job.run_dir / "sweep_eval")
+        if job.evaluate and not sweep_report.is_current(job.run_dir / "sweep_eval", job.run_dir):
+            print(f"[{device}] evaluate {job.arm} seed {job.seed}", flush=True)
+            if self._call(job.evaluate, device, log) != 0:
+                shutil.rmtree(job.run_dir / "sweep_eval", ignore_errors=True)
         if job.grid and not job.grid_result.is_file():
             print(f"[{device}] grid {job.arm} seed {job.seed}", flush=True)
             for args in job.grid:

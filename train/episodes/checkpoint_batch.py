@@ -1,11 +1,12 @@
 """Several checkpoints of one run evaluated in one rollout: ``python -m train.evaluate RUN --checkpoint A B ...``.
 
 Each checkpoint's mean action (the arrays its policy file would hold, ``train.export``) plays the same
-goals from the same keys, and all the checkpoints' episodes run as one batch: one process, one compile
-and one pass on the device for K checkpoints, where K evaluations would each pay the interpreter, the
-env's build, the compile and a rollout too small to fill a GPU. Each checkpoint's result is written as
-its own evaluation's would be, in ``OUT/<checkpoint folder>/`` (``eval.json`` and its plots). Flat
-evaluations with the mean action only: a terrain or stochastic evaluation takes one checkpoint a call.
+goals from the same keys (on terrain the same cells and tiles too), and all the checkpoints' episodes run
+as one batch: one process, one compile and one pass on the device for K checkpoints, where K evaluations
+would each pay the interpreter, the env's build, the compile and a rollout too small to fill a GPU. Each
+checkpoint's result is written as its own evaluation's would be, in ``OUT/<checkpoint folder>/``
+(``eval.json`` or ``terrain_eval.json``, and their plots). The mean action only: a stochastic evaluation
+takes one checkpoint a call.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ from hsa_mjx.sim.backend import for_one_env
 from ..learners.registry import learner_of
 from ..run import saved
 from ..run.folder import portable
-from .play import EvalSpec, checkpoint_of, episode_count, load_subject, write_result
+from . import terrain_eval
+from .play import EvalSpec, checkpoint_of, episode_count, load_subject, terrain_plan, write_result
 from .policy_sources import default_goal_range
 from .rollout import rollout
 
@@ -32,10 +34,10 @@ def check_many(spec: EvalSpec, names: list[str]) -> None:
     """A ValueError where several checkpoints cannot be evaluated in one batch (before anything loads)."""
     if spec.run_dir is None:
         raise ValueError("several --checkpoint values need a RUN_DIR (a policy directory holds one policy)")
-    if spec.stochastic or spec.workers > 1 or spec.terrain_types is not None or spec.levels is not None:
+    if spec.stochastic or spec.workers > 1 or spec.video:
         raise ValueError(
-            "several checkpoints are evaluated in one batch with the mean action on flat ground: leave out "
-            "--stochastic, --workers, --terrain-types and --levels, or give one --checkpoint a call"
+            "several checkpoints are evaluated in one batch with the mean action: leave out --stochastic, "
+            "--workers and --video, or give one --checkpoint a call"
         )
     if spec.out is None:
         raise ValueError("several checkpoints need --out DIR: each is written to DIR/<checkpoint folder>/")
@@ -75,6 +77,8 @@ def evaluate_many(spec: EvalSpec, names: list[str]) -> list[dict]:
     batch = dataclasses.replace(spec, checkpoint=str(paths[0]), episodes=episodes * len(paths))
     config, env, _, _, out = load_subject(batch)  # the env sized for the whole batch (Warp's contact buffer)
     loaded = [_arrays(run_dir, path, env.observation_size, env.action_size) for path in paths]
+    if spec.terrain_types is not None or spec.levels is not None:
+        return _by_terrain(spec, config, paths, loaded, out)
     params = jax.tree.map(lambda *xs: jnp.repeat(jnp.stack(xs), episodes, axis=0), *[a for a, _ in loaded])
     steps = spec.steps or config.env.termination.max_episode_steps
     goal_range = spec.goal_range or default_goal_range(config)
@@ -88,4 +92,27 @@ def evaluate_many(spec: EvalSpec, names: list[str]) -> list[dict]:
         if spec.overrides:
             header["env_overrides"] = dict(spec.overrides)
         results.append(write_result(spec, config, env, header, own, (goal_range, steps), out / path.name))
+    return results
+
+
+def _by_terrain(spec: EvalSpec, config, paths: list[Path], loaded: list, out: Path) -> list[dict]:
+    """The checkpoints per terrain type and difficulty, as one rollout; each one's ``terrain_eval.json``."""
+    plan, count = terrain_plan(spec, config), len(paths)
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *[a for a, _ in loaded])
+
+    def play(env, keys: jax.Array, cells: jax.Array) -> dict:
+        params = jax.tree.map(lambda x: jnp.repeat(x, keys.shape[0] // count, axis=0), stacked)
+        return rollout(env, _apply(config), keys, plan.goal_range, plan.steps, params=params, cells=cells)
+
+    rule, tiles = spec.failure_rule(), spec.tiles
+    copies = terrain_eval.evaluate(
+        plan.env_config, play, plan.types, plan.levels, plan.episodes, spec.seed, tiles, rule, copies=count
+    )
+    results = []
+    for path, (_, step), rows in zip(paths, loaded, copies):
+        header = {"checkpoint": portable(path), "step": step, **plan.header}
+        if spec.overrides:
+            header["env_overrides"] = dict(spec.overrides)
+        written = terrain_eval.write(rows, header, out / path.name)
+        results.append({**header, "rows": rows, "files": [str(p) for p in written]})
     return results

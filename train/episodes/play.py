@@ -237,9 +237,22 @@ def write_result(
     return result
 
 
-def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: Path) -> dict:
-    """``terrain_types`` / ``levels``: success and progress per terrain type and difficulty
-    (``terrain_eval.json``'s content, with the files written)."""
+@dataclasses.dataclass(frozen=True)
+class TerrainPlan:
+    """A terrain evaluation's cells and episodes as the arguments ask them (``terrain_plan``)."""
+
+    types: tuple[str, ...]
+    levels: tuple[float, ...]
+    episodes: int
+    steps: int
+    goal_range: jax.Array
+    env_config: Any  # the run's env on unseen tiles (terrain seed), for the evaluation's backend
+    header: dict  # what terrain_eval.json records of them
+
+
+def terrain_plan(args: EvalSpec, config: TrainConfig) -> TerrainPlan:
+    """The types, difficulties, episodes, steps, goals and unseen tiles of a terrain evaluation (ValueError
+    for an unknown type or a difficulty out of range)."""
     types = terrain_eval.resolve_types(args.terrain_types or "all", config.env)
     levels = terrain_eval.check_levels(args.levels or (config.env.terrain.difficulty,))
     episodes = episode_count(args, args.policy is not None)
@@ -249,9 +262,29 @@ def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: P
     terrain_seed = trained_on + TERRAIN_SEED_OFFSET if args.terrain_seed is None else args.terrain_seed
     env_config = evaluation_env_config(config.env, args.backend)
     env_config = dataclasses.replace(env_config, terrain=dataclasses.replace(env_config.terrain, seed=terrain_seed))
+    rule = args.failure_rule()
+    header = {
+        "goal_range": [float(v) for v in goal_range],
+        "max_steps": steps,
+        "policy": "stochastic" if args.stochastic else "deterministic",
+        "episodes_per_cell": episodes,
+        "terrain_seed": terrain_seed,
+        "tiles_per_cell": args.tiles,
+        "training_terrain_seed": trained_on,
+        "training_seed": config.run.seed,
+        "failure_rule": {"window_s": rule.window_s, "stuck_m": rule.stuck_m},
+    }
+    return TerrainPlan(types, levels, episodes, steps, goal_range, env_config, header)
+
+
+def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: Path) -> dict:
+    """``terrain_types`` / ``levels``: success and progress per terrain type and difficulty
+    (``terrain_eval.json``'s content, with the files written)."""
+    plan = terrain_plan(args, config)
+    types, levels = plan.types, plan.levels
 
     def play(env: HSAEnv, keys: jax.Array, cells: jax.Array) -> dict:
-        return rollout(env, policy, keys, goal_range, steps, cells=cells)
+        return rollout(env, policy, keys, plan.goal_range, plan.steps, cells=cells)
 
     rule, shown = args.failure_rule(), []
     chosen = args.video_cell or (types[0], max(levels))
@@ -264,18 +297,8 @@ def by_terrain(args: EvalSpec, config: TrainConfig, policy, header: dict, out: P
             shown.append(diagnostics.render_gif(traces, env, out / f"episode_{name}_{difficulty:g}.gif"))
 
     out.mkdir(parents=True, exist_ok=True)
-    rows = terrain_eval.evaluate(env_config, play, types, levels, episodes, args.seed, args.tiles, rule, render)
-    header = {
-        **header,
-        "goal_range": [float(v) for v in goal_range],
-        "max_steps": steps,
-        "policy": "stochastic" if args.stochastic else "deterministic",
-        "episodes_per_cell": episodes,
-        "terrain_seed": terrain_seed,
-        "tiles_per_cell": args.tiles,
-        "training_terrain_seed": trained_on,
-        "training_seed": config.run.seed,
-        "failure_rule": {"window_s": rule.window_s, "stuck_m": rule.stuck_m},
-    }
+    episodes, seed = plan.episodes, args.seed
+    rows = terrain_eval.evaluate(plan.env_config, play, types, levels, episodes, seed, args.tiles, rule, render)[0]
+    header = {**header, **plan.header}
     written = terrain_eval.write(rows, header, out) + shown
     return {**header, "rows": rows, "files": [str(p) for p in written]}

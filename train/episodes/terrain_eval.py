@@ -95,46 +95,60 @@ def evaluate(
     tiles: int = 1,
     rule: FailureRule = DEFAULT_RULE,
     on_cell: Callable[[str, float, HSAEnv, dict], None] | None = None,
-) -> list[dict[str, Any]]:
-    """One row per (type, difficulty): success rate, mean net progress (m), mean final distance, episodes,
-    and how fast the goals that were reached were reached (``success_speed_m_s``: start distance over the
-    episode's time, the mean over those episodes; ``None`` where none was; ``benchmarks.terrain.ladders`` reads it).
+    copies: int = 1,
+) -> list[list[dict[str, Any]]]:
+    """Per copy (``copies`` policies played at once), one row per (type, difficulty): success rate, mean net
+    progress (m), mean final distance, episodes, and how fast the goals that were reached were reached
+    (``success_speed_m_s``: start distance over the episode's time, the mean over those episodes; ``None``
+    where none was; ``benchmarks.terrain.ladders`` reads it).
 
     ``rollout(env, keys, cells) -> traces`` plays one episode per key on the given env and cells
-    (``train.episodes.rollout.rollout`` with the policy bound). ``tiles``: tiles per random type and
-    difficulty, the episodes of a cell spread over them by their keys. ``ended_by`` gives each termination
-    reason's share, ``time_out``'s, and the time-outs' modes (``time_out/stuck`` ...: ``rule``,
-    ``train.episodes.failures``). ``on_cell(type, difficulty, env, traces)`` is given each cell's traces
-    (its episodes alone), e.g. to render one.
+    (``train.episodes.rollout.rollout`` with the policy bound); with ``copies`` > 1 it is given ``copies``
+    x the keys and plays block c with policy c: one env, one compile, one rollout, every copy on the same
+    cells and keys. ``tiles``: tiles per random type and difficulty, the episodes of a cell spread over
+    them by their keys. ``ended_by`` gives each termination reason's share, ``time_out``'s, and the
+    time-outs' modes (``time_out/stuck`` ...: ``rule``, ``train.episodes.failures``). ``on_cell(type,
+    difficulty, env, traces)`` is given each cell's traces of the first copy, e.g. to render one.
     """
-    rows = []
+    rows: list[list[dict[str, Any]]] = [[] for _ in range(copies)]
     for group in level_groups(levels):
         # every (type, level) cell plays the same goal keys: the cells differ by their ground only
         type_of = np.tile(np.repeat(np.arange(len(types)), episodes), len(group))
         level_of = np.repeat(np.arange(len(group)), episodes * len(types))
-        keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(types) * len(group), 1))
-        cells = jnp.asarray(np.stack([type_of, level_of], axis=-1), jnp.int32)
-        env = HSAEnv(cell_config(config, types, group, tiles), num_envs=len(type_of))
+        keys = jnp.tile(jax.random.split(jax.random.PRNGKey(seed), episodes), (len(types) * len(group) * copies, 1))
+        cells = jnp.asarray(np.tile(np.stack([type_of, level_of], axis=-1), (copies, 1)), jnp.int32)
+        env = HSAEnv(cell_config(config, types, group, tiles), num_envs=len(type_of) * copies)
         traces = {k: np.asarray(v) for k, v in jax.device_get(rollout(env, keys, cells)).items()}
-        outcome, modes = episode_outcomes(traces), episode_modes(traces, env.dt, rule)
-        for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
-            mine = (type_of == i) & (level_of == level)
-            if on_cell is not None:
-                on_cell(name, difficulty, env, {k: v[mine] for k, v in traces.items()})
-            rows.append(
-                {
-                    "type": name,
-                    "difficulty": difficulty,
-                    "episodes": int(mine.sum()),
-                    "success_rate": float(outcome["success"][mine].mean()),
-                    "mean_progress_m": float(outcome["progress"][mine].mean()),
-                    "mean_final_distance": float(outcome["final_distance"][mine].mean()),
-                    "ended_by": {**ended_by(outcome["reasons"][mine]), **shares(modes[mine])},
-                    "modes": mode_shares(modes[mine]),
-                    "success_speed_m_s": _success_speed(outcome, mine, env.dt),
-                }
-            )
-    return sorted(rows, key=lambda r: (types.index(r["type"]), r["difficulty"]))
+        n = len(type_of)
+        for c in range(copies):
+            own = {k: v[c * n : (c + 1) * n] for k, v in traces.items()}
+            shown = on_cell if c == 0 else None
+            rows[c] += _rows(own, env, types, group, (type_of, level_of), rule, shown)
+    return [sorted(r, key=lambda r: (types.index(r["type"]), r["difficulty"])) for r in rows]
+
+
+def _rows(traces: dict, env: HSAEnv, types: tuple[str, ...], group: tuple[float, ...], of: tuple, rule, on_cell):
+    """The rows of one level group's episodes (``of``: each episode's type and level index)."""
+    type_of, level_of = of
+    outcome, modes, rows = episode_outcomes(traces), episode_modes(traces, env.dt, rule), []
+    for (level, difficulty), (i, name) in itertools.product(enumerate(group), enumerate(types)):
+        mine = (type_of == i) & (level_of == level)
+        if on_cell is not None:
+            on_cell(name, difficulty, env, {k: v[mine] for k, v in traces.items()})
+        rows.append(
+            {
+                "type": name,
+                "difficulty": difficulty,
+                "episodes": int(mine.sum()),
+                "success_rate": float(outcome["success"][mine].mean()),
+                "mean_progress_m": float(outcome["progress"][mine].mean()),
+                "mean_final_distance": float(outcome["final_distance"][mine].mean()),
+                "ended_by": {**ended_by(outcome["reasons"][mine]), **shares(modes[mine])},
+                "modes": mode_shares(modes[mine]),
+                "success_speed_m_s": _success_speed(outcome, mine, env.dt),
+            }
+        )
+    return rows
 
 
 def episode_outcomes(traces: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
