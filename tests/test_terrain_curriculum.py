@@ -250,6 +250,24 @@ def test_terrain_evaluation_arguments():
     assert terrain_eval.cell_config(rough, ("poles",), (1.0,), tiles=8).terrain.tiles_per_type == 8
 
 
+def test_a_terrain_evaluation_sizes_its_policy_on_one_tile():
+    """The env an evaluation per terrain cell loads its policy with is one tile of one type and level: the
+    policy's sizes, without the run's pool and distance fields (each cell's env is built for it)."""
+    from hsa_mjx.task import observation
+    from hsa_mjx.task.env import HSAEnv
+    from train.episodes import policy_sources
+
+    rough = train_config.load("configs/train_rough.yaml").env
+    small = policy_sources.sizing_env_config(rough)
+    assert (small.terrain.types, small.terrain.levels, small.terrain.tiles_per_type) == (("flat",), 1, 1)
+    assert small.terrain.reachability.goal_sites == 1 < rough.terrain.reachability.goal_sites
+    env = HSAEnv(small)
+    assert env.observation_size == observation.observation_size(rough.observation) and env.action_size == 8
+    assert len(env.world.pool.tiles) == 1
+    flat = train_config.load("configs/train_flat.yaml").env
+    assert policy_sources.sizing_env_config(flat) == flat  # a plane scene has nothing to skip
+
+
 def test_terrain_table_rows_and_means():
     from train.episodes import terrain_eval
 

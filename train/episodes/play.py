@@ -99,7 +99,8 @@ def check_spec(spec: EvalSpec) -> None:
 
 
 def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
-    """(config, env, policy fn, result header, output folder) of the run or policy the arguments name."""
+    """(config, env, policy fn, result header, output folder) of the run or policy the arguments name; for
+    an evaluation per terrain cell the env only sizes the policy (``policy_sources.sizing_env_config``)."""
     check_spec(args)
     args.failure_rule()
     if args.video_cell is not None and not (args.video and (args.terrain_types or args.levels)):
@@ -111,6 +112,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
     if not 1 <= args.tiles <= 256:
         raise ValueError(f"--tiles must be between 1 and 256, got {args.tiles}")
     check_workers(args)
+    by_cell = args.terrain_types is not None or args.levels is not None  # its env per cell: this one sizes it
     if args.policy is not None:
         if args.checkpoint is not None:
             raise ValueError("--checkpoint picks one of a RUN_DIR's checkpoints: a policy directory holds one policy")
@@ -118,7 +120,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
             raise ValueError("--stochastic needs a RUN_DIR: a policy directory holds only the deterministic policy")
         directory = policy_file.locate(args.policy)
         config, env, policy, shipped = load_shipped_policy(
-            directory, args.backend, episode_count(args, True), args.override_items()
+            directory, args.backend, episode_count(args, True), args.override_items(), by_cell
         )
         out = Path(args.out) if args.out else Path("runs") / f"eval_{directory.resolve().name}"
         header = {
@@ -135,6 +137,7 @@ def load_subject(args: EvalSpec) -> tuple[TrainConfig, HSAEnv, Any, dict, Path]:
         backend=args.backend,
         num_envs=episode_count(args, False),
         overrides=args.override_items(),
+        sizes_only=by_cell,
     )
     header = {
         "checkpoint": portable(path),

@@ -34,6 +34,27 @@ def evaluation_env_config(config: EnvConfig, backend: str | None = None) -> EnvC
     return dataclasses.replace(config, goal=dataclasses.replace(config.goal, track_starts=0), physics=physics)
 
 
+def sizing_env_config(config: EnvConfig) -> EnvConfig:
+    """``config`` on one tile of its first terrain type at one level (at most one goal site): the same
+    observation and action sizes, for an evaluation that builds its own env per cell (per terrain type and
+    difficulty) and needs this one for the policy's sizes only. Its build skips the run's tile pool and its
+    goal sites' distance fields: 3 s against 29 s for the rough task on a CPU. A plane scene is kept."""
+    if config.scene != "terrain":
+        return config
+    terrain = config.terrain
+    reach = dataclasses.replace(terrain.reachability, goal_sites=min(terrain.reachability.goal_sites, 1))
+    one = dataclasses.replace(
+        terrain, types=terrain.types[:1], proportions=(1.0,), levels=1, tiles_per_type=1, reachability=reach
+    )
+    return dataclasses.replace(config, terrain=one)
+
+
+def _evaluation_env(config: EnvConfig, backend: str | None, num_envs: int, sizes_only: bool) -> HSAEnv:
+    """The env a policy is evaluated on (``evaluation_env_config``), or with ``sizes_only`` its sizing env."""
+    config = evaluation_env_config(config, backend)
+    return HSAEnv(sizing_env_config(config) if sizes_only else config, num_envs=num_envs)
+
+
 def load_policy(
     run_dir: Path,
     checkpoint_path: Path | None = None,
@@ -41,12 +62,14 @@ def load_policy(
     backend: str | None = None,
     num_envs: int = 1,
     overrides: tuple[str, ...] = (),
+    sizes_only: bool = False,
 ):
     """(config, env, policy fn, checkpoint path, step) of a run: the mean action, or sampled as in training;
     ``backend`` replaces the run's physics backend, ``num_envs`` sizes Warp's shared contact buffer,
-    ``overrides`` (``env.KEY=VALUE``, ``env_overrides``) change the env it is evaluated on."""
+    ``overrides`` (``env.KEY=VALUE``, ``env_overrides``) change the env it is evaluated on; ``sizes_only``:
+    the env is ``sizing_env_config``'s (an evaluation per terrain cell builds its own)."""
     config, path, step = saved.open_run(run_dir, checkpoint_path, lambda data: env_overrides(data, overrides))
-    env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
+    env = _evaluation_env(config.env, backend, num_envs, sizes_only)
     networks, ts = saved.load_training_state(config, path, env.observation_size, env.action_size)
     policy = learner_of(config).inference_fn(networks, ts, deterministic)
     return config, env, policy, path, step
@@ -97,10 +120,15 @@ def shipped_policy_apply(policy: policy_file.NumpyPolicy):
 
 
 def load_shipped_policy(
-    directory: Path, backend: str | None = None, num_envs: int = 1, overrides: tuple[str, ...] = ()
+    directory: Path,
+    backend: str | None = None,
+    num_envs: int = 1,
+    overrides: tuple[str, ...] = (),
+    sizes_only: bool = False,
 ):
     """(config, env, policy fn, policy) of a policy directory: the env rebuilt from its policy.json (on
-    ``backend`` when given, with ``env.KEY=VALUE`` ``overrides``), the network from its policy.npz."""
+    ``backend`` when given, with ``env.KEY=VALUE`` ``overrides``; ``sizes_only`` as ``load_policy``), the
+    network from its policy.npz."""
     check_env_overrides(overrides)
     policy = policy_file.load_policy(directory)
     try:
@@ -111,7 +139,7 @@ def load_shipped_policy(
         ) from err
     if overrides:
         config = from_dict(env_overrides(to_dict(config), overrides))
-    env = HSAEnv(evaluation_env_config(config.env, backend), num_envs=num_envs)
+    env = _evaluation_env(config.env, backend, num_envs, sizes_only)
     if (env.observation_size, env.action_size) != (policy.observation_size, policy.action_size):
         raise ValueError(
             f"policy {directory} maps {policy.observation_size} observations to {policy.action_size} "
