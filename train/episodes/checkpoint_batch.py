@@ -34,10 +34,11 @@ def check_many(spec: EvalSpec, names: list[str]) -> None:
     """A ValueError where several checkpoints cannot be evaluated in one batch (before anything loads)."""
     if spec.run_dir is None:
         raise ValueError("several --checkpoint values need a RUN_DIR (a policy directory holds one policy)")
-    if spec.stochastic or spec.workers > 1 or spec.video:
+    terrain = spec.terrain_types is not None or spec.levels is not None
+    if spec.stochastic or spec.workers > 1 or (spec.video and terrain):
         raise ValueError(
-            "several checkpoints are evaluated in one batch with the mean action: leave out --stochastic, "
-            "--workers and --video, or give one --checkpoint a call"
+            "several checkpoints are evaluated in one batch with the mean action (on terrain without a video): "
+            "leave out --stochastic, --workers (and --video with --terrain-types), or give one --checkpoint a call"
         )
     if spec.out is None:
         raise ValueError("several checkpoints need --out DIR: each is written to DIR/<checkpoint folder>/")
