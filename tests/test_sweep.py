@@ -302,13 +302,19 @@ def test_equal_wall_clock_runs_are_evaluated_at_every_checkpoint_and_the_time_to
     run = report["runs"][0]
     assert [p["training_walltime_s"] for p in run["checkpoints"]] == [40.0, 80.0, 120.0]
     assert run["evaluated_time_to_target"] == {"training_s": 80.0, "env_steps": 2000, "success_rate": 0.95}
-    assert "80 s, 2,000 env steps" in (tmp_path / "out" / "sweep.md").read_text()
+    text = (tmp_path / "out" / "sweep.md").read_text()
+    assert "80 s, 2,000 env steps" in text and "resumed from its newest checkpoint" not in text  # one call
     final = json.loads((job.run_dir / "sweep_eval" / "eval.json").read_text())
     assert final["played"] == "checkpoint" and final["step"] == 3000  # the newest's, not played again
     assert run["evaluation"]["success_rate"] == 0.97
     job.evaluate = ["-c", "raise SystemExit(1)", "--out", "x"]  # evaluated checkpoints are not evaluated again
     sweep.Runner([None], deadline=None).run([job], spec.env_steps)
     assert len(sweep_report.write(spec, [job], tmp_path / "out")["runs"][0]["checkpoints"]) == 3
+    resumed = {"calls": 2, "startup": {"first_update_since_launch_s": 30.0, "cold_caches": False}}
+    (job.run_dir / "summary.json").write_text(json.dumps({**json.loads(stopped), **resumed}))
+    sweep_report.write(spec, [job], tmp_path / "out")
+    text = (tmp_path / "out" / "sweep.md").read_text()
+    assert "30 s, warm caches, the last of 2 calls" in text and "resumed from its newest checkpoint" in text
 
 
 def test_runs_sharing_a_gpu_share_its_memory(monkeypatch):

@@ -80,9 +80,11 @@ def test_resume_continues_step_and_curriculum(run_dir):
     from train.trainer import train
 
     before = records(run_dir)[-1]
-    clock = checkpoint.read_meta(checkpoint.latest(run_dir))["training_walltime_s"]
+    meta = checkpoint.read_meta(checkpoint.latest(run_dir))
+    clock = meta["training_walltime_s"]
     summary = train(tiny(num_timesteps=160), run_dir, resume=True, quiet=True)  # envs restart on resume
     assert summary["env_steps"] == 160
+    assert (meta["calls"], summary["calls"]) == (1, 2)  # training calls: the fresh one, then this resume
     assert summary["checkpoint"] == "checkpoints/step_000000000160"  # within the run dir, no absolute path
     after = records(run_dir)[-1]
     assert after["step"] == 160

@@ -127,6 +127,7 @@ def train(
         "collection": strategy.name,  # run.collection with auto resolved
         "devices": len(devices) * jax.process_count(),
         "processes": jax.process_count(),
+        "calls": int(meta.get("calls", 1)) + 1 if meta is not None else 1,  # this one and those it resumed
     }
     before = float(meta.get("training_walltime_s", 0.0)) if meta is not None else 0.0
     run = Run(config, run_dir, strategy, quiet, extra, startup, before)

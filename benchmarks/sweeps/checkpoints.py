@@ -20,6 +20,10 @@ from benchmarks.sweeps.grid import read_json
 from train.run import checkpoint
 
 FOLDER = "sweep_checkpoints"
+RESUMED = (
+    "A run of several calls resumed from its newest checkpoint at each: its training clock adds up the calls' "
+    "training; an off-policy learner's replay buffer starts empty at each resume and is refilled on that clock."
+)
 
 
 def evaluated(folder: Path) -> dict[str, Any] | None:
@@ -116,13 +120,18 @@ def markdown(report: dict[str, Any]) -> list[str]:
         reached = f"{hit['training_s']:.0f} s, {hit['env_steps']:,} env steps" if hit else f"not by {last:.0f} s"
         clock = [(p["success_rate"], p["training_walltime_s"] or 0.0) for p in r["checkpoints"]]
         points = ", ".join(f"{rate:.0%} at {seconds:.0f} s" for rate, seconds in clock)
-        lines.append(f"| {r['arm']} seed {r['seed']} | {reached} | {points} | {_startup(r.get('startup'))} |")
+        start = _startup(r.get("startup"), r.get("calls"))
+        lines.append(f"| {r['arm']} seed {r['seed']} | {reached} | {points} | {start} |")
+    if any((r.get("calls") or 1) > 1 for r in runs):
+        lines += ["", RESUMED]
     return lines
 
 
-def _startup(startup: dict[str, Any] | None) -> str:
-    """The run's (last call's) time from launch to its first update and whether its caches were cold."""
+def _startup(startup: dict[str, Any] | None, calls: int | None = None) -> str:
+    """The run's (last call's) time from launch to its first update, whether its caches were cold, and the
+    number of calls where it was resumed."""
     if not startup or startup.get("first_update_since_launch_s") is None:
         return "-"
     caches = "cold caches" if startup.get("cold_caches") else "warm caches"
-    return f"{startup['first_update_since_launch_s']:.0f} s, {caches}"
+    resumed = f", the last of {calls} calls" if calls and calls > 1 else ""
+    return f"{startup['first_update_since_launch_s']:.0f} s, {caches}{resumed}"

@@ -119,6 +119,7 @@ def collect(sweep: Any, jobs: list) -> dict[str, Any]:
                 "wall_s": summary.get("wall_s"),
                 "physics_backend": summary.get("physics_backend"),
                 "startup": summary.get("startup"),  # the last call's start-up parts (train/run/startup.py)
+                "calls": summary.get("calls"),  # training calls: more than one when resumed from a checkpoint
                 "learning": learning(job.run_dir, sweep.target_success),
                 "evaluation": evaluation(job.run_dir),
                 "checkpoints": curve,
