@@ -124,10 +124,18 @@ def evaluate(
             own = {k: v[c * n : (c + 1) * n] for k, v in traces.items()}
             shown = on_cell if c == 0 else None
             rows[c] += _rows(own, env, types, group, (type_of, level_of), rule, shown)
-    return [sorted(r, key=lambda r: (types.index(r["type"]), r["difficulty"])) for r in rows]
+    return [sorted(own, key=lambda row: (types.index(row["type"]), row["difficulty"])) for own in rows]
 
 
-def _rows(traces: dict, env: HSAEnv, types: tuple[str, ...], group: tuple[float, ...], of: tuple, rule, on_cell):
+def _rows(
+    traces: dict[str, np.ndarray],
+    env: HSAEnv,
+    types: tuple[str, ...],
+    group: tuple[float, ...],
+    of: tuple[np.ndarray, np.ndarray],
+    rule: FailureRule,
+    on_cell: Callable[[str, float, HSAEnv, dict], None] | None,
+) -> list[dict[str, Any]]:
     """The rows of one level group's episodes (``of``: each episode's type and level index)."""
     type_of, level_of = of
     outcome, modes, rows = episode_outcomes(traces), episode_modes(traces, env.dt, rule), []
