@@ -65,7 +65,7 @@ def test_every_arm_and_seed_is_one_run_at_equal_steps_then_one_evaluation(tmp_pa
         ev = job.evaluate
         assert ev[ev.index("--terrain-seed") + 1] == "1000" and ev[ev.index("--tiles") + 1] == "8"
         assert str(job.run_dir) in ev and "--stochastic" not in ev  # the mean action
-    assert [(j.arm, j.seed) for j in sweep.select(jobs, "b:1, a:0")] == [("a", 0), ("b", 1)]  # --only
+    assert [(j.arm, j.seed) for j in sweep.select(jobs, "b:1, a:0, b:1")] == [("b", 1), ("a", 0)]  # --only, as named
     with pytest.raises(ValueError, match="no run c:0 in this sweep; valid: a:0, b:0, a:1, b:1"):
         sweep.select(jobs, "a:0,c:0")
     # an arm with a config of its own trains from it, with its overrides

@@ -123,8 +123,9 @@ def plan(sweep: Sweep, out: Path) -> list[Job]:
 
 
 def select(jobs: list[Job], only: str | None) -> list[Job]:
-    """The jobs named by ``--only`` (``ARM:SEED`` items, comma-separated), in plan order; all without it.
-    A sweep split over calls or hosts trains a part at a time, and its report covers every run present."""
+    """The jobs named by ``--only`` (``ARM:SEED`` items, comma-separated) in the order named, which is the
+    order the GPUs take them; all, in plan order, without it. A sweep split over calls or hosts trains a part
+    at a time, and its report covers every run present."""
     if not only:
         return jobs
     known = {f"{j.arm}:{j.seed}": j for j in jobs}
@@ -132,7 +133,7 @@ def select(jobs: list[Job], only: str | None) -> list[Job]:
     unknown = [w for w in wanted if w not in known]
     if unknown:
         raise ValueError(f"--only: no run {', '.join(unknown)} in this sweep; valid: {', '.join(known)}")
-    return [j for name, j in known.items() if name in wanted]
+    return [known[name] for name in dict.fromkeys(wanted)]
 
 
 def trained(job: Job, env_steps: int) -> bool:
