@@ -118,6 +118,21 @@ def test_state_crosses_to_c_mujoco_and_back_in_one_vector_unchanged():
     np.testing.assert_array_equal(host.data.mocap_pos, np.asarray(data.mocap_pos))
 
 
+def test_model_fields_reach_the_c_model_whatever_order_their_dict_has():
+    """The fields' layout and vector follow their names, so a layout taken from a dict that went through
+    a pytree (keys sorted, as the Gymnasium env's halves get it) still writes each into its own field."""
+    env = hsa_mjx.make_env("flat", physics__backend="jax")
+    host = HostPhysics(env.robot.mj_model, env.index)
+    data = jax.jit(env.reset)(jax.random.PRNGKey(1)).pipeline_state.physics
+    model = env.robot.mj_model
+    fields = {"body_mass": model.body_mass * 1.3, "body_inertia": model.body_inertia * 0.7}  # unsorted
+    targets = jnp.zeros((env.config.control.frame_skip, 8))
+    layout = host.layout(targets, jax.eval_shape(lambda f: f, fields))
+    host.run(True, layout, np.asarray(host.inputs(data, targets, fields)))
+    np.testing.assert_allclose(host.model.body_mass, model.body_mass * 1.3, rtol=1e-6)
+    np.testing.assert_allclose(host.model.body_inertia, model.body_inertia * 0.7, rtol=1e-6)
+
+
 def test_a_diverging_c_state_terminates_as_non_finite():
     env = hsa_mjx.make_env("flat", physics__backend="jax")
     host = jax.jit(functools.partial(env.step_with, HostPhysics(env.robot.mj_model, env.index)))

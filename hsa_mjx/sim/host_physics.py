@@ -129,14 +129,15 @@ class HostPhysics:
     @staticmethod
     def layout(targets: Any, fields: dict[str, Any]) -> Layout:
         """The static layout of :meth:`inputs` beyond the state, from shapes alone (arrays, tracers or
-        ``jax.ShapeDtypeStruct``)."""
-        return Layout(tuple(targets.shape), tuple((name, tuple(value.shape)) for name, value in fields.items()))
+        ``jax.ShapeDtypeStruct``). The fields lie in the order of their names, as in :meth:`inputs`: a dict
+        that went through a pytree (``jax.eval_shape``, ``jit``) comes back with its keys sorted."""
+        return Layout(tuple(targets.shape), tuple((name, tuple(fields[name].shape)) for name in sorted(fields)))
 
     @staticmethod
     def inputs(data: mjx.Data, targets: jax.Array, fields: dict[str, jax.Array]) -> jax.Array:
         """What the substeps read as one float32 vector (traceable): the state fields ``STATE_IN`` in C
-        MuJoCo's state order, the targets, the model fields (:meth:`layout`)."""
-        parts = [getattr(data, name) for name in STATE_IN] + [targets, *fields.values()]
+        MuJoCo's state order, the targets, the model fields in the order of their names (:meth:`layout`)."""
+        parts = [getattr(data, name) for name in STATE_IN] + [targets] + [fields[name] for name in sorted(fields)]
         return jnp.concatenate([_flat(part) for part in parts])
 
     def output_shape(self) -> jax.ShapeDtypeStruct:
