@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from benchmarks.terrain.fields import neighbours_at_once
 from hsa_mjx.terrain import traversability as tv
 from hsa_mjx.terrain.grid import Grid, to_hfield_data
 
@@ -66,3 +67,17 @@ def test_the_map_samples_a_tiles_surface_and_finds_its_cells():
     assert tuple(np.asarray(tv.cell_of(jnp.array([0.0, -5.0]), grid, 0.1))) == (0, 50)
     with pytest.raises(ValueError, match="max_step' must be > 0"):
         tv.Limits(max_step=0.0, max_slope=0.3, half_width=0.14)
+
+
+def test_the_sweeps_reach_the_plain_relaxations_fixed_point_bit_for_bit():
+    """``relax``'s sweeps against every cell relaxed from its 8 neighbours at once, to convergence, on a
+    maze of random blocked cells (the distance field) and on continuing it into the blocked cells."""
+    free = jnp.asarray(np.random.default_rng(0).random((41, 41)) > 0.3).at[20, 20].set(True)
+    start = jnp.where(free, jnp.full(free.shape, jnp.inf).at[20, 20].set(0.0), jnp.inf)
+    field = tv.path_distances(free, (20, 20), RES)
+    np.testing.assert_array_equal(np.asarray(field), np.asarray(neighbours_at_once(start, free, RES)))
+    assert np.isfinite(field).sum() > 0.5 * free.sum()  # the maze leaves most free cells connected
+    holes = ~jnp.isfinite(field)
+    continued = np.asarray(tv.relax(field, holes, RES))
+    np.testing.assert_array_equal(continued, np.asarray(neighbours_at_once(field, holes, RES)))
+    assert np.isfinite(continued).all()

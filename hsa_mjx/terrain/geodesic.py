@@ -59,19 +59,7 @@ class GoalSites:
 def extend(distances: jax.Array, resolution: float) -> jax.Array:
     """``distances`` with every ``inf`` cell given the shortest 8-connected continuation from a finite one
     (finite cells keep their value), (n, n)."""
-    fixed = jnp.isfinite(distances)
-    costs = [resolution * float(np.hypot(dr, dc)) for dr, dc in tv.NEIGHBOURS]
-
-    def relax(state):
-        d, _ = state
-        best = d
-        for (dr, dc), cost in zip(tv.NEIGHBOURS, costs):
-            best = jnp.minimum(best, tv.shifted(d, dr, dc, jnp.inf) + cost)
-        best = jnp.where(fixed, d, best)
-        return best, jnp.any(best < d)
-
-    out, _ = jax.lax.while_loop(lambda s: s[1], relax, (distances, jnp.asarray(jnp.any(fixed))))
-    return out
+    return tv.relax(distances, ~jnp.isfinite(distances), resolution)
 
 
 def site_field(free: jax.Array, site: jax.Array, resolution: float) -> jax.Array:

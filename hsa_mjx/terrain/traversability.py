@@ -8,7 +8,7 @@ heightfield draws a step as a rise over one vertex spacing), and **steep ground*
 climb as a long slope). Walls are grown by the robot's half-width, so a gap narrower than the robot
 closes and the robot's centre may use every free cell; steep ground is not (its span already holds the
 robot). :func:`path_distances` is the length of the shortest 8-connected path over free cells from every
-cell to a target (a geodesic distance field, computed by relaxation on the device); cells it cannot reach
+cell to a target (a geodesic distance field, computed by relaxation sweeps on the device); cells it cannot reach
 are ``inf``. The same functions serve the goal sampler (``hsa_mjx.terrain.reachability``), the atlas and
 the tests. :data:`ROBOT` holds this robot's limits as ``python -m benchmarks.terrain.capability`` measured them
 (``docs/terrain.md``).
@@ -140,19 +140,54 @@ def path_distances(free: jax.Array, target: tuple[int, int] | jax.Array, resolut
     (row, col), (n, n) float32; ``inf`` where no path leads (or the target is not free)."""
     target = jnp.asarray(target, jnp.int32)
     start = jnp.full(free.shape, jnp.inf, jnp.float32).at[target[0], target[1]].set(0.0)
-    start = jnp.where(free, start, jnp.inf)
-    costs = [resolution * float(np.hypot(dr, dc)) for dr, dc in NEIGHBOURS]
+    return relax(jnp.where(free, start, jnp.inf), free, resolution)
 
-    def relax(state):
+
+def relax(distances: jax.Array, update: jax.Array, resolution: float) -> jax.Array:
+    """The fixed point of ``d = min(d, d[neighbour] + step)`` over the 8 neighbours (step: ``resolution``,
+    or its diagonal), each ``update`` cell taking it and the others keeping their value, (n, n).
+
+    Why sweeps: four Gauss-Seidel sweeps (down, up, right, left; each cell from the three cells of the row
+    before it, already swept) carry a distance along a whole straight or diagonal run in one pass, so it
+    converges in a few passes where a Jacobi step (every cell from its neighbours at once) takes one pass
+    per cell of the longest path. Each distance is still a sum of steps in path order and every cell ends
+    at the minimum over its neighbours, so the field is the same, bit for bit, as the Jacobi iteration's."""
+    update = jnp.asarray(update, bool)
+
+    def passes(state: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         d, _ = state
-        best = d
-        for (dr, dc), cost in zip(NEIGHBOURS, costs):
-            best = jnp.minimum(best, shifted(d, dr, dc, jnp.inf) + cost)
-        best = jnp.where(free, best, jnp.inf)
-        return best, jnp.any(best < d)
+        new = d
+        for transposed in (False, True):
+            for reverse in (False, True):
+                new = _sweep(new, update, resolution, transposed, reverse)
+        return new, jnp.any(new < d)
 
-    distances, _ = jax.lax.while_loop(lambda s: s[1], relax, (start, jnp.asarray(True)))
-    return distances
+    out, _ = jax.lax.while_loop(lambda s: s[1], passes, (distances, jnp.asarray(True)))
+    return out
+
+
+def _sweep(d: jax.Array, update: jax.Array, resolution: float, transposed: bool, reverse: bool) -> jax.Array:
+    """One Gauss-Seidel pass of :func:`relax` over the rows (``transposed``: the columns), in order or
+    ``reverse``d: each row from the row before it in the pass, already updated."""
+    straight, diagonal = (resolution * float(np.hypot(1, k)) for k in (0, 1))
+    if transposed:
+        d, update = d.T, update.T
+
+    def row(before: jax.Array, current: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        values, ok = current
+        side = jnp.minimum(_moved(before, 1), _moved(before, -1))
+        best = jnp.minimum(jnp.minimum(values, before + straight), side + diagonal)
+        best = jnp.where(ok, best, values)
+        return best, best
+
+    _, out = jax.lax.scan(row, jnp.full(d.shape[1:], jnp.inf, d.dtype), (d, update), reverse=reverse)
+    return out.T if transposed else out
+
+
+def _moved(v: jax.Array, k: int) -> jax.Array:
+    """``v`` moved so that out[i] = v[i + k] (k = +-1), ``inf`` outside."""
+    fill = jnp.full((1,), jnp.inf, v.dtype)
+    return jnp.concatenate([v[1:], fill]) if k > 0 else jnp.concatenate([fill, v[:-1]])
 
 
 def cell_of(xy: jax.Array, grid: Grid, resolution: float) -> jax.Array:
