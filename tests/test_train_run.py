@@ -93,13 +93,16 @@ def test_resume_continues_step_and_curriculum(run_dir):
     assert checkpoint.read_meta(checkpoint.latest(run_dir))["training_walltime_s"] > clock > 0.0  # the clock goes on
 
 
-def test_a_checkpoint_is_due_by_env_steps_or_by_the_clock_where_set():
-    from train.trainer import checkpoint_due
+def test_a_checkpoint_is_due_by_env_steps_or_by_the_runs_clock_where_set():
+    from train.trainer import checkpoint_due, next_checkpoint_s
 
     steps = tiny().run  # a checkpoint every 40 env steps
     clock = dataclasses.replace(steps, checkpoint_every_s=30.0)
-    assert checkpoint_due(40, 0.0, steps) and not checkpoint_due(39, 1e6, steps)  # the clock off by default
-    assert checkpoint_due(1, 30.0, clock) and not checkpoint_due(39, 29.9, clock)
+    off = next_checkpoint_s(0.0, steps)
+    assert checkpoint_due(40, 0.0, off, steps) and not checkpoint_due(39, 1e6, off, steps)  # the clock off by default
+    assert next_checkpoint_s(0.0, clock) == 30.0 and next_checkpoint_s(31.5, clock) == 60.0
+    assert next_checkpoint_s(1164.4, clock) == 1170.0  # a resumed call keeps the run's schedule
+    assert checkpoint_due(1, 30.0, 30.0, clock) and not checkpoint_due(39, 29.9, 30.0, clock)
     with pytest.raises(ValueError, match="checkpoint_every_s"):
         train_config.from_dict({"run": {"checkpoint_every_s": -1.0}})
 

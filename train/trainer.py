@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import time
 from pathlib import Path
@@ -222,7 +223,7 @@ def run_epochs(
     bar = ProgressBar(final_step(step, config.run.num_timesteps, steps_per_epoch), start=step)
     t_start = time.perf_counter() if started is None else started
     last_ckpt, epoch, latest = step, 0, {}  # latest: each headline key's last value
-    last_ckpt_t = t_start
+    next_ckpt_s = next_checkpoint_s(run.walltime_before, config.run)  # on the run's clock, across calls
     first_epoch_s, stopped, totals, budget_spent = None, False, {}, False
     with StopFlag() as stop:
         while step < config.run.num_timesteps and not (stopped := distributed.any_process(stop.raised)):
@@ -245,13 +246,13 @@ def run_epochs(
                 totals = {}
                 if main and not run.quiet:
                     bar.update(step, {k: record[k] for k in HEADLINE if k in record})
-            now = time.perf_counter()
-            due = checkpoint_due(step - last_ckpt, now - last_ckpt_t, config.run)
+            elapsed = time.perf_counter() - t_start
+            due = checkpoint_due(step - last_ckpt, run.walltime_before + elapsed, next_ckpt_s, config.run)
             if config.run.checkpoint_every_s > 0:  # processes' clocks differ: due on any, due on all (it gathers)
                 due = distributed.any_process(due)
             if due:
-                _save(run, step, ts, state, key, now - t_start)
-                last_ckpt, last_ckpt_t = step, now
+                _save(run, step, ts, state, key, elapsed)
+                last_ckpt, next_ckpt_s = step, next_checkpoint_s(run.walltime_before + elapsed, config.run)
         if step != last_ckpt or not checkpoint.list_checkpoints(run.run_dir):
             _save(run, step, ts, state, key, time.perf_counter() - t_start)
     bar.close()
@@ -270,10 +271,18 @@ def out_of_time(run: Run, seconds: float) -> bool:
     return limit > 0 and distributed.any_process(run.walltime_before + seconds >= limit)
 
 
-def checkpoint_due(steps: int, seconds: float, run: Any) -> bool:
-    """Whether a checkpoint is due ``steps`` env steps and ``seconds`` of training after the last:
-    every ``run.checkpoint_every`` env steps, and every ``run.checkpoint_every_s`` seconds where set."""
-    return steps >= run.checkpoint_every or 0.0 < run.checkpoint_every_s <= seconds
+def next_checkpoint_s(clock: float, run: Any) -> float:
+    """The training clock of the next timed checkpoint after ``clock``: the next multiple of
+    ``run.checkpoint_every_s`` (``inf`` where unset). Why multiples of the run's clock: a run resumed over
+    several calls keeps one schedule (600, 1200, 1800 s), whatever time each call started at."""
+    every = run.checkpoint_every_s
+    return (math.floor(clock / every) + 1) * every if every > 0 else math.inf
+
+
+def checkpoint_due(steps: int, clock: float, due_s: float, run: Any) -> bool:
+    """Whether a checkpoint is due ``steps`` env steps after the last, at training clock ``clock``: every
+    ``run.checkpoint_every`` env steps, and once the clock reaches ``due_s`` (:func:`next_checkpoint_s`)."""
+    return steps >= run.checkpoint_every or clock >= due_s
 
 
 def _finish(run_dir: Path, summary: dict, learner: str) -> dict:
